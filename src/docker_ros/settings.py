@@ -1,0 +1,480 @@
+"""The one typed settings object: every docker-ros variable declared once, loaded by a pure function."""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple, Union
+
+SLIM_BUILD_ARGS_DEFAULT = (
+    "--sensor-ipc-mode proxy --continue-after=10 --show-clogs --http-probe=false"
+    " --include-path /opt/ros --include-path /docker-ros/ws/install"
+)
+TRUE_WORDS = ("true", "1", "yes")
+FALSE_WORDS = ("false", "0", "no")
+TARGETS = ("dev", "run")
+PLATFORMS = ("amd64", "arm64")
+
+# Where a value came from, lowest to highest precedence.
+SOURCES = ("default", "invoke.yaml", ".env", "environment", "flag")
+
+Value = Union[str, bool, Tuple[str, ...], None]
+
+
+class SettingsError(ValueError):
+    """One or more configuration values are invalid or missing (message lists all of them)."""
+
+
+def setting(
+    default: Value,
+    help: str,
+    *,
+    secret: bool = False,
+    choices: Tuple[str, ...] = (),
+    default_doc: str = "",
+    group: str = "docker-ros",
+) -> Any:
+    """Declare one configuration variable: its env name is the field name upper-cased."""
+    meta = {
+        "help": help,
+        "secret": secret,
+        "choices": choices,
+        "default_doc": default_doc,
+        "group": group,
+    }
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Every configuration variable of docker-ros (same names, same defaults) plus ours."""
+
+    additional_debs_file: str = setting(
+        "docker/additional-debs.txt",
+        "Relative filepath to file containing additional apt deb packages to install",
+    )
+    additional_files_dir: str = setting(
+        "docker/additional-files",
+        "Relative path to directory containing additional files to copy into image",
+    )
+    additional_pip_file: str = setting(
+        "docker/additional-pip-requirements.txt",
+        "Relative filepath to file containing additional pip packages to install",
+    )
+    after_dependency_installation_script: str = setting(
+        "docker/custom.sh",
+        "Relative filepath to script containing commands to run after dependency installation",
+    )
+    base_image: Optional[str] = setting(
+        None, "Base image `name:tag`", default_doc="*required*"
+    )
+    before_dependency_identification_script: str = setting(
+        "docker/before_dependency_identification.sh",
+        "Relative filepath to script containing commands to run before dependency identification",
+    )
+    before_dependency_installation_script: str = setting(
+        "docker/before_dependency_installation.sh",
+        "Relative filepath to script containing commands to run before dependency installation",
+    )
+    blacklisted_packages_file: str = setting(
+        "docker/blacklisted-packages.txt",
+        "Relative filepath to file containing blacklisted packages",
+    )
+    build_context: str = setting(".", "Build context of Docker build process (the ROS repository)")
+    buildx_attestations: bool = setting(
+        False, "Value passed to `docker buildx build --provenance` and `--sbom`"
+    )
+    command: Optional[str] = setting(
+        None, "Launch command of run image", default_doc="*required if `run` is a target*"
+    )
+    cmake_args: str = setting(
+        "-DCMAKE_BUILD_TYPE=Release", "CMake arguments to pass to `colcon build`"
+    )
+    dev_image_name: Optional[str] = setting(
+        None, "Image name of dev image", default_doc="`<IMAGE_NAME>`"
+    )
+    dev_image_tag: Optional[str] = setting(
+        None, "Image tag of dev image", default_doc="`<IMAGE_TAG>-dev`"
+    )
+    disable_ros_installation: bool = setting(
+        False, "Disable automatic installation of `ros-$ROS_DISTRO-ros-core` package"
+    )
+    docker_ros_git_ref: str = setting("main", "Git ref of docker-ros to run in CI", group="ci")
+    enable_checkout: bool = setting(
+        True, "Enable checkout action to (re-)download the repository first", group="ci"
+    )
+    enable_checkout_submodules: str = setting(
+        "recursive",
+        "Enable submodules for the checkout action",
+        choices=("false", "true", "recursive"),
+        group="ci",
+    )
+    enable_checkout_lfs: bool = setting(
+        True, "Enable Git LFS support for the checkout action", group="ci"
+    )
+    enable_industrial_ci: bool = setting(
+        False, "Enable tests (`colcon test` in the dev image; replaces industrial_ci)"
+    )
+    enable_push_as_latest: bool = setting(
+        False, "Push images with tag `latest`/`latest-dev` in addition to the configured names"
+    )
+    enable_singlearch_push: bool = setting(
+        False, "Enable push of single arch images with `-amd64`/`-arm64` postfix"
+    )
+    enable_recursive_additional_debs: bool = setting(
+        False, "Enable recursive discovery of files named `additional-debs-file`"
+    )
+    enable_recursive_additional_pip: bool = setting(
+        False, "Enable recursive discovery of files named `additional-pip-file`"
+    )
+    enable_recursive_after_dependency_installation_script: bool = setting(
+        False, "Enable recursive discovery of files named `after-dependency-installation-script`"
+    )
+    enable_recursive_before_dependency_installation_script: bool = setting(
+        False, "Enable recursive discovery of files named `before-dependency-installation-script`"
+    )
+    enable_recursive_blacklisted_packages: bool = setting(
+        False, "Enable recursive discovery of files named `blacklisted-packages-file`"
+    )
+    enable_recursive_vcs_import: bool = setting(
+        True, "Enable recursive discovery of files named `*.repos`"
+    )
+    enable_slim: bool = setting(
+        True, "Enable an extra slimmed run image (only if `run` stage is targeted)"
+    )
+    git_https_password: Optional[str] = setting(
+        None, "Password for cloning private Git repositories via HTTPS", secret=True
+    )
+    git_https_server: Optional[str] = setting(
+        None, "Server URL (without protocol) for cloning private Git repositories via HTTPS"
+    )
+    git_https_user: Optional[str] = setting(
+        None, "Username for cloning private Git repositories via HTTPS"
+    )
+    git_ssh_known_host_keys: Optional[str] = setting(
+        None, "Known SSH host keys for cloning private Git repositories via SSH"
+    )
+    git_ssh_private_key: Optional[str] = setting(
+        None, "SSH private key for cloning private Git repositories via SSH", secret=True
+    )
+    image: Optional[str] = setting(
+        None, "Full run image `name:tag`; sets IMAGE_NAME and IMAGE_TAG (as docker-ros build.sh)"
+    )
+    image_name: Optional[str] = setting(
+        None,
+        "Image name of run image",
+        default_doc="`ghcr.io/$GITHUB_REPOSITORY` | `$CI_REGISTRY_IMAGE` | repository folder name",
+    )
+    image_tag: str = setting("latest", "Image tag of run image")
+    platform: Tuple[str, ...] = setting(
+        (),
+        "Target platform architecture (comma-separated list)",
+        choices=PLATFORMS,
+        default_doc="runner architecture",
+    )
+    registry: Optional[str] = setting(
+        None, "Docker registry to push images to", default_doc="`ghcr.io` | `$CI_REGISTRY`"
+    )
+    registry_password: Optional[str] = setting(
+        None, "Docker registry password", secret=True
+    )
+    registry_user: Optional[str] = setting(None, "Docker registry username")
+    rmw_implementation: str = setting("rmw_fastrtps_cpp", "ROS 2 middleware implementation")
+    ros_distro: Optional[str] = setting(
+        None, "ROS Distro", default_doc="*required if ROS is not installed in `base-image`*"
+    )
+    slim_build_args: str = setting(
+        SLIM_BUILD_ARGS_DEFAULT, "Arguments to the slimming step (except target and tag)"
+    )
+    additional_slim_build_args: str = setting(
+        "", "Arguments appended to SLIM_BUILD_ARGS"
+    )
+    slim_image_name: Optional[str] = setting(
+        None, "Image name of slim run image", default_doc="`<IMAGE_NAME>`"
+    )
+    slim_image_tag: Optional[str] = setting(
+        None, "Image tag of slim run image", default_doc="`<IMAGE_TAG>-slim`"
+    )
+    target: Tuple[str, ...] = setting(
+        ("run",), "Target stage of Dockerfile (comma-separated list)", choices=TARGETS
+    )
+    vcs_import_file: str = setting(
+        ".repos",
+        "Relative filepath to file containing additional repos to install via vcstool",
+    )
+    # --- beyond docker-ros ---
+    workspace: Optional[str] = setting(
+        None,
+        "Host workspace for the steps run with `--host` (the repository appears as src/target)",
+        default_doc="`~/.cache/docker-ros/ws/<repository folder name>`",
+        group="ours",
+    )
+    extra_ca_certs: Optional[str] = setting(
+        None,
+        "PEM file or directory of PEM files trusted during the build (never left in the image)",
+        group="ours",
+    )
+    cache_from: Optional[str] = setting(
+        None, "Registry image to reuse as build cache (`--cache-from`)", group="ours"
+    )
+    ros_apt_source_version: str = setting(
+        "1.1.0", "Pinned version of the ros-apt-source package used to install ROS", group="ours"
+    )
+    sources: Mapping[str, str] = field(default_factory=dict, compare=False, repr=False)
+
+    def source_of(self, name: str) -> str:
+        return self.sources.get(name, "default")
+
+    @property
+    def targets(self) -> Tuple[str, ...]:
+        return self.target
+
+
+def declarations() -> List[dataclasses.Field]:  # type: ignore[type-arg]
+    return [f for f in dataclasses.fields(Settings) if f.name != "sources"]
+
+
+FIELDS = {f.name: f for f in declarations()}
+
+
+def env_name(name: str) -> str:
+    return name.upper()
+
+
+def flag_name(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def kind_of(name: str) -> str:
+    """'bool', 'list' or 'str', from the field's annotation."""
+    annotation = str(FIELDS[name].type)
+    if annotation == "bool":
+        return "bool"
+    if annotation.startswith("Tuple"):
+        return "list"
+    return "str"
+
+
+def is_secret(name: str) -> bool:
+    return bool(FIELDS[name].metadata["secret"])
+
+
+def parse_bool(name: str, raw: str) -> bool:
+    word = raw.strip().lower()
+    if word in TRUE_WORDS:
+        return True
+    if word in FALSE_WORDS:
+        return False
+    raise SettingsError(
+        f"{env_name(name)}={raw!r} is not a boolean; use one of "
+        f"{', '.join(TRUE_WORDS + FALSE_WORDS)} (any case)"
+    )
+
+
+def parse_list(name: str, raw: str) -> Tuple[str, ...]:
+    items = tuple(item.strip() for item in raw.split(",") if item.strip())
+    choices = FIELDS[name].metadata["choices"]
+    bad = [item for item in items if choices and item not in choices]
+    if bad:
+        raise SettingsError(
+            f"{env_name(name)}={raw!r}: {', '.join(bad)} not allowed; "
+            f"allowed values: {', '.join(choices)}"
+        )
+    return items
+
+
+def parse_value(name: str, raw: object) -> Value:
+    """Turn a raw value (string from env/.env/flag, or a YAML scalar) into the field's type."""
+    kind = kind_of(name)
+    if kind == "bool":
+        if isinstance(raw, bool):
+            return raw
+        return parse_bool(name, str(raw))
+    if kind == "list":
+        if isinstance(raw, (list, tuple)):
+            raw = ",".join(str(item) for item in raw)
+        return parse_list(name, str(raw))
+    text = str(raw)
+    choices = FIELDS[name].metadata["choices"]
+    if choices and text not in choices:
+        raise SettingsError(
+            f"{env_name(name)}={text!r} not allowed; allowed values: {', '.join(choices)}"
+        )
+    return text
+
+
+def _did_you_mean(key: str) -> str:
+    close = difflib.get_close_matches(key.lower(), list(FIELDS), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def load_settings(
+    *,
+    invoke_config: Optional[Mapping[str, object]] = None,
+    dotenv: Optional[Mapping[str, Optional[str]]] = None,
+    environ: Optional[Mapping[str, str]] = None,
+    flags: Optional[Mapping[str, object]] = None,
+    project_dir: Optional[Path] = None,
+) -> Settings:
+    """Merge defaults < invoke.yaml < .env < environment < flags; all errors in one message."""
+    layers: List[Tuple[str, Mapping[str, object]]] = []
+    errors: List[str] = []
+    yaml_values: Dict[str, object] = {}
+    for key, value in (invoke_config or {}).items():
+        name = str(key).lower().replace("-", "_")
+        if name not in FIELDS:
+            errors.append(f"invoke.yaml: unknown key docker_ros.{key}{_did_you_mean(str(key))}")
+        else:
+            yaml_values[name] = value
+    layers.append(("invoke.yaml", yaml_values))
+    for source, mapping in ((".env", dotenv or {}), ("environment", environ or {})):
+        values = {n: mapping[env_name(n)] for n in FIELDS if mapping.get(env_name(n)) is not None}
+        layers.append((source, values))
+    layers.append(("flag", {k: v for k, v in (flags or {}).items() if v is not None}))
+
+    values: Dict[str, object] = {}
+    sources: Dict[str, str] = {}
+    for source, mapping in layers:
+        for name, raw in mapping.items():
+            try:
+                values[name] = parse_value(name, raw)
+            except SettingsError as exc:
+                errors.append(f"{exc} (from {source})")
+                continue
+            sources[name] = source
+    if errors:
+        raise SettingsError("invalid configuration:\n  " + "\n  ".join(errors))
+    values.update(derived_defaults(values, environ or {}, project_dir or Path.cwd()))
+    return Settings(**values, sources=sources)  # type: ignore[arg-type]
+
+
+def derived_defaults(
+    values: Mapping[str, object], environ: Mapping[str, str], project_dir: Path
+) -> Dict[str, object]:
+    """Defaults that depend on other values or on the CI we run in (docker-ros's rules)."""
+    out: Dict[str, object] = {}
+    image = values.get("image")
+    if isinstance(image, str) and image and "image_name" not in values:
+        name, _, tag = image.rpartition(":")
+        if not name or "/" in tag:  # "host:5000/img" has no tag
+            name, tag = image, "latest"
+        out["image_name"], out["image_tag"] = name, tag
+    if "image_name" not in values and "image_name" not in out:
+        if environ.get("GITHUB_REPOSITORY"):
+            out["image_name"] = "ghcr.io/" + environ["GITHUB_REPOSITORY"]
+        elif environ.get("CI_REGISTRY_IMAGE"):
+            out["image_name"] = environ["CI_REGISTRY_IMAGE"]
+        else:
+            out["image_name"] = project_dir.resolve().name
+    merged = {**values, **out}
+    out["image_name"] = str(merged["image_name"]).lower()
+    tag = str(merged.get("image_tag", "latest"))
+    if not merged.get("dev_image_name"):
+        out["dev_image_name"] = out["image_name"]
+    if not merged.get("dev_image_tag"):
+        out["dev_image_tag"] = f"{tag}-dev"
+    if not merged.get("slim_image_name"):
+        out["slim_image_name"] = out["image_name"]
+    if not merged.get("slim_image_tag"):
+        out["slim_image_tag"] = f"{tag}-slim"
+    for name in ("dev_image_name", "slim_image_name"):
+        out[name] = str(merged.get(name) or out[name]).lower()
+    if not merged.get("platform"):
+        out["platform"] = (host_platform(),)
+    if not merged.get("workspace"):
+        cache = Path(environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+        out["workspace"] = str(cache / "docker-ros" / "ws" / project_dir.resolve().name)
+    if not merged.get("registry"):
+        if environ.get("GITHUB_ACTIONS"):
+            out["registry"] = "ghcr.io"
+        elif environ.get("CI_REGISTRY"):
+            out["registry"] = environ["CI_REGISTRY"]
+    return out
+
+
+def host_platform() -> str:
+    machine = os.uname().machine
+    return "arm64" if machine in ("aarch64", "arm64") else "amd64"
+
+
+def require(settings: Settings, names: Iterable[str]) -> None:
+    """Fail with one message listing every required value that is missing."""
+    missing = [env_name(n) for n in names if not getattr(settings, n)]
+    if missing:
+        raise SettingsError(
+            "missing required configuration: "
+            + ", ".join(missing)
+            + " (set them in .env, the environment, invoke.yaml under docker_ros: or as flags)"
+        )
+
+
+def required_for_build(settings: Settings) -> List[str]:
+    return ["base_image"] + (["command"] if "run" in settings.target else [])
+
+
+def display_value(settings: Settings, name: str) -> str:
+    value = getattr(settings, name)
+    if value is None or value == "":
+        return ""
+    if is_secret(name):
+        return "****"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):
+        return ",".join(value)
+    return str(value)
+
+
+def as_env(settings: Settings, *, include_secrets: bool = False) -> Dict[str, str]:
+    """The settings that are set, as docker-ros environment variables (unset stay unset)."""
+    out: Dict[str, str] = {}
+    for name in FIELDS:
+        if is_secret(name) and not include_secrets:
+            continue
+        value = getattr(settings, name)
+        if value is None or value == () or value == "":
+            continue
+        if isinstance(value, bool):
+            out[env_name(name)] = "true" if value else "false"
+        elif isinstance(value, tuple):
+            out[env_name(name)] = ",".join(value)
+        else:
+            out[env_name(name)] = str(value)
+    return out
+
+
+def default_doc(name: str) -> str:
+    f = FIELDS[name]
+    if f.metadata["default_doc"]:
+        return str(f.metadata["default_doc"])
+    default = f.default
+    if default is None or default == "":
+        return ""
+    if isinstance(default, bool):
+        return "`true`" if default else "`false`"
+    if isinstance(default, tuple):
+        return "`" + ",".join(default) + "`"
+    return f"`{default}`"
+
+
+def markdown_table() -> str:
+    """The README configuration table, derived from the declarations."""
+    rows = ["| variable | flag | default | description |", "|---|---|---|---|"]
+    for name, f in FIELDS.items():
+        help_text = str(f.metadata["help"])
+        extras = []
+        if f.metadata["choices"]:
+            extras.append("values: " + ", ".join(f"`{c}`" for c in f.metadata["choices"]))
+        if f.metadata["secret"]:
+            extras.append("secret (masked, never passed as build argument)")
+        if f.metadata["group"] == "ci":
+            extras.append("CI integrations only")
+        if extras:
+            help_text += " (" + "; ".join(extras) + ")"
+        rows.append(
+            f"| `{env_name(name)}` | `{flag_name(name)}` | {default_doc(name)} | {help_text} |"
+        )
+    return "\n".join(rows)
