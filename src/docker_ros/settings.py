@@ -331,7 +331,8 @@ def load_settings(
             yaml_values[name] = value
     layers.append(("invoke.yaml", yaml_values))
     for source, mapping in ((".env", dotenv or {}), ("environment", environ or {})):
-        values = {n: mapping[env_name(n)] for n in FIELDS if mapping.get(env_name(n)) is not None}
+        # An empty variable counts as unset (docker-ros's add_arg_if_set; CI inputs left blank).
+        values = {n: mapping[env_name(n)] for n in FIELDS if mapping.get(env_name(n))}
         layers.append((source, values))
     layers.append(("flag", {k: v for k, v in (flags or {}).items() if v is not None}))
 

@@ -1,0 +1,24 @@
+# A ROS base image made from a Debian mirror, for machines that reach no container registry.
+# ROOTFS_IMAGE is a debootstrap'ed minbase rootfs imported by docker_ros.baseimage; DEBS are the
+# ROS tools Debian packages (ROS 1 in bookworm, ROS 2 build tooling in trixie), all in /usr.
+ARG ROOTFS_IMAGE
+FROM ${ROOTFS_IMAGE} AS debs
+ARG DEBS
+# EXTRA_CA_CERTS (a BuildKit secret, never in a layer) lets apt use an https mirror behind a
+# TLS-intercepting proxy.
+RUN --mount=type=secret,id=EXTRA_CA_CERTS \
+    set -eu; \
+    ca=/run/secrets/EXTRA_CA_CERTS; \
+    if [ -s "$ca" ]; then set -- -o "Acquire::https::CaInfo=$ca"; fi; \
+    apt-get "$@" update; \
+    DEBIAN_FRONTEND=noninteractive apt-get "$@" install -y --no-install-recommends $DEBS; \
+    apt-get clean; \
+    rm -rf /var/lib/apt/lists/*
+ENV LANG=C.UTF-8
+CMD ["bash"]
+
+# Debian's ROS 1 needs no environment: no /opt/ros, no setup.bash, no ROS_DISTRO.
+FROM debs AS ros1
+
+FROM debs AS ros2
+ENV ROS_VERSION=2

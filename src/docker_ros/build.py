@@ -1,0 +1,253 @@
+"""Image builds with docker buildx (BuildKit): plan the argv (pure), run it, fold its log."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
+
+import docker_ros
+from docker_ros.settings import FIELDS, Settings, as_env, env_name, read_secret_value
+
+PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
+DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
+TOOLS_REPOSITORY = "docker-ros-tools"
+# Files of the package that the images need (stdlib-only step modules and the image scripts).
+TOOLS_PATTERNS = ("__init__.py", "settings.py", "steps/*.py", "docker/*.sh")
+SECRETS = ("git_https_password", "git_ssh_private_key")
+STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
+STEP_START = re.compile(r"Starting >>> (\w+)")
+STEP_END = re.compile(r"(Finished|Failed  ) <<< (\w+)")
+
+
+class BuildError(Exception):
+    """A build failed: which target, which step, why."""
+
+    def __init__(self, message: str, returncode: int = 1) -> None:
+        super().__init__(message)
+        self.returncode = returncode
+
+
+@dataclass(frozen=True)
+class BuiltImage:
+    target: str
+    ref: str
+    platform: str
+    seconds: float
+
+
+def dockerfile_args(dockerfile: Path = DOCKERFILE) -> List[str]:
+    """Names of the ARGs the Dockerfile declares."""
+    names = re.findall(r"^ARG\s+([A-Z_]+)", dockerfile.read_text(), flags=re.MULTILINE)
+    return sorted(set(names))
+
+
+def image_ref(settings: Settings, target: str) -> str:
+    if target == "dev":
+        return f"{settings.dev_image_name}:{settings.dev_image_tag}"
+    if target == "slim":
+        return f"{settings.slim_image_name}:{settings.slim_image_tag}"
+    return f"{settings.image_name}:{settings.image_tag}"
+
+
+def platform_ref(ref: str, platform: str, platforms: Sequence[str]) -> str:
+    """Several platforms: one local tag per architecture (`-amd64`/`-arm64` postfix)."""
+    return ref if len(platforms) <= 1 else f"{ref}-{platform}"
+
+
+def build_args(settings: Settings, declared: Sequence[str]) -> List[str]:
+    """--build-arg for every declared ARG whose setting is set (docker-ros's add_arg_if_set).
+    Secrets are never build arguments (they would stay in the image history)."""
+    values = as_env(settings)
+    args: List[str] = []
+    for name in declared:
+        if name in values and name.lower() in FIELDS:
+            args += ["--build-arg", f"{name}={values[name]}"]
+    return args
+
+
+def plan_build(
+    settings: Settings,
+    *,
+    target: str,
+    platform: str,
+    tools_image: str,
+    tag: str,
+    secrets: Mapping[str, str],
+    dockerfile: Path = DOCKERFILE,
+    push: bool = False,
+) -> List[str]:
+    """The `docker buildx build` argv for one target and platform."""
+    argv = ["docker", "buildx", "build", "--progress=plain", "--file", str(dockerfile)]
+    argv += ["--target", target, "--platform", f"linux/{platform}", "--tag", tag]
+    argv += ["--build-arg", f"BASE_IMAGE={settings.base_image}"]
+    argv += ["--build-arg", f"DOCKER_ROS_TOOLS={tools_image}"]
+    argv += [a for a in build_args(settings, dockerfile_args(dockerfile))
+             if not a.startswith(("BASE_IMAGE=", "DOCKER_ROS_TOOLS="))]
+    for secret_id, source in sorted(secrets.items()):
+        argv += ["--secret", f"id={secret_id},{source}"]
+    if not settings.buildx_attestations:
+        argv += ["--provenance=false"]
+    if settings.cache_from:
+        argv += ["--cache-from", settings.cache_from, "--cache-to", "type=inline"]
+    argv += ["--push" if push else "--load"]
+    argv.append(str(Path(settings.build_context)))
+    return argv
+
+
+def fold_markers(environ: Mapping[str, str]) -> Tuple[str, str]:
+    """Start/end templates for collapsible log sections of the CI we run in ({id}, {title})."""
+    if environ.get("GITHUB_ACTIONS"):
+        return "::group::{title}", "::endgroup::"
+    if environ.get("GITLAB_CI"):
+        return (
+            "\x1b[0Ksection_start:{time}:{id}[collapsed=true]\r\x1b[0K{title}",
+            "\x1b[0Ksection_end:{time}:{id}\r\x1b[0K",
+        )
+    return "----- {title}", "----- end of {title}"
+
+
+def fold(template: str, title: str) -> str:
+    ident = re.sub(r"[^a-z0-9_]", "_", title.lower())
+    return template.format(title=title, id=ident, time=int(time.time()))
+
+
+def stream_build(lines: Iterator[str], out: IO[str], environ: Mapping[str, str]) -> List[str]:
+    """Copy the build log to out, each docker-ros step folded; return the step error lines."""
+    start, end = fold_markers(environ)
+    errors: List[str] = []
+    for line in lines:
+        begun = STEP_START.search(line)
+        if begun:
+            out.write(fold(start, begun.group(1)) + "\n")
+        out.write(line)
+        ended = STEP_END.search(line)
+        if ended:
+            out.write(fold(end, ended.group(2)) + "\n")
+        failed = STEP_ERROR.search(line)
+        if failed and "docker-ros" in line:
+            errors.append(f"{failed.group(1)}: {failed.group(2).strip()}")
+        out.flush()
+    return errors
+
+
+def tools_tree(destination: Path) -> str:
+    """Copy the in-image modules to destination/docker-ros/lib; return their content hash."""
+    digest = hashlib.sha256()
+    lib = destination / "docker-ros" / "lib" / "docker_ros"
+    for pattern in TOOLS_PATTERNS:
+        for path in sorted(PACKAGE_DIR.glob(pattern)):
+            rel = path.relative_to(PACKAGE_DIR)
+            digest.update(str(rel).encode() + b"\0" + path.read_bytes() + b"\0")
+            (lib / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(path, lib / rel)
+    return digest.hexdigest()[:16]
+
+
+def image_exists(ref: str) -> bool:
+    proc = subprocess.run(["docker", "image", "inspect", ref], capture_output=True)
+    return proc.returncode == 0
+
+
+def ensure_tools_image(platform: str) -> str:
+    """A FROM-scratch image with the step modules, tagged by their content hash."""
+    with tempfile.TemporaryDirectory(prefix="docker-ros-tools-") as tmp:
+        digest = tools_tree(Path(tmp))
+        ref = f"{TOOLS_REPOSITORY}:{digest}-{platform}"
+        if image_exists(ref):
+            return ref
+        (Path(tmp) / "Dockerfile").write_text("FROM scratch\nCOPY docker-ros /docker-ros\n")
+        argv = ["docker", "buildx", "build", "--quiet", "--load", "--platform",
+                f"linux/{platform}", "--tag", ref, tmp]
+        proc = subprocess.run(argv, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise BuildError(f"building the tools image failed: {proc.stderr.strip()}")
+    return ref
+
+
+def ca_bundle(path: Path, destination: Path) -> Path:
+    """EXTRA_CA_CERTS (one PEM file or a folder of them) as one file for a BuildKit secret."""
+    if not path.exists():
+        raise BuildError(f"EXTRA_CA_CERTS '{path}' not found: give a PEM file or a folder of them")
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    pems = [p.read_text() for p in files if "BEGIN CERTIFICATE" in p.read_text(errors="ignore")]
+    if not pems:
+        raise BuildError(f"EXTRA_CA_CERTS '{path}' holds no PEM certificate")
+    destination.write_text("\n".join(pems))
+    destination.chmod(0o600)
+    return destination
+
+
+def base_image_available(ref: str) -> bool:
+    if image_exists(ref):
+        return True
+    proc = subprocess.run(["docker", "pull", ref], capture_output=True, text=True)
+    return proc.returncode == 0
+
+
+def build_image(
+    settings: Settings,
+    *,
+    target: str,
+    platform: str,
+    tag: str,
+    out: IO[str] = sys.stdout,
+    environ: Optional[Mapping[str, str]] = None,
+    push: bool = False,
+) -> BuiltImage:
+    """Build one target for one platform; raise BuildError naming the failed step."""
+    environ = os.environ if environ is None else environ
+    tools = ensure_tools_image(platform)
+    child_env = dict(environ)
+    child_env.setdefault("DOCKER_BUILDKIT", "1")
+    secrets: Dict[str, str] = {}
+    with tempfile.TemporaryDirectory(prefix="docker-ros-build-") as tmp:
+        for name in SECRETS:
+            value = read_secret_value(settings, name)
+            if value:
+                # Passed by environment to buildx only: never argv, never a file, never a log.
+                child_env[f"DOCKER_ROS_SECRET_{env_name(name)}"] = value
+                secrets[env_name(name)] = f"env=DOCKER_ROS_SECRET_{env_name(name)}"
+        if settings.extra_ca_certs:
+            bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
+            secrets["EXTRA_CA_CERTS"] = f"src={bundle}"
+        argv = plan_build(settings, target=target, platform=platform, tools_image=tools,
+                          tag=tag, secrets=secrets, push=push)
+        start, end = fold_markers(environ)
+        out.write(fold(start, f"build {target} ({platform}) -> {tag}") + "\n")
+        began = time.monotonic()
+        proc = subprocess.Popen(argv, env=child_env, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True, bufsize=1)
+        assert proc.stdout is not None
+        errors = stream_build(iter(proc.stdout.readline, ""), out, environ)
+        code = proc.wait()
+        out.write(fold(end, f"build {target} ({platform}) -> {tag}") + "\n")
+    if code != 0:
+        cause = errors[-1] if errors else "see the build log above"
+        raise BuildError(f"building target '{target}' ({platform}) failed in step {cause}", code)
+    return BuiltImage(target, tag, platform, time.monotonic() - began)
+
+
+def image_size(ref: str) -> int:
+    proc = subprocess.run(["docker", "image", "inspect", "--format", "{{.Size}}", ref],
+                          capture_output=True, text=True)
+    return int(proc.stdout.strip() or 0)
+
+
+def summary_table(images: Sequence[BuiltImage]) -> str:
+    rows = [("IMAGE", "TAG", "PLATFORM", "SIZE", "BUILD TIME")]
+    for image in images:
+        name, _, tag = image.ref.rpartition(":")
+        size = image_size(image.ref)
+        rows.append((name, tag, image.platform, f"{size / 1e6:.0f} MB" if size else "-",
+                     f"{image.seconds:.1f} s"))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)

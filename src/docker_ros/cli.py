@@ -1,0 +1,18 @@
+"""The `docker-ros` console script: an invoke Program over the same tasks as `inv`."""
+
+from __future__ import annotations
+
+import os
+from typing import List, Optional
+
+from invoke import Program
+
+from docker_ros import __version__
+from docker_ros.tasks import ns
+
+
+def main(argv: Optional[List[str]] = None) -> None:
+    # Read invoke.yaml (key docker_ros) from the project we run in, as `inv` does next to tasks.py.
+    ns.loaded_from = os.getcwd()
+    program = Program(namespace=ns, name="docker-ros", binary="docker-ros", version=__version__)
+    program.run(None if argv is None else ["docker-ros", *argv])

@@ -1,0 +1,163 @@
+"""Invoke tasks: one per pipeline step, the composites, and the image commands.
+
+Tasks are thin: they read the settings (every setting is also a flag of every task) and call
+the step modules or the image build. Errors users can fix end as one line and a non-zero exit.
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any, Callable, Dict, Sequence, Tuple
+
+from invoke import Collection, Context, Exit, Task
+
+from docker_ros.config import config_table, read_settings
+from docker_ros.settings import FIELDS, Settings, SettingsError, is_secret
+from docker_ros.steps import STEPS
+from docker_ros.steps.common import StepError, Workspace, setup_logging
+
+Flag = Tuple[str, object, str]  # name, default, help
+DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change nothing")
+HOST: Flag = ("host", False, "Run the steps directly on this machine instead of in an image")
+
+STEP_HELP = {
+    "clone": "Run the before-dependency-identification hook and import .repos files with vcstool",
+    "blacklist": "Leave the packages listed in BLACKLISTED_PACKAGES_FILE out of build and deps",
+    "scripts": "Run the before-dependency-installation hook script(s)",
+    "rosdep": "Resolve package.xml dependencies with rosdep and install them",
+    "debs": "Install the apt packages listed in ADDITIONAL_DEBS_FILE",
+    "pip": "Install the pip requirements listed in ADDITIONAL_PIP_FILE",
+    "files": "Copy ADDITIONAL_FILES_DIR into place (/docker-ros/additional-files in images)",
+    "custom": "Run the after-dependency-installation script(s)",
+    "colcon": "Build the workspace with colcon (CMAKE_ARGS; underlays /opt/ws_base_image)",
+    "command": "Run COMMAND in the built workspace's environment",
+}
+DEV_STEPS = STEPS[: STEPS.index("custom") + 1]
+
+
+class TaskError(Exception):
+    """An expected failure outside the steps (bad repository layout, failed build...)."""
+
+
+def settings_task(name: str, help: str, flags: Sequence[Flag] = ()) -> Callable[..., Task]:
+    """Make an invoke Task whose flags are the task's own plus one per setting."""
+
+    def decorate(func: Callable[..., Any]) -> Task:
+        own = [f[0] for f in flags]
+
+        def body(c: Context, **kwargs: Any) -> Any:
+            setup_logging()
+            overrides = {n: kwargs.pop(n) for n in list(kwargs) if n in FIELDS}
+            try:
+                cfg = c.config.get("docker_ros", None) or {}
+                settings = read_settings(dict(cfg), overrides)
+                return func(c, settings, **kwargs)
+            except (SettingsError, StepError, TaskError) as exc:
+                code = getattr(exc, "returncode", 1) or 1
+                where = exc.step if isinstance(exc, StepError) else name
+                text = exc.message if isinstance(exc, StepError) else str(exc)
+                raise Exit(f"docker-ros {where}: {text}", code=code) from None
+
+        params = [inspect.Parameter("c", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
+        params += [
+            inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=d) for n, d, _ in flags
+        ]
+        # Secrets get no flag: a command line is visible to every process on the machine.
+        params += [
+            inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=None)
+            for n in FIELDS
+            if n not in own and not is_secret(n)
+        ]
+        body.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+        body.__doc__ = help
+        body.__name__ = name.replace("-", "_")
+        help_map: Dict[str, str] = {n: h for n, _, h in flags}
+        for n, f in FIELDS.items():
+            if not is_secret(n):
+                help_map.setdefault(n, f"{f.metadata['help']} [{n.upper()}]")
+        return Task(body, name=name, help=help_map, auto_shortflags=False)
+
+    return decorate
+
+
+def host_workspace(settings: Settings, *, dry_run: bool) -> Workspace:
+    """The host workspace, with the repository linked (never copied or moved) at src/target."""
+    assert settings.workspace
+    ws = Workspace(Path(settings.workspace).expanduser())
+    repository = Path(settings.build_context).resolve()
+    if ws.target.is_symlink() or ws.target.exists():
+        if ws.target.resolve() != repository:
+            raise TaskError(
+                f"workspace {ws.root}: src/target points to {ws.target.resolve()}, not to "
+                f"{repository}; set WORKSPACE to another folder"
+            )
+        return ws
+    if dry_run:
+        print(f"[dry-run] would link {ws.target} -> {repository}")
+        return ws
+    ws.src.mkdir(parents=True, exist_ok=True)
+    ws.target.symlink_to(repository, target_is_directory=True)
+    return ws
+
+
+def host_options(step: str, ws: Workspace) -> Dict[str, str]:
+    return {"destination": str(ws.root / "additional-files")} if step == "files" else {}
+
+
+def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -> None:
+    from docker_ros.steps import run_step
+
+    ws = host_workspace(settings, dry_run=dry_run)
+    for step in steps:
+        run_step(step, ws, settings, phase="all", dry_run=dry_run, **host_options(step, ws))
+
+
+def make_step_task(step: str) -> Task:
+    @settings_task(step, STEP_HELP[step] + " (on the host)", [DRY_RUN])
+    def step_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+        run_host_steps(settings, [step], dry_run=dry_run)
+
+    return step_task
+
+
+@settings_task("config", "Print every setting, its effective value and its source")
+def config(c: Context, settings: Settings) -> None:
+    print(config_table(settings))
+
+
+@settings_task("dev", "Build the dev image, or with --host run clone..custom here", [HOST, DRY_RUN])
+def dev(c: Context, settings: Settings, *, host: bool, dry_run: bool) -> None:
+    if host:
+        run_host_steps(settings, DEV_STEPS, dry_run=dry_run)
+        return
+    _build(settings, ("dev",), dry_run=dry_run)
+
+
+@settings_task(
+    "run", "Build the run image, or with --host run all ten steps and COMMAND here", [HOST, DRY_RUN]
+)
+def run(c: Context, settings: Settings, *, host: bool, dry_run: bool) -> None:
+    if host:
+        if not settings.command:
+            raise SettingsError("missing required configuration: COMMAND")
+        run_host_steps(settings, STEPS, dry_run=dry_run)
+        return
+    _build(settings, ("run",), dry_run=dry_run)
+
+
+def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> None:
+    raise TaskError("image builds are not implemented yet")
+
+
+def collection() -> Collection:
+    ns = Collection()
+    for step in STEPS:
+        ns.add_task(make_step_task(step))
+    for task in (config, dev, run):
+        ns.add_task(task)
+    return ns
+
+
+ns = collection()
+

@@ -1,0 +1,172 @@
+"""Settings: declarations, precedence, strict parsing, derived defaults, README table."""
+
+import re
+from pathlib import Path
+
+import pytest
+
+from docker_ros.settings import (
+    FIELDS,
+    SettingsError,
+    as_env,
+    display_value,
+    load_settings,
+    markdown_table,
+    require,
+    required_for_build,
+)
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+REFERENCE = Path(__file__).resolve().parents[3] / "shared" / "reference" / "docker-ros-README.md"
+
+
+def load(**layers):
+    return load_settings(project_dir=Path("/tmp/my_Repo"), **layers)
+
+
+@pytest.mark.parametrize(
+    "layers, expected, source",
+    [
+        ({}, "latest", "default"),
+        ({"invoke_config": {"image_tag": "yaml"}}, "yaml", "invoke.yaml"),
+        ({"invoke_config": {"image_tag": "yaml"}, "dotenv": {"IMAGE_TAG": "dot"}}, "dot", ".env"),
+        (
+            {"dotenv": {"IMAGE_TAG": "dot"}, "environ": {"IMAGE_TAG": "env"}},
+            "env",
+            "environment",
+        ),
+        (
+            {
+                "invoke_config": {"image_tag": "yaml"},
+                "dotenv": {"IMAGE_TAG": "dot"},
+                "environ": {"IMAGE_TAG": "env"},
+                "flags": {"image_tag": "flag"},
+            },
+            "flag",
+            "flag",
+        ),
+        ({"environ": {"IMAGE_TAG": "env"}, "flags": {"image_tag": None}}, "env", "environment"),
+    ],
+)
+def test_precedence(layers, expected, source):
+    settings = load(**layers)
+    assert settings.image_tag == expected
+    assert settings.source_of("image_tag") == source
+
+
+@pytest.mark.parametrize(
+    "raw, value",
+    [("false", False), ("FALSE", False), ("0", False), ("No", False),
+     ("true", True), ("True", True), ("1", True), ("YES", True)],
+)
+def test_strict_booleans(raw, value):
+    assert load(environ={"ENABLE_SLIM": raw}).enable_slim is value
+
+
+@pytest.mark.parametrize("raw", ["maybe", "", "on", "off", "2"])
+def test_bad_boolean_names_variable_and_accepted_values(raw):
+    with pytest.raises(SettingsError) as err:
+        load(flags={"enable_slim": raw})
+    assert "ENABLE_SLIM" in str(err.value)
+    assert "true, 1, yes, false, 0, no" in str(err.value)
+
+
+def test_empty_environment_values_count_as_unset():
+    settings = load(environ={"ENABLE_SLIM": "", "ROS_DISTRO": ""}, dotenv={"IMAGE_TAG": ""})
+    assert settings.enable_slim is True and settings.ros_distro is None
+    assert settings.image_tag == "latest"
+
+
+def test_yaml_booleans_are_accepted_as_such():
+    assert load(invoke_config={"enable_slim": False}).enable_slim is False
+
+
+def test_comma_lists_are_checked():
+    settings = load(environ={"TARGET": "dev, run", "PLATFORM": "amd64,arm64"})
+    assert settings.target == ("dev", "run")
+    assert settings.platform == ("amd64", "arm64")
+    with pytest.raises(SettingsError, match=r"TARGET='foo'.*allowed values: dev, run"):
+        load(environ={"TARGET": "foo"})
+    with pytest.raises(SettingsError, match=r"PLATFORM.*s390x.*allowed values: amd64, arm64"):
+        load(environ={"PLATFORM": "amd64,s390x"})
+
+
+def test_all_errors_reported_together():
+    with pytest.raises(SettingsError) as err:
+        load(environ={"TARGET": "foo", "ENABLE_SLIM": "maybe"}, invoke_config={"imge_tag": "x"})
+    text = str(err.value)
+    assert "TARGET" in text and "ENABLE_SLIM" in text
+    assert "did you mean 'image_tag'" in text
+
+
+def test_missing_required_all_at_once():
+    settings = load(environ={"TARGET": "dev,run"})
+    with pytest.raises(SettingsError) as err:
+        require(settings, required_for_build(settings))
+    assert "BASE_IMAGE" in str(err.value) and "COMMAND" in str(err.value)
+    dev_only = load(environ={"TARGET": "dev", "BASE_IMAGE": "b"})
+    require(dev_only, required_for_build(dev_only))
+
+
+def test_docker_ros_derived_names_and_tags():
+    s = load(environ={"IMAGE": "Registry:5000/My/Img:v1"})
+    assert (s.image_name, s.image_tag) == ("registry:5000/my/img", "v1")
+    assert (s.dev_image_name, s.dev_image_tag) == ("registry:5000/my/img", "v1-dev")
+    assert (s.slim_image_name, s.slim_image_tag) == ("registry:5000/my/img", "v1-slim")
+    assert load().image_name == "my_repo"
+    assert load(environ={"GITHUB_REPOSITORY": "Org/Repo"}).image_name == "ghcr.io/org/repo"
+    assert load(environ={"CI_REGISTRY_IMAGE": "reg/x/y"}).image_name == "reg/x/y"
+    assert load(environ={"IMAGE": "localhost:5000/img"}).image_tag == "latest"
+
+
+def test_secrets_are_masked_and_not_exported_by_default():
+    s = load(environ={"GIT_HTTPS_PASSWORD": "hunter2", "REGISTRY_PASSWORD": "pw"})
+    assert display_value(s, "git_https_password") == "****"
+    assert "GIT_HTTPS_PASSWORD" not in as_env(s)
+    assert as_env(s, include_secrets=True)["GIT_HTTPS_PASSWORD"] == "hunter2"
+
+
+def test_unset_values_stay_unset():
+    env = as_env(load())
+    assert "ROS_DISTRO" not in env and "BASE_IMAGE" not in env
+    assert env["ENABLE_RECURSIVE_VCS_IMPORT"] == "true"
+
+
+def reference_defaults():
+    """Variable -> default text from the original docker-ros README."""
+    if not REFERENCE.is_file():
+        pytest.skip(f"{REFERENCE} not found (shared/ must sit beside the checkout)")
+    text = REFERENCE.read_text()
+    out = {}
+    for block in text.split("- **`")[1:]:
+        names = re.findall(r"`([A-Z_]+)`", block.split("\n", 1)[0])
+        default = re.search(r"\*default:\*\s*(.*)", block)
+        if names:
+            out[names[-1]] = default.group(1).strip() if default else None
+    return out
+
+
+def test_every_docker_ros_variable_is_declared_with_its_default():
+    ref = reference_defaults()
+    assert len(ref) > 40
+    declared = {n.upper() for n in FIELDS}
+    assert set(ref) - declared == set()
+    plain = {  # defaults that are plain values in the original (not CI expressions)
+        name: default.split("|")[-1].strip().strip("`\"")
+        for name, default in ref.items()
+        if default and "<" not in default and "$" not in default and "runner" not in default
+    }
+    for name, default in plain.items():
+        value = FIELDS[name.lower()].default
+        shown = ",".join(value) if isinstance(value, tuple) else value
+        if isinstance(value, bool):
+            shown = "true" if value else "false"
+        assert str(shown) == default, name
+
+
+def test_readme_configuration_table_matches_declarations():
+    text = README.read_text()
+    begin, end = "<!-- settings-table:begin -->", "<!-- settings-table:end -->"
+    assert begin in text and end in text, "README lacks the generated settings table"
+    table = text.split(begin, 1)[1].split(end, 1)[0].strip()
+    assert table == markdown_table(), "regenerate with: python -m docker_ros.readme"
