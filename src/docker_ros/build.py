@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import IO, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 import docker_ros
-from docker_ros.settings import FIELDS, Settings, as_env, env_name, read_secret_value
+from docker_ros.settings import FIELDS, Settings, as_env, env_name
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
@@ -23,6 +23,19 @@ TOOLS_REPOSITORY = "docker-ros-tools"
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
 TOOLS_PATTERNS = ("__init__.py", "settings.py", "steps/*.py", "docker/*.sh")
 SECRETS = ("git_https_password", "git_ssh_private_key")
+# Settings that shape the build through the tool itself rather than a Dockerfile ARG.
+HANDLED_BY_TOOL = frozenset({
+    "base_image", "build_context", "buildx_attestations", "cache_from", "extra_ca_certs",
+    "image", "image_name", "image_tag", "dev_image_name", "dev_image_tag", "platform", "target",
+    "git_https_password", "git_ssh_private_key",
+})
+# Settings that do not affect building an image (push, slim, CI checkout, host workspace).
+NOT_BUILD_INPUTS = frozenset({
+    "registry", "registry_user", "registry_password", "enable_push_as_latest",
+    "enable_singlearch_push", "enable_slim", "slim_build_args", "additional_slim_build_args",
+    "slim_image_name", "slim_image_tag", "docker_ros_git_ref", "enable_checkout",
+    "enable_checkout_submodules", "enable_checkout_lfs", "enable_industrial_ci", "workspace",
+})
 STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
 STEP_START = re.compile(r"Starting >>> (\w+)")
 STEP_END = re.compile(r"(Finished|Failed  ) <<< (\w+)")
@@ -211,7 +224,7 @@ def build_image(
     secrets: Dict[str, str] = {}
     with tempfile.TemporaryDirectory(prefix="docker-ros-build-") as tmp:
         for name in SECRETS:
-            value = read_secret_value(settings, name)
+            value = getattr(settings, name)
             if value:
                 # Passed by environment to buildx only: never argv, never a file, never a log.
                 child_env[f"DOCKER_ROS_SECRET_{env_name(name)}"] = value

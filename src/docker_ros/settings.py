@@ -1,4 +1,4 @@
-"""The one typed settings object: every docker-ros variable declared once, loaded by a pure function."""
+"""The one typed settings object: every docker-ros variable declared once, loaded purely."""
 
 from __future__ import annotations
 

@@ -6,16 +6,30 @@ the step modules or the image build. Errors users can fix end as one line and a 
 
 from __future__ import annotations
 
+import dataclasses
+import getpass
 import inspect
+import os
+import subprocess
+import sys
 from pathlib import Path
-from typing import Any, Callable, Dict, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
 
+from docker_ros import build
+from docker_ros.build import BuiltImage
 from docker_ros.config import config_table, read_settings
-from docker_ros.settings import FIELDS, Settings, SettingsError, is_secret
+from docker_ros.settings import (
+    FIELDS,
+    Settings,
+    SettingsError,
+    is_secret,
+    require,
+    required_for_build,
+)
 from docker_ros.steps import STEPS
-from docker_ros.steps.common import StepError, Workspace, setup_logging
+from docker_ros.steps.common import StepError, Workspace, format_argv, setup_logging
 
 Flag = Tuple[str, object, str]  # name, default, help
 DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change nothing")
@@ -146,15 +160,118 @@ def run(c: Context, settings: Settings, *, host: bool, dry_run: bool) -> None:
     _build(settings, ("run",), dry_run=dry_run)
 
 
-def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> None:
-    raise TaskError("image builds are not implemented yet")
+def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[BuiltImage]:
+    """Build the targets for every platform; print the summary table."""
+    settings = dataclasses.replace(settings, target=tuple(targets))
+    require(settings, required_for_build(settings))
+    assert settings.base_image
+    if not dry_run and not build.base_image_available(settings.base_image):
+        raise TaskError(
+            f"BASE_IMAGE '{settings.base_image}' is neither a local image nor pullable: check "
+            "the name, `docker login`, or make one with `inv bootstrap-base-image`"
+        )
+    built: List[BuiltImage] = []
+    for platform in settings.platform:
+        for target in [t for t in ("dev", "run") if t in targets]:
+            tag = build.platform_ref(build.image_ref(settings, target), platform, settings.platform)
+            if dry_run:
+                argv = build.plan_build(settings, target=target, platform=platform,
+                                        tools_image=f"{build.TOOLS_REPOSITORY}:<hash>",
+                                        tag=tag, secrets={})
+                print("[dry-run] build:", format_argv(argv))
+                continue
+            try:
+                built.append(build.build_image(settings, target=target, platform=platform,
+                                               tag=tag))
+            except build.BuildError as exc:
+                raise TaskError(str(exc)) from None
+    if built:
+        print(build.summary_table(built))
+    return built
+
+
+@settings_task("build", "Build the TARGET images (dev, run) for every PLATFORM", [DRY_RUN])
+def build_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+    _build(settings, settings.target, dry_run=dry_run)
+
+
+@settings_task(
+    "dev-shell",
+    "Interactive shell in the dev image: repository mounted, host user mapped, ws sourced",
+    [("rebuild", False, "Build the dev image first even if it exists")],
+)
+def dev_shell(c: Context, settings: Settings, *, rebuild: bool) -> None:
+    ref = build.image_ref(settings, "dev")
+    if rebuild or not build.image_exists(ref):
+        _build(settings, ("dev",), dry_run=False)
+    argv = dev_shell_argv(settings, ref, uid=os.getuid(), gid=os.getgid(),
+                          user=getpass.getuser(), tty=sys.stdin.isatty())
+    raise SystemExit(subprocess.call(argv))
+
+
+def dev_shell_argv(
+    settings: Settings, ref: str, *, uid: int, gid: int, user: str, tty: bool
+) -> List[str]:
+    repository = Path(settings.build_context).resolve()
+    argv = ["docker", "run", "--rm", "-i"] + (["-t"] if tty else [])
+    argv += ["-v", f"{repository}:/docker-ros/ws/src/target"]
+    argv += ["-e", f"DOCKER_UID={uid}", "-e", f"DOCKER_GID={gid}", "-e", f"DOCKER_USER={user}"]
+    return argv + [ref, "bash"]
+
+
+@settings_task(
+    "bootstrap-base-image",
+    "Build a ROS base image from a Debian mirror with debootstrap (no registry needed)",
+    [
+        ("flavor", "ros1", "ros1 (Debian bookworm + ROS 1) or ros2 (Debian trixie + ament/colcon)"),
+        ("tag", "", "Image tag (default docker-ros/<flavor>:<suite>)"),
+        ("mirror", "http://deb.debian.org/debian", "Debian mirror"),
+        ("force", False, "Rebuild even if the tag exists"),
+    ],
+)
+def bootstrap_base_image(
+    c: Context, settings: Settings, *, flavor: str, tag: str, mirror: str, force: bool
+) -> None:
+    from docker_ros import baseimage
+
+    if flavor not in baseimage.FLAVORS:
+        raise TaskError(f"--flavor {flavor!r}: use one of {', '.join(baseimage.FLAVORS)}")
+    tag = tag or baseimage.default_tag(flavor)
+    for platform in settings.platform:
+        ref = tag if len(settings.platform) == 1 else f"{tag}-{platform}"
+        print(baseimage.bootstrap(flavor, tag=ref, mirror=mirror, platform=platform, force=force))
+
+
+@settings_task(
+    "example",
+    "Bootstrap the ROS 1 base image if missing, build the example's dev+run images, run it",
+    [("seconds", 20, "How long to let the example's run image run")],
+)
+def example(c: Context, settings: Settings, *, seconds: int) -> None:
+    from docker_ros import baseimage
+
+    project = Path(__file__).resolve().parents[2] / "example"
+    if not project.is_dir():
+        raise TaskError(f"{project} not found: the example ships with the source repository")
+    settings = read_settings({}, {"build_context": str(project)}, project_dir=project)
+    assert settings.base_image
+    if not build.image_exists(settings.base_image):
+        baseimage.bootstrap("ros1", tag=settings.base_image)
+    images = _build(settings, ("dev", "run"), dry_run=False)
+    run_ref = next(i.ref for i in images if i.target == "run")
+    print(f"docker run --rm {run_ref}   (stopped after {seconds} s)")
+    try:
+        subprocess.run(["docker", "run", "--rm", "--init", "--name", "docker-ros-example",
+                        run_ref], timeout=seconds)
+    except subprocess.TimeoutExpired:
+        subprocess.run(["docker", "rm", "-f", "docker-ros-example"], capture_output=True)
 
 
 def collection() -> Collection:
     ns = Collection()
     for step in STEPS:
         ns.add_task(make_step_task(step))
-    for task in (config, dev, run):
+    for task in (config, dev, run, build_task, dev_shell, bootstrap_base_image, example):
         ns.add_task(task)
     return ns
 

@@ -1,0 +1,96 @@
+"""Pure planning of image builds: argv, tags, build args, secrets, log folding."""
+
+import io
+from pathlib import Path
+
+from docker_ros import build
+from docker_ros.settings import FIELDS, load_settings
+
+
+def settings(**environ):
+    return load_settings(environ={"BASE_IMAGE": "base:1", "COMMAND": "run me", **environ},
+                         project_dir=Path("/tmp/My_Robot"))
+
+
+def plan(s, **kw):
+    args = {"target": "run", "platform": "amd64", "tools_image": "tools:x", "tag": "img:t",
+            "secrets": {}}
+    args.update(kw)
+    return build.plan_build(s, **args)
+
+
+def test_every_setting_reaches_the_build_or_is_deliberately_not_an_input():
+    declared = {a.lower() for a in build.dockerfile_args()}
+    for name in FIELDS:
+        assert (
+            name in declared or name in build.HANDLED_BY_TOOL or name in build.NOT_BUILD_INPUTS
+        ), f"{name} neither reaches the Dockerfile nor is handled: decide where it goes"
+
+
+def test_unset_settings_stay_unset_and_set_ones_are_passed():
+    argv = plan(settings(ROS_DISTRO="noetic"))
+    assert "ROS_DISTRO=noetic" in argv
+    assert not any(a.startswith("GIT_HTTPS_SERVER=") for a in argv)
+    assert "BASE_IMAGE=base:1" in argv and "DOCKER_ROS_TOOLS=tools:x" in argv
+    assert argv[argv.index("--target") + 1] == "run"
+    assert argv[argv.index("--platform") + 1] == "linux/amd64"
+    assert argv[-2:] == ["--load", "."]
+
+
+def test_secrets_are_never_build_arguments():
+    s = settings(GIT_HTTPS_PASSWORD="hunter2", GIT_SSH_PRIVATE_KEY="-----KEY-----",
+                 REGISTRY_PASSWORD="regpw")
+    argv = plan(s, secrets={"GIT_HTTPS_PASSWORD": "env=DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD"})
+    joined = " ".join(argv)
+    for secret in ("hunter2", "-----KEY-----", "regpw"):
+        assert secret not in joined
+    assert "id=GIT_HTTPS_PASSWORD,env=DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD" in argv
+
+
+def test_cache_from_and_attestations():
+    argv = plan(settings(CACHE_FROM="127.0.0.1:5000/x:latest"))
+    assert argv[argv.index("--cache-from") + 1] == "127.0.0.1:5000/x:latest"
+    assert "--provenance=false" in argv
+    assert "--provenance=false" not in plan(settings(BUILDX_ATTESTATIONS="true"))
+
+
+def test_image_refs_follow_docker_ros():
+    s = settings(IMAGE="Reg/Img:v1")
+    assert build.image_ref(s, "run") == "reg/img:v1"
+    assert build.image_ref(s, "dev") == "reg/img:v1-dev"
+    assert build.image_ref(s, "slim") == "reg/img:v1-slim"
+    assert build.platform_ref("reg/img:v1", "arm64", ("amd64", "arm64")) == "reg/img:v1-arm64"
+    assert build.platform_ref("reg/img:v1", "amd64", ("amd64",)) == "reg/img:v1"
+
+
+def test_log_folding_per_ci():
+    lines = ["#5 0.1 Starting >>> rosdep\n", "#5 0.2 something\n",
+             "#5 0.3 Finished <<< rosdep [0.2s]\n"]
+    for environ, start, end in (
+        ({"GITHUB_ACTIONS": "true"}, "::group::rosdep", "::endgroup::"),
+        ({"GITLAB_CI": "true"}, "section_start:", "section_end:"),
+        ({}, "----- rosdep", "----- end of rosdep"),
+    ):
+        out = io.StringIO()
+        build.stream_build(iter(lines), out, environ)
+        text = out.getvalue()
+        assert start in text and end in text
+        assert text.index(start) < text.index("something") < text.index(end)
+
+
+def test_step_errors_are_collected_from_the_log():
+    out = io.StringIO()
+    errors = build.stream_build(
+        iter(["#7 1.0 docker-ros rosdep: no rosdep rule for 'nope' (needed by pkg_a)\n"]),
+        out, {},
+    )
+    assert errors == ["rosdep: no rosdep rule for 'nope' (needed by pkg_a)"]
+
+
+def test_ca_bundle_accepts_file_or_folder(tmp_path):
+    pem = "-----BEGIN CERTIFICATE-----\nabc\n-----END CERTIFICATE-----\n"
+    (tmp_path / "certs").mkdir()
+    (tmp_path / "certs" / "a.crt").write_text(pem)
+    (tmp_path / "certs" / "README").write_text("not a cert")
+    bundle = build.ca_bundle(tmp_path / "certs", tmp_path / "out.pem")
+    assert bundle.read_text().count("BEGIN CERTIFICATE") == 1

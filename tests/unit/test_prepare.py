@@ -1,0 +1,79 @@
+"""ROS installation decisions of the image's prepare stage (the ROS apt paths cannot run here)."""
+
+import pytest
+
+from docker_ros.steps.common import StepError
+from docker_ros.steps.prepare import (
+    plan_ros_installation,
+    plan_tool_packages,
+    ros_package_names,
+    ros_present,
+)
+
+
+def plan(**kw):
+    args = {"ros_installed": False, "disabled": False, "distro": "jazzy",
+            "rmw_implementation": "rmw_fastrtps_cpp", "apt_source_version": "1.1.0",
+            "os_codename": "noble"}
+    args.update(kw)
+    return plan_ros_installation(**args)
+
+
+def test_ros_present_or_disabled_installs_nothing():
+    assert plan(ros_installed=True) == []
+    assert plan(disabled=True) == []
+    assert plan(disabled=True, distro=None) == []
+
+
+def test_ros2_installation_commands_use_pinned_apt_source_and_rmw():
+    commands = plan(distro="jazzy", rmw_implementation="rmw_cyclonedds_cpp")
+    download = next(c for c in commands if c[0] == "curl")
+    assert download[-1] == (
+        "https://github.com/ros-infrastructure/ros-apt-source/releases/download/"
+        "1.1.0/ros2-apt-source_1.1.0.noble_all.deb"
+    )
+    assert ["apt-get", "install", "-y", "/tmp/ros2-apt-source.deb"] in commands
+    assert commands[-1][-2:] == ["ros-jazzy-ros-core", "ros-jazzy-rmw-cyclonedds-cpp"]
+
+
+def test_ros1_uses_ros_apt_source_and_no_rmw():
+    commands = plan(distro="noetic", os_codename="focal")
+    assert any("ros-apt-source_1.1.0.focal_all.deb" in c[-1] for c in commands)
+    assert commands[-1][-1] == "ros-noetic-ros-core"
+    assert ros_package_names("noetic", "rmw_fastrtps_cpp") == ["ros-noetic-ros-core"]
+
+
+def test_missing_ros_without_distro_is_a_clear_error():
+    with pytest.raises(StepError, match="ROS_DISTRO"):
+        plan(distro=None)
+
+
+@pytest.mark.parametrize(
+    "rmw, package",
+    [("rmw_fastrtps_cpp", "ros-humble-rmw-fastrtps-cpp"),
+     ("rmw_zenoh_cpp", "ros-humble-rmw-zenoh-cpp"),
+     ("rmw_cyclonedds_cpp", "ros-humble-rmw-cyclonedds-cpp")],
+)
+def test_rmw_package_names(rmw, package):
+    assert ros_package_names("humble", rmw)[-1] == package
+
+
+def test_ros_present_detects_opt_ros_and_debian_ros(tmp_path):
+    assert not ros_present(tmp_path)
+    (tmp_path / "opt/ros/jazzy").mkdir(parents=True)
+    (tmp_path / "opt/ros/jazzy/setup.bash").write_text("")
+    assert ros_present(tmp_path, "jazzy")
+    debian = tmp_path / "debian"
+    (debian / "usr/bin").mkdir(parents=True)
+    (debian / "usr/bin/roscore").write_text("")
+    assert ros_present(debian)
+
+
+def test_tool_packages_prefer_ros_repo_then_debian():
+    assert plan_tool_packages(["rosdep"], ["python3-rosdep", "python3-rosdep2"]) == [
+        "python3-rosdep"
+    ]
+    debian = plan_tool_packages(["colcon", "vcs"], ["colcon", "vcstool", "python3-colcon-ros"])
+    assert debian == ["colcon", "python3-colcon-ros", "vcstool"]
+    with pytest.raises(StepError, match="no apt package provides 'vcs'"):
+        plan_tool_packages(["vcs"], [])
