@@ -165,6 +165,22 @@ def tools_tree(destination: Path) -> str:
     return digest.hexdigest()[:16]
 
 
+def dockerignore(context: Path) -> str:
+    """The user's .dockerignore plus ours: `.env` files hold credentials and stay out."""
+    user = context / ".dockerignore"
+    lines = user.read_text().splitlines() if user.is_file() else []
+    return "\n".join([*lines, "# added by docker-ros", ".env", "**/.env"]) + "\n"
+
+
+def stage_dockerfile(context: Path, destination: Path) -> Path:
+    """Our Dockerfile beside a Dockerfile.dockerignore (BuildKit reads it instead of the
+    context's .dockerignore), so the user's repository is never modified."""
+    dockerfile = destination / "Dockerfile"
+    shutil.copy2(DOCKERFILE, dockerfile)
+    (destination / "Dockerfile.dockerignore").write_text(dockerignore(context))
+    return dockerfile
+
+
 def image_exists(ref: str) -> bool:
     proc = subprocess.run(["docker", "image", "inspect", ref], capture_output=True)
     return proc.returncode == 0
@@ -232,8 +248,9 @@ def build_image(
         if settings.extra_ca_certs:
             bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
             secrets["EXTRA_CA_CERTS"] = f"src={bundle}"
+        dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         argv = plan_build(settings, target=target, platform=platform, tools_image=tools,
-                          tag=tag, secrets=secrets, push=push)
+                          tag=tag, secrets=secrets, push=push, dockerfile=dockerfile)
         start, end = fold_markers(environ)
         out.write(fold(start, f"build {target} ({platform}) -> {tag}") + "\n")
         began = time.monotonic()

@@ -94,3 +94,18 @@ def test_ca_bundle_accepts_file_or_folder(tmp_path):
     (tmp_path / "certs" / "README").write_text("not a cert")
     bundle = build.ca_bundle(tmp_path / "certs", tmp_path / "out.pem")
     assert bundle.read_text().count("BEGIN CERTIFICATE") == 1
+
+
+def test_dockerignore_keeps_env_files_out_and_the_users_rules(tmp_path):
+    (tmp_path / ".dockerignore").write_text("build/\n")
+    staged = build.stage_dockerfile(tmp_path, _mk(tmp_path))
+    ignore = (staged.parent / "Dockerfile.dockerignore").read_text().splitlines()
+    assert ignore[0] == "build/" and ".env" in ignore and "**/.env" in ignore
+    assert staged.read_text() == build.DOCKERFILE.read_text()
+    assert (tmp_path / ".dockerignore").read_text() == "build/\n"
+
+
+def _mk(tmp_path):
+    out = tmp_path / "staged"
+    out.mkdir()
+    return out

@@ -27,6 +27,8 @@ TOOLS: Dict[str, Sequence[str]] = {
     "colcon": ("python3-colcon-common-extensions", "colcon"),
     "pip3": ("python3-pip",),
 }
+# The toolchain of dev images (run images never get it): prepare with dependency types "all".
+DEV_TOOLS = ("build-essential", "cmake", "python3-pip")
 # Extra Debian packages that make the plain `colcon` package useful for ROS workspaces.
 DEBIAN_COLCON_EXTRAS = ("python3-colcon-ros", "python3-colcon-cmake", "python3-colcon-bash",
                         "python3-colcon-package-selection", "python3-colcon-test-result",
@@ -164,6 +166,14 @@ def main(
         )
         for argv in commands:
             run(argv, step="prepare", dry_run=dry_run, env=apt_env())
+        if options.get("dependency_types") == "all":
+            # dependencies-dev stage: the base is prepared already; add the build toolchain.
+            if shutil.which("g++") is None:
+                LOG.info("prepare: installing the build toolchain of the dev image")
+                run(["apt-get", "update"], step="prepare", dry_run=dry_run, env=apt_env())
+                run(["apt-get", "install", "-y", "--no-install-recommends", *DEV_TOOLS],
+                    step="prepare", dry_run=dry_run, env=apt_env())
+            return
         missing = [tool for tool in TOOLS if shutil.which(tool) is None]
         if missing:
             LOG.info("prepare: installing missing tools: %s", ", ".join(missing))

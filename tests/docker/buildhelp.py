@@ -1,0 +1,72 @@
+"""Running docker-ros as a user would (the console script) and inspecting what it built."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Dict, List, Optional
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLE = REPO / "example"
+
+
+def docker_ros(project: Path, *args: str, env: Optional[Dict[str, str]] = None,
+               timeout: int = 1800) -> subprocess.CompletedProcess:
+    """`docker-ros ARGS` in project; output (stdout+stderr) in .stdout."""
+    full_env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    full_env.update(env or {})
+    return subprocess.run([sys.executable, "-m", "docker_ros", *args], cwd=project,
+                          env=full_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                          text=True, timeout=timeout)
+
+
+def write_env(project: Path, **values: str) -> None:
+    (project / ".env").write_text("".join(f"{k}={v}\n" for k, v in values.items()))
+
+
+def copy_example(destination: Path) -> Path:
+    shutil.copytree(EXAMPLE, destination)
+    return destination
+
+
+def image_exists(ref: str) -> bool:
+    return subprocess.run(["docker", "image", "inspect", ref],
+                          capture_output=True).returncode == 0
+
+
+def remove_image(ref: str) -> None:
+    subprocess.run(["docker", "image", "rm", "-f", ref], capture_output=True)
+
+
+def sh(ref: str, script: str, *docker_args: str) -> subprocess.CompletedProcess:
+    """Run a bash script in a container of ref, through the image's entrypoint."""
+    return subprocess.run(["docker", "run", "--rm", *docker_args, ref, "bash", "-c", script],
+                          capture_output=True, text=True, timeout=300)
+
+
+def run_until(ref: str, needle: str, seconds: float, *docker_args: str) -> str:
+    """Run the image's default command until needle appears in its output (or time is up)."""
+    name = f"docker-ros-test-{os.getpid()}-{int(time.time() * 1000)}"
+    proc = subprocess.Popen(["docker", "run", "--rm", "--name", name, *docker_args, ref],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: List[str] = []
+    deadline = time.monotonic() + seconds
+    try:
+        assert proc.stdout is not None
+        os.set_blocking(proc.stdout.fileno(), False)
+        while time.monotonic() < deadline and proc.poll() is None:
+            chunk = proc.stdout.readline()
+            if chunk:
+                lines.append(chunk)
+                if needle in chunk:
+                    break
+            else:
+                time.sleep(0.2)
+    finally:
+        subprocess.run(["docker", "rm", "-f", name], capture_output=True)
+        proc.wait(timeout=60)
+    return "".join(lines)

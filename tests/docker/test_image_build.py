@@ -1,0 +1,199 @@
+"""`docker-ros build` on a real Docker engine: the example's dev and run images, caching,
+user mapping, underlaying a docker-ros base image, and bad input (issue: container images)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tests.docker.buildhelp import (
+    copy_example,
+    docker_ros,
+    image_exists,
+    remove_image,
+    run_until,
+    sh,
+    write_env,
+)
+
+pytestmark = pytest.mark.docker
+
+EXAMPLE_COMMAND = "roslaunch docker_ros_example talker_listener.launch"
+
+
+def cmake_package(root: Path, name: str, *, depends: tuple = (), body: str = "") -> Path:
+    """A `cmake` build-type ROS package with one executable printing its name."""
+    pkg = root / name
+    (pkg / "src").mkdir(parents=True)
+    deps = "".join(f"  <depend>{d}</depend>\n" for d in depends)
+    (pkg / "package.xml").write_text(
+        f'<?xml version="1.0"?>\n<package format="3">\n  <name>{name}</name>\n'
+        f"  <version>0.0.1</version>\n  <description>test</description>\n"
+        f'  <maintainer email="t@example.com">t</maintainer>\n  <license>MIT</license>\n'
+        f"{deps}  <export><build_type>cmake</build_type></export>\n</package>\n"
+    )
+    (pkg / "CMakeLists.txt").write_text(
+        f"cmake_minimum_required(VERSION 3.10)\nproject({name} CXX)\n"
+        f"add_executable({name} src/main.cpp)\ninstall(TARGETS {name} DESTINATION bin)\n"
+    )
+    (pkg / "src" / "main.cpp").write_text(
+        body or f'#include <cstdio>\nint main() {{ std::puts("{name} says hi"); }}\n'
+    )
+    return pkg
+
+
+@pytest.fixture(scope="module")
+def example(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The example workspace (a copy), built once for dev and run."""
+    project = copy_example(tmp_path_factory.mktemp("example") / "example")
+    write_env(project, BASE_IMAGE=ros1_base_image, COMMAND=EXAMPLE_COMMAND,
+              IMAGE="docker-ros-test/example:latest", TARGET="dev,run")
+    result = docker_ros(project, "build")
+    assert result.returncode == 0, result.stdout[-5000:]
+    return {"project": project, "log": result.stdout, "base": ros1_base_image,
+            "dev": "docker-ros-test/example:latest-dev", "run": "docker-ros-test/example:latest"}
+
+
+def test_build_ends_with_summary_table_and_folded_steps(example: dict) -> None:
+    log = example["log"]
+    assert "IMAGE" in log and "BUILD TIME" in log
+    assert "docker-ros-test/example  latest-dev" in log
+    assert "----- rosdep" in log and "----- end of rosdep" in log
+
+
+def test_run_image_runs_the_node(example: dict) -> None:
+    out = run_until(example["run"], "I heard: hello from docker-ros", 60)
+    assert "I heard: hello from docker-ros" in out, out[-3000:]
+
+
+def test_run_image_has_no_compiler_and_no_sources(example: dict) -> None:
+    probe = "command -v gcc g++ cc c++ || true; ls /docker-ros/ws"
+    base = sh(example["base"], probe, "--entrypoint", "")
+    assert "gcc" not in base.stdout, "the base image must lack a compiler for this test"
+    run = sh(example["run"], probe)
+    assert run.returncode == 0, run.stderr
+    assert not any(tool in run.stdout for tool in ("/gcc", "/g++", "/cc", "/c++")), run.stdout
+    assert run.stdout.split() == ["install"]
+    talker = sh(example["run"], "ls /docker-ros/ws/install/lib/docker_ros_example")
+    assert "talker" in talker.stdout and "listener.py" in talker.stdout
+
+
+def test_dev_image_has_sources_and_builds_them(example: dict) -> None:
+    check = sh(example["dev"], "ls src/target/docker_ros_example/package.xml && "
+               "command -v g++ && colcon build 2>&1 | tail -3")
+    assert check.returncode == 0, check.stdout + check.stderr
+    assert "1 package finished" in check.stdout
+
+
+def test_rebuild_after_source_edit_installs_nothing_and_ships_the_change(example: dict) -> None:
+    project = example["project"]
+    talker = project / "docker_ros_example" / "src" / "talker.cpp"
+    talker.write_text(talker.read_text().replace("hello from docker-ros", "edited message"))
+    result = docker_ros(project, "build", "--target", "run")
+    assert result.returncode == 0, result.stdout[-5000:]
+    # The dependency installation layer is reused from cache: nothing is installed again.
+    install_lines = [line for line in result.stdout.splitlines()
+                     if "rosdep --phase apply" in line and "CACHED" in line]
+    assert install_lines, result.stdout[-5000:]
+    assert "apt-get install" not in result.stdout
+    out = run_until(example["run"], "I heard: edited message", 60)
+    assert "I heard: edited message" in out, out[-3000:]
+
+
+def test_no_change_rebuild_is_fully_cached(example: dict) -> None:
+    result = docker_ros(example["project"], "build", "--target", "run")
+    assert result.returncode == 0, result.stdout[-3000:]
+    # Every RUN came from cache: no step started.
+    assert "Starting >>>" not in result.stdout, result.stdout[-3000:]
+
+
+def test_host_user_mapping_owns_files_written_in_mounts(example: dict, tmp_path: Path) -> None:
+    tmp_path.chmod(0o777)
+    result = sh(example["run"], "touch /data/made-inside && id -un",
+                "-e", "DOCKER_UID=4321", "-e", "DOCKER_GID=4322", "-e", "DOCKER_USER=robot",
+                "-v", f"{tmp_path}:/data")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "robot"
+    made = (tmp_path / "made-inside").stat()
+    assert (made.st_uid, made.st_gid) == (4321, 4322)
+
+
+def test_user_mapping_collision_warns_and_goes_on(example: dict) -> None:
+    result = sh(example["run"], "id -u", "-e", "DOCKER_UID=0", "-e", "DOCKER_GID=0")
+    assert result.returncode == 0
+    assert result.stdout.strip() == "0"
+    assert "exists already" in result.stderr
+
+
+def test_docker_ros_image_as_base_underlays_its_workspace(
+    ros1_base_image: str, tmp_path: Path
+) -> None:
+    repo_a = tmp_path / "a"
+    cmake_package(repo_a, "lib_a")
+    write_env(repo_a, BASE_IMAGE=ros1_base_image, COMMAND="lib_a", IMAGE="docker-ros-test/a:1")
+    built = docker_ros(repo_a, "build")
+    assert built.returncode == 0, built.stdout[-4000:]
+    repo_b = tmp_path / "b"
+    cmake_package(repo_b, "app_b", depends=("lib_a",))
+    write_env(repo_b, BASE_IMAGE="docker-ros-test/a:1", COMMAND="lib_a && app_b",
+              IMAGE="docker-ros-test/b:1")
+    built = docker_ros(repo_b, "build")
+    assert built.returncode == 0, built.stdout[-4000:]
+    ran = subprocess.run(["docker", "run", "--rm", "docker-ros-test/b:1"],
+                         capture_output=True, text=True, timeout=120)
+    assert ran.stdout.split("\n")[:2] == ["lib_a says hi", "app_b says hi"], ran
+    underlay = sh("docker-ros-test/b:1", "ls /opt/ws_base_image/install/bin")
+    assert "lib_a" in underlay.stdout
+
+
+# ---------------------------------------------------------------------------- bad input
+
+
+def test_missing_base_image_and_command_reported_together(tmp_path: Path) -> None:
+    result = docker_ros(tmp_path, "build", "--target", "dev,run")
+    assert result.returncode != 0
+    assert "BASE_IMAGE" in result.stdout and "COMMAND" in result.stdout
+    assert "Traceback" not in result.stdout
+
+
+def test_base_image_that_does_not_exist(tmp_path: Path) -> None:
+    cmake_package(tmp_path, "pkg")
+    write_env(tmp_path, BASE_IMAGE="docker-ros-test/no-such-image:1", COMMAND="pkg",
+              IMAGE="docker-ros-test/never:1")
+    result = docker_ros(tmp_path, "build")
+    assert result.returncode != 0
+    assert "docker-ros-test/no-such-image:1" in result.stdout and "BASE_IMAGE" in result.stdout
+    assert not image_exists("docker-ros-test/never:1")
+
+
+@pytest.mark.parametrize(
+    "case, step, needles",
+    [
+        ("custom", "custom", ["docker/custom.sh", "exit code 3"]),
+        ("rosdep", "rosdep", ["no_such_rosdep_key", "needs_missing"]),
+        ("colcon", "colcon", ["broken_pkg"]),
+    ],
+)
+def test_failing_step_names_step_and_cause_and_tags_nothing(
+    ros1_base_image: str, tmp_path: Path, case: str, step: str, needles: list
+) -> None:
+    tag = f"docker-ros-test/bad-{case}:1"
+    remove_image(tag)
+    if case == "custom":
+        cmake_package(tmp_path, "pkg")
+        (tmp_path / "docker").mkdir()
+        (tmp_path / "docker" / "custom.sh").write_text("echo failing on purpose\nexit 3\n")
+    elif case == "rosdep":
+        cmake_package(tmp_path, "needs_missing", depends=("no_such_rosdep_key",))
+    else:
+        cmake_package(tmp_path, "broken_pkg", body="int main() { this is not C++; }\n")
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND="true", IMAGE=tag)
+    result = docker_ros(tmp_path, "build")
+    assert result.returncode != 0
+    last = result.stdout.strip().splitlines()[-1]
+    assert f"failed in step {step}" in last, result.stdout[-3000:]
+    for needle in needles:
+        assert needle in last, last
+    assert not image_exists(tag)
