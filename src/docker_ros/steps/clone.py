@@ -1,0 +1,354 @@
+"""clone: run the before-dependency-identification hook, then import `.repos` files with vcstool
+into src/upstream; recursive mode repeats until no new `.repos` file appears.
+
+Every imported file is recorded (path, sha256, repositories) in clone.json, so a re-run imports
+nothing twice. Credentials reach git only through the environment of the vcs process and files
+in a private temporary directory that is removed when the step ends."""
+
+import contextlib
+import logging
+import os
+import re
+import shutil
+import stat
+import tempfile
+from pathlib import Path
+from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Set
+
+from docker_ros.settings import Settings
+from docker_ros.steps.common import (
+    SECRETS_DIR,
+    StepError,
+    Workspace,
+    dry,
+    file_sha256,
+    find_special_files,
+    format_argv,
+    phases,
+    read_secret,
+    remove_tree,
+    run,
+    run_tee,
+    step_log,
+)
+
+STEP = "clone"
+STATE_FILE = "clone.json"
+MAX_ROUNDS = 50  # nested .repos levels; far more than any real workspace has
+LOG = logging.getLogger(__name__)
+
+# GIT_ASKPASS helper: answers git's prompts for the configured server only, from variables that
+# exist only in the environment of the vcs process (never in a file, never on a command line).
+ASKPASS_SCRIPT = """#!/bin/sh
+case "$1" in
+  *"://$DOCKER_ROS_GIT_HTTPS_HOST"*|*"@$DOCKER_ROS_GIT_HTTPS_HOST"*) ;;
+  *) exit 1 ;;
+esac
+case "$1" in
+  Username*) printf '%s\\n' "$DOCKER_ROS_GIT_HTTPS_USER" ;;
+  *) printf '%s\\n' "$DOCKER_ROS_GIT_HTTPS_PASSWORD" ;;
+esac
+"""
+_FAILURE = re.compile(
+    r"^(Could not|Failed|fatal:|error:|ERROR|Repository type|Path .* already exists)"
+    r"|already exists and (is|contains)",
+    re.IGNORECASE,
+)
+
+
+# --- .repos files (the simple YAML subset vcstool writes; vcstool itself parses for real) ---
+
+
+def _unquote(text: str) -> str:
+    text = text.strip()
+    if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
+        return text[1:-1]
+    return text
+
+
+def _strip_comment(line: str) -> str:
+    return re.sub(r"(^|\s)#.*$", "", line).rstrip()
+
+
+def parse_repos(text: str) -> Dict[str, Dict[str, str]]:
+    """Repositories of a .repos file: name -> {type, url, version} (only what is given)."""
+    repos: Dict[str, Dict[str, str]] = {}
+    in_repositories = False
+    entry_indent: Optional[int] = None
+    current: Optional[Dict[str, str]] = None
+    for raw in text.splitlines():
+        line = _strip_comment(raw)
+        if not line.strip() or line.strip() in ("---", "..."):
+            continue
+        indent = len(line) - len(line.lstrip())
+        body = line.strip()
+        if indent == 0:
+            in_repositories = body.split(":", 1)[0].strip() == "repositories"
+            entry_indent, current = None, None
+            rest = body.split(":", 1)[1].strip() if ":" in body else ""
+            if in_repositories and rest.startswith("{"):
+                # Flow style on one line: `repositories: {a: {url: ...}}` (rare): names only.
+                for name in re.findall(r"[{,]\s*([^:{},]+?)\s*:\s*\{", rest):
+                    repos[_unquote(name)] = {}
+            continue
+        if not in_repositories:
+            continue
+        if entry_indent is None or indent <= entry_indent:
+            entry_indent = indent
+            name, _, rest = body.partition(":")
+            current = repos.setdefault(_unquote(name), {})
+            rest = rest.strip()
+            if rest.startswith("{") and rest.endswith("}"):
+                for item in rest[1:-1].split(","):
+                    key, _, value = item.partition(":")
+                    if key.strip():
+                        current[key.strip()] = _unquote(value)
+        elif current is not None:
+            key, _, value = body.partition(":")
+            if key.strip() in ("type", "url", "version"):
+                current[key.strip()] = _unquote(value)
+    return repos
+
+
+def parse_vcs_failures(lines: Sequence[str], dest: Path, names: Sequence[str]) -> Dict[str, str]:
+    """Repositories whose `=== path (type) ===` block in vcs output reports an error, with
+    vcstool's reason (first error line)."""
+    blocks: Dict[str, List[str]] = {}
+    current: Optional[List[str]] = None
+    for line in lines:
+        header = re.match(r"^=== (.+) \(\w+\) ===$", line.strip())
+        if header:
+            path = header.group(1)
+            name = _repo_of(path, dest, names)
+            current = blocks.setdefault(name, []) if name else None
+        elif current is not None and line.strip():
+            current.append(line.strip())
+    failures = {}
+    for name, text in blocks.items():
+        bad = [line for line in text if _FAILURE.search(line)]
+        if not bad:
+            continue
+        reason = re.sub(r":\s*Cloning into .*$", "", bad[0])
+        detail = [line for line in bad if re.match(r"^(fatal|error):", line)]
+        if detail and detail[0] not in reason:
+            reason += ": " + detail[0]
+        failures[name] = reason
+    return failures
+
+
+def _repo_of(path: str, dest: Path, names: Sequence[str]) -> Optional[str]:
+    for name in sorted(names, key=len, reverse=True):
+        if Path(path) == dest / name or path.rstrip("/").endswith("/" + name) or path == name:
+            return name
+    return None
+
+
+# --- credentials ---
+
+
+def _multiline(value: str) -> str:
+    """Keys given in one line with literal `\\n` (docker-ros used `echo -e`) become real lines."""
+    if "\n" not in value and "\\n" in value:
+        value = value.replace("\\n", "\n")
+    return value if value.endswith("\n") else value + "\n"
+
+
+def _private_file(directory: str, name: str, content: str) -> str:
+    path = os.path.join(directory, name)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as handle:
+        handle.write(content)
+    return path
+
+
+@contextlib.contextmanager
+def git_credentials(
+    settings: Settings, *, secrets_dir: Path = SECRETS_DIR
+) -> Iterator[Dict[str, str]]:
+    """Environment additions that let git authenticate, valid while the context is open."""
+    server = read_secret(settings, "git_https_server", secrets_dir)
+    user = read_secret(settings, "git_https_user", secrets_dir)
+    password = read_secret(settings, "git_https_password", secrets_dir)
+    key = read_secret(settings, "git_ssh_private_key", secrets_dir)
+    known_hosts = read_secret(settings, "git_ssh_known_host_keys", secrets_dir)
+    env: Dict[str, str] = {}
+    if not ((server and password) or key):
+        yield env
+        return
+    tmp = tempfile.mkdtemp(prefix="docker-ros-git-")  # mode 0700
+    try:
+        if server and password:
+            host = re.sub(r"^[a-z]+://", "", server).split("/")[0]
+            askpass = _private_file(tmp, "askpass.sh", ASKPASS_SCRIPT)
+            os.chmod(askpass, stat.S_IRWXU)
+            env.update(
+                GIT_ASKPASS=askpass,
+                DOCKER_ROS_GIT_HTTPS_HOST=host,
+                DOCKER_ROS_GIT_HTTPS_USER=user or "",
+                DOCKER_ROS_GIT_HTTPS_PASSWORD=password,
+            )
+            LOG.info("%s: HTTPS credentials for %s in use", STEP, host)
+        if key:
+            key_file = _private_file(tmp, "id", _multiline(key))
+            command = ["ssh", "-i", key_file, "-o", "IdentitiesOnly=yes"]
+            if known_hosts:
+                hosts_file = _private_file(tmp, "known_hosts", _multiline(known_hosts))
+                user_hosts = os.path.expanduser("~/.ssh/known_hosts")
+                command += ["-o", f"UserKnownHostsFile={hosts_file} {user_hosts}"]
+            env["GIT_SSH_COMMAND"] = format_argv(command)
+            LOG.info("%s: SSH private key in use", STEP)
+        yield env
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+# --- the step ---
+
+
+def run_hook(ws: Workspace, settings: Settings, *, dry_run: bool) -> None:
+    script = ws.target / settings.before_dependency_identification_script
+    if not script.is_file():
+        LOG.info(
+            "%s: no %s, no hook to run", STEP, settings.before_dependency_identification_script
+        )
+        return
+    run(["bash", str(script)], step=STEP, dry_run=dry_run, cwd=ws.root, what=str(script))
+
+
+def import_argv(repos_file: Path, dest: Path, *, skip_existing: bool) -> List[str]:
+    argv = ["vcs", "import", "--recursive", "--input", str(repos_file), str(dest)]
+    return argv + (["--skip-existing"] if skip_existing else [])
+
+
+def candidates(ws: Workspace, settings: Settings) -> List[Path]:
+    return find_special_files(
+        ws,
+        settings.vcs_import_file,
+        recursive=settings.enable_recursive_vcs_import,
+        pattern="*.repos",
+    )
+
+
+def import_file(
+    ws: Workspace,
+    repos_file: Path,
+    repos: Mapping[str, Mapping[str, str]],
+    *,
+    skip_existing: bool,
+    env: Mapping[str, str],
+) -> None:
+    """One `vcs import`; on failure, the repositories it created are removed (so a re-run
+    clones them again) and the error names each failed repository with vcstool's reason."""
+    names = sorted(repos)
+    existed = {name for name in names if (ws.upstream / name).exists()}
+    argv = import_argv(repos_file, ws.upstream, skip_existing=skip_existing)
+    returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env={**os.environ, **env})
+    if returncode == 0:
+        return
+    failures = parse_vcs_failures(lines, ws.upstream, names)
+    doomed = [n for n in names if n not in existed and (n in failures or not failures)]
+    for name in doomed:
+        remove_tree(ws.upstream / name, step=STEP, dry_run=False)
+    if failures:
+        detail = "; ".join(
+            f"repository '{name}' ({repos[name].get('url', '?')}"
+            + (f" @ {repos[name]['version']}" if repos[name].get("version") else "")
+            + f"): {reason}"
+            for name, reason in sorted(failures.items())
+        )
+    else:
+        tail = [line for line in lines if line.strip()][-3:]
+        detail = " / ".join(tail) or "no output"
+    raise StepError(
+        STEP, f"vcs import of {repos_file} failed (exit code {returncode}): {detail}", returncode
+    )
+
+
+def main(
+    ws: Workspace,
+    settings: Settings,
+    *,
+    phase: str = "all",
+    dry_run: bool = False,
+    **options: str,
+) -> None:
+    """Single phase: the hook, then every .repos file, each imported once."""
+    phases(STEP, phase)
+    with step_log(STEP):
+        run_hook(ws, settings, dry_run=dry_run)
+        state = ws.read_state(STATE_FILE) or {}
+        imported: Dict[str, Any] = (
+            dict(state.get("imported") or {}) if isinstance(state, dict) else {}
+        )
+        if dry_run:
+            dry(STEP, f"create {ws.upstream}")
+        else:
+            ws.upstream.mkdir(parents=True, exist_ok=True)
+        seen_paths: Set[str] = set()
+        done_hashes: Set[str] = set()
+        with git_credentials(settings) as env:
+            for _round in range(MAX_ROUNDS):
+                new = []
+                for repos_file in candidates(ws, settings):
+                    real = os.path.realpath(str(repos_file))
+                    if real in seen_paths:
+                        continue
+                    seen_paths.add(real)
+                    new.append(repos_file)
+                if not new:
+                    break
+                for repos_file in new:
+                    _import_once(ws, repos_file, imported, done_hashes, env, dry_run=dry_run)
+                if not settings.enable_recursive_vcs_import or dry_run:
+                    break
+            else:
+                raise StepError(
+                    STEP, f"still finding new .repos files after {MAX_ROUNDS} rounds: giving up"
+                )
+        if not seen_paths:
+            LOG.info("%s: no .repos files, nothing to import", STEP)
+
+
+def _import_once(
+    ws: Workspace,
+    repos_file: Path,
+    imported: Dict[str, Any],
+    done_hashes: Set[str],
+    env: Mapping[str, str],
+    *,
+    dry_run: bool,
+) -> None:
+    rel = ws.relative(repos_file)
+    digest = file_sha256(repos_file)
+    repos = parse_repos(repos_file.read_text())
+    record = imported.get(rel) or {}
+    if digest in done_hashes:
+        LOG.info("%s: %s has the content of a file already imported, skipped", STEP, rel)
+        return
+    done_hashes.add(digest)
+    if not repos:
+        LOG.info("%s: %s lists no repositories, skipped", STEP, rel)
+        if not dry_run:
+            imported[rel] = {"repositories": [], "sha256": digest}
+            ws.write_state(STATE_FILE, {"imported": imported})
+        return
+    if record.get("sha256") == digest and all(
+        (ws.upstream / name).exists() for name in record.get("repositories", [])
+    ):
+        LOG.info("%s: %s already imported, skipped", STEP, rel)
+        return
+    # A file changed since its last import updates existing checkouts to its versions;
+    # otherwise the first file naming a repository wins (the repository's own .repos first).
+    changed = bool(record) and record.get("sha256") != digest
+    if dry_run:
+        run(
+            import_argv(repos_file, ws.upstream, skip_existing=not changed),
+            step=STEP,
+            dry_run=True,
+            cwd=ws.root,
+        )
+        return
+    LOG.info("%s: importing %d repositories from %s", STEP, len(repos), rel)
+    import_file(ws, repos_file, repos, skip_existing=not changed, env=env)
+    imported[rel] = {"repositories": sorted(repos), "sha256": digest}
+    ws.write_state(STATE_FILE, {"imported": imported})

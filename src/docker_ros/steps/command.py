@@ -1,0 +1,62 @@
+"""command: the run image's launch command (COMMAND); on the host, run it in the built
+workspace's environment. In an image build (phase collect) it only checks that COMMAND is set:
+the Dockerfile makes it the default command."""
+
+import logging
+from pathlib import Path
+from typing import List
+
+from docker_ros.settings import Settings
+from docker_ros.steps.common import (
+    StepError,
+    Workspace,
+    dry,
+    phases,
+    ros_setup_files,
+    run,
+    sourced_env,
+    step_log,
+)
+
+STEP = "command"
+LOG = logging.getLogger(__name__)
+
+
+def setup_files(ws: Workspace, settings: Settings) -> List[Path]:
+    """ROS, the base image's workspace, then this workspace: each only when it exists."""
+    files = ros_setup_files(settings)
+    local = ws.install / "setup.bash"
+    if local.is_file():
+        files.append(local)
+    else:
+        LOG.info("%s: %s does not exist (workspace not built?), not sourced", STEP, local)
+    return files
+
+
+def main(
+    ws: Workspace,
+    settings: Settings,
+    *,
+    phase: str = "all",
+    dry_run: bool = False,
+    **options: str,
+) -> None:
+    """collect: validate COMMAND; apply/all: run it with `bash -c` in the sourced environment.
+    A failing command fails the step with the command's exit code."""
+    do_collect, do_apply = phases(STEP, phase)
+    with step_log(STEP):
+        command = settings.command
+        if not command:
+            raise StepError(STEP, "COMMAND is not set: set the launch command of the run image")
+        if do_collect:
+            LOG.info("%s: COMMAND=%s", STEP, command)
+        if not do_apply:
+            return
+        files = setup_files(ws, settings)
+        if dry_run:
+            for path in files:
+                dry(STEP, f"source {path}")
+            run(["bash", "-c", command], step=STEP, dry_run=True, cwd=ws.root)
+            return
+        env = sourced_env(files, step=STEP)
+        run(["bash", "-c", command], step=STEP, cwd=ws.root, env=env, what="COMMAND")

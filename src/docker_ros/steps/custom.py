@@ -1,0 +1,26 @@
+"""custom: run the after-dependency-installation hook script(s)."""
+
+from docker_ros.settings import Settings
+from docker_ros.steps import hooks
+from docker_ros.steps.common import Workspace
+
+STEP = "custom"
+
+
+def main(
+    ws: Workspace,
+    settings: Settings,
+    *,
+    phase: str = "all",
+    dry_run: bool = False,
+    **options: str,
+) -> None:
+    """collect: copy the AFTER_DEPENDENCY_INSTALLATION_SCRIPT(s) into the state; apply: run."""
+    hooks.main(
+        ws,
+        STEP,
+        settings.after_dependency_installation_script,
+        recursive=settings.enable_recursive_after_dependency_installation_script,
+        phase=phase,
+        dry_run=dry_run,
+    )

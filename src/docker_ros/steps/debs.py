@@ -1,0 +1,59 @@
+"""debs: install the extra apt packages listed in ADDITIONAL_DEBS_FILE(s)."""
+
+from typing import Any, Dict, List, Sequence
+
+from docker_ros.settings import Settings
+from docker_ros.steps.common import (
+    Workspace,
+    apt_install,
+    collect_list_entries,
+    dry,
+    phases,
+    step_log,
+)
+
+STEP = "debs"
+STATE_FILE = "debs.json"
+
+
+def plan_debs(entries: Sequence[str]) -> Dict[str, Any]:
+    """debs.json: sorted unique package specs (`pkg`, `pkg=1.2`, `pkg/bookworm`); a line may
+    hold several, separated by white space, as docker-ros's shell command allowed."""
+    return {"packages": sorted({word for entry in entries for word in entry.split()})}
+
+
+def main(
+    ws: Workspace,
+    settings: Settings,
+    *,
+    phase: str = "all",
+    dry_run: bool = False,
+    **options: str,
+) -> None:
+    """collect: read the list file(s) into debs.json; apply: apt-get install them."""
+    do_collect, do_apply = phases(STEP, phase)
+    with step_log(STEP):
+        plan: Dict[str, Any] = {}
+        if do_collect:
+            entries, _ = collect_list_entries(
+                ws,
+                STEP,
+                settings.additional_debs_file,
+                recursive=settings.enable_recursive_additional_debs,
+            )
+            plan = plan_debs(entries)
+            if dry_run:
+                dry(STEP, f"write {ws.state / STATE_FILE}")
+            else:
+                ws.write_state(STATE_FILE, plan)
+        if do_apply:
+            if not do_collect:
+                data = ws.require_state(STEP, STATE_FILE)
+                plan = data if isinstance(data, dict) else {}
+            packages: List[str] = list(plan.get("packages") or [])
+            apt_install(
+                packages,
+                step=STEP,
+                dry_run=dry_run,
+                what="installing ADDITIONAL_DEBS_FILE packages",
+            )

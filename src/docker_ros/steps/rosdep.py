@@ -1,0 +1,282 @@
+"""rosdep: resolve every package.xml dependency with rosdep (collect) and install it (apply).
+
+collect writes rosdep.json with two sets, "all" (dev image) and "exec" (run image), each
+{"apt": [...], "pip": [...]}. Resolution uses `rosdep resolve`, which does not look at what is
+installed, so the result only depends on the sources, the rosdep database and the OS."""
+
+import logging
+import os
+import re
+import subprocess
+from pathlib import Path
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+
+from docker_ros.settings import Settings
+from docker_ros.steps.blacklist import blacklisted_packages
+from docker_ros.steps.common import (
+    StepError,
+    Workspace,
+    apt_install,
+    dry,
+    phases,
+    privileged,
+    ros_distro,
+    run,
+    step_log,
+)
+from docker_ros.steps.packages import DEPENDENCY_SETS, find_packages, select_keys
+from docker_ros.steps.pip import pip_install
+
+STEP = "rosdep"
+STATE_FILE = "rosdep.json"
+INSTALLERS = ("apt", "pip")
+LOG = logging.getLogger(__name__)
+
+Resolution = Dict[str, Dict[str, List[str]]]  # key -> installer -> system packages
+
+_ERROR_PATTERNS = (
+    re.compile(r"no rosdep rule for '(?P<key>[^']+)'"),
+    re.compile(r"No definition of \[(?P<key>[^\]]+)\] for OS"),
+    re.compile(r"rosdep key\s*:\s*(?P<key>\S+)"),
+    re.compile(r"Cannot locate rosdep definition for \[(?P<key>[^\]]+)\]"),
+)
+
+
+def parse_resolve_output(text: str, keys: Sequence[str]) -> Resolution:
+    """Parse `rosdep resolve` stdout: `#ROSDEP[key]` (absent for a single key), `#installer`,
+    then lines of white-space separated system packages."""
+    result: Resolution = {}
+    key: Optional[str] = keys[0] if len(keys) == 1 else None
+    installer: Optional[str] = None
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line:
+            continue
+        header = re.match(r"^#ROSDEP\[(.+)\]$", line)
+        if header:
+            key, installer = header.group(1), None
+            result.setdefault(key, {})
+        elif line.startswith("#"):
+            installer = line[1:].strip()
+            if key is not None:
+                result.setdefault(key, {}).setdefault(installer, [])
+        elif key is not None and installer is not None:
+            result.setdefault(key, {}).setdefault(installer, []).extend(line.split())
+    return result
+
+
+def parse_resolve_errors(text: str) -> Dict[str, str]:
+    """Keys rosdep could not resolve, with rosdep's reason (its `ERROR: ...` line)."""
+    errors: Dict[str, str] = {}
+    reason = ""
+    for raw in text.splitlines():
+        line = raw.strip()
+        if line.startswith("ERROR:"):
+            reason = line[len("ERROR:") :].strip()
+        for pattern in _ERROR_PATTERNS:
+            match = pattern.search(line)
+            if match and match.group("key") not in errors:
+                errors[match.group("key")] = reason or line
+                break
+    return errors
+
+
+def rosdep_env(environ: Optional[Mapping[str, str]] = None) -> Dict[str, str]:
+    env = dict(os.environ if environ is None else environ)
+    env.setdefault("ROS_PYTHON_VERSION", "3")  # rosdep warns and guesses otherwise
+    return env
+
+
+def resolve_argv(keys: Sequence[str], distro: Optional[str]) -> List[str]:
+    return ["rosdep", "resolve"] + (["--rosdistro", distro] if distro else []) + list(keys)
+
+
+def resolve(
+    keys: Sequence[str], distro: Optional[str], *, step: str = STEP
+) -> Tuple[Resolution, Dict[str, str]]:
+    """Resolve keys with as few rosdep calls as possible: rosdep stops at some errors, so the
+    failing keys are taken out and the rest resolved again. Returns (resolved, failed)."""
+    remaining = sorted(set(keys))
+    failed: Dict[str, str] = {}
+    resolved: Resolution = {}
+    env = rosdep_env()
+    while remaining:
+        argv = resolve_argv(remaining, distro)
+        LOG.info(
+            "%s: rosdep resolve%s <%d keys>",
+            step,
+            f" --rosdistro {distro}" if distro else "",
+            len(remaining),
+        )
+        try:
+            proc = subprocess.run(
+                argv,
+                capture_output=True,
+                text=True,
+                env=env,
+            )
+        except FileNotFoundError:
+            raise StepError(
+                step, "command not found: rosdep (install python3-rosdep)", 127
+            ) from None
+        if proc.returncode == 0:
+            resolved.update(parse_resolve_output(proc.stdout, remaining))
+            break
+        errors = {k: v for k, v in parse_resolve_errors(proc.stderr).items() if k in remaining}
+        if not errors:
+            lines = proc.stderr.strip().splitlines()
+            raise StepError(
+                step,
+                f"rosdep resolve failed with exit code {proc.returncode}: "
+                + (lines[0] if lines else "(no message)"),
+                proc.returncode,
+            )
+        failed.update(errors)
+        remaining = [k for k in remaining if k not in errors]
+    return resolved, failed
+
+
+def plan_rosdep(
+    selected: Mapping[str, Mapping[str, Sequence[str]]],
+    resolved: Resolution,
+) -> Dict[str, Dict[str, List[str]]]:
+    """rosdep.json: per dependency set, sorted unique packages per installer."""
+    plan: Dict[str, Dict[str, List[str]]] = {}
+    for types, keys in selected.items():
+        sets: Dict[str, set] = {installer: set() for installer in INSTALLERS}
+        for key in keys:
+            for installer, packages in resolved.get(key, {}).items():
+                sets.setdefault(installer, set()).update(packages)
+        plan[types] = {installer: sorted(pkgs) for installer, pkgs in sorted(sets.items())}
+    return plan
+
+
+def unsupported_installers(
+    plan: Mapping[str, Mapping[str, Sequence[str]]], resolved: Resolution
+) -> List[str]:
+    """`key -> installer` descriptions for installers we cannot drive (only apt and pip)."""
+    bad = []
+    for key, by_installer in sorted(resolved.items()):
+        for installer, packages in sorted(by_installer.items()):
+            if installer not in INSTALLERS and packages:
+                bad.append(f"{key} ({installer}: {' '.join(packages)})")
+    return bad
+
+
+def format_failures(failed: Mapping[str, str], needed_by: Mapping[str, Sequence[str]]) -> str:
+    parts = [
+        f"'{key}' needed by {', '.join(needed_by.get(key, ['?']))}: {reason}"
+        for key, reason in sorted(failed.items())
+    ]
+    return (
+        "cannot resolve rosdep key"
+        + ("s " if len(parts) > 1 else " ")
+        + "; ".join(parts)
+        + " (fix the key in package.xml, add a rosdep rule, blacklist the package, or run"
+        " `rosdep update`)"
+    )
+
+
+def rosdep_ready(environ: Optional[Mapping[str, str]] = None) -> Tuple[bool, bool]:
+    """(sources configured?, cache present?) as rosdep sees them."""
+    env = os.environ if environ is None else environ
+    source_path = env.get("ROSDEP_SOURCE_PATH") or "/etc/ros/rosdep/sources.list.d"
+    sources = any(
+        p.suffix == ".list"
+        for d in source_path.split(os.pathsep)
+        if Path(d).is_dir()
+        for p in Path(d).iterdir()
+    )
+    ros_home = Path(env.get("ROS_HOME") or Path.home() / ".ros")
+    return sources, (ros_home / "rosdep" / "sources.cache" / "index").is_file()
+
+
+def prepare_rosdep(distro: Optional[str], *, dry_run: bool) -> bool:
+    """`rosdep init`/`rosdep update` when never done here. Returns whether resolution can run."""
+    sources, cache = rosdep_ready()
+    if not sources:
+        run(privileged(["rosdep", "init"]), step=STEP, dry_run=dry_run)
+    if not sources or not cache:
+        argv = ["rosdep", "update"] + (["--rosdistro", distro] if distro else [])
+        run(argv, step=STEP, dry_run=dry_run, env=rosdep_env())
+        return not dry_run
+    return True
+
+
+def collect(
+    ws: Workspace, settings: Settings, *, dry_run: bool
+) -> Optional[Dict[str, Dict[str, List[str]]]]:
+    distro = ros_distro(settings)
+    packages = find_packages(ws, settings, step=STEP)
+    blacklist = blacklisted_packages(ws, settings)
+    selected = {types: select_keys(packages, types, blacklist) for types in DEPENDENCY_SETS}
+    all_keys = selected["all"]
+    LOG.info(
+        "%s: %d packages (%d blacklisted), %d rosdep keys (%d exec)",
+        STEP,
+        len(packages),
+        len(blacklist),
+        len(all_keys),
+        len(selected["exec"]),
+    )
+    if not prepare_rosdep(distro, dry_run=dry_run):
+        dry(
+            STEP,
+            f"resolve {len(all_keys)} keys after `rosdep update`: " + " ".join(sorted(all_keys)),
+        )
+        return None
+    resolved, failed = resolve(sorted(all_keys), distro)
+    if failed:
+        raise StepError(STEP, format_failures(failed, all_keys))
+    for key in sorted(all_keys):
+        shown = "; ".join(f"{i}: {' '.join(p)}" for i, p in sorted(resolved.get(key, {}).items()))
+        LOG.info("%s: %s -> %s", STEP, key, shown or "(nothing to install)")
+    plan = plan_rosdep(selected, resolved)
+    bad = unsupported_installers(plan, resolved)
+    if bad:
+        raise StepError(
+            STEP,
+            "keys resolve to installers docker-ros cannot use (only apt and pip): "
+            + ", ".join(bad),
+        )
+    if dry_run:
+        dry(STEP, f"write {ws.state / STATE_FILE}")
+    else:
+        ws.write_state(STATE_FILE, plan)
+    return plan
+
+
+def apply(plan: Mapping[str, Any], dependency_types: str, *, dry_run: bool) -> None:
+    chosen = plan.get(dependency_types)
+    if not isinstance(chosen, dict):
+        raise StepError(STEP, f"{STATE_FILE} has no {dependency_types!r} set: re-run collect")
+    what = f"installing rosdep dependencies ({dependency_types})"
+    apt_install(list(chosen.get("apt") or []), step=STEP, dry_run=dry_run, what=what)
+    pip_install(list(chosen.get("pip") or []), step=STEP, dry_run=dry_run, what=what)
+
+
+def main(
+    ws: Workspace,
+    settings: Settings,
+    *,
+    phase: str = "all",
+    dry_run: bool = False,
+    **options: str,
+) -> None:
+    """collect: resolve keys into rosdep.json; apply: install the `dependency_types` set."""
+    do_collect, do_apply = phases(STEP, phase)
+    dependency_types = options.get("dependency_types") or "all"
+    if dependency_types not in DEPENDENCY_SETS:
+        raise StepError(STEP, f"unknown dependency types {dependency_types!r}; use all or exec")
+    with step_log(STEP):
+        plan: Optional[Mapping[str, Any]] = None
+        if do_collect:
+            plan = collect(ws, settings, dry_run=dry_run)
+        if do_apply:
+            if not do_collect:
+                data = ws.require_state(STEP, STATE_FILE)
+                plan = data if isinstance(data, dict) else {}
+            if plan is None:
+                dry(STEP, f"install the resolved {dependency_types!r} dependencies")
+                return
+            apply(plan, dependency_types, dry_run=dry_run)

@@ -1,0 +1,26 @@
+"""scripts: run the before-dependency-installation hook script(s)."""
+
+from docker_ros.settings import Settings
+from docker_ros.steps import hooks
+from docker_ros.steps.common import Workspace
+
+STEP = "scripts"
+
+
+def main(
+    ws: Workspace,
+    settings: Settings,
+    *,
+    phase: str = "all",
+    dry_run: bool = False,
+    **options: str,
+) -> None:
+    """collect: copy the BEFORE_DEPENDENCY_INSTALLATION_SCRIPT(s) into the state; apply: run."""
+    hooks.main(
+        ws,
+        STEP,
+        settings.before_dependency_installation_script,
+        recursive=settings.enable_recursive_before_dependency_installation_script,
+        phase=phase,
+        dry_run=dry_run,
+    )
