@@ -1,0 +1,94 @@
+"""scripts and custom: hook scripts copied into the state, run with bash, failures named."""
+
+import pytest
+
+from docker_ros.steps import custom, scripts
+from docker_ros.steps.common import StepError
+from tests.rosfixtures import tree_snapshot
+
+pytestmark = pytest.mark.host
+
+
+def write(path, text):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def test_scripts_run_in_order_from_their_directory(project, tmp_path, environ):
+    log = tmp_path / "log.txt"
+    environ({"HOOK_LOG": str(log)})
+    write(
+        project.repo / "docker" / "before_dependency_installation.sh",
+        'echo "top $(basename "$PWD")" >> "$HOOK_LOG"\n',
+    )
+    write(
+        project.repo / "pkg" / "before_dependency_installation.sh",
+        'echo "nested $(basename "$PWD")" >> "$HOOK_LOG"\n',
+    )
+    before = tree_snapshot(project.repo)
+    settings = project.settings(enable_recursive_before_dependency_installation_script="true")
+
+    scripts.main(project.ws, settings)
+
+    assert log.read_text() == "top docker\nnested pkg\n"
+    assert project.ws.read_state("scripts.json") == {
+        "hooks": [
+            {
+                "file": "hooks/scripts/01-before_dependency_installation.sh",
+                "source": "src/target/docker/before_dependency_installation.sh",
+            },
+            {
+                "file": "hooks/scripts/02-before_dependency_installation.sh",
+                "source": "src/target/pkg/before_dependency_installation.sh",
+            },
+        ]
+    }
+    assert tree_snapshot(project.repo) == before
+
+
+def test_custom_failure_names_original_script_and_exit_code(project):
+    script = write(project.repo / "docker" / "custom.sh", "true\nfalse\necho not reached\n")
+    with pytest.raises(StepError) as err:
+        custom.main(project.ws, project.settings())
+    assert str(script.parent.parent.name) == "user-repo"
+    assert "src/target/docker/custom.sh" in err.value.message
+    assert "exit code 1" in err.value.message
+    assert err.value.step == "custom"
+
+    write(project.repo / "docker" / "custom.sh", "exit 42\n")
+    with pytest.raises(StepError) as err:
+        custom.main(project.ws, project.settings())
+    assert err.value.returncode == 42 and "exit code 42" in err.value.message
+
+
+def test_apply_runs_from_state_without_sources(project, tmp_path, environ):
+    """The image's install stage: collect copied the hook; the sources are gone."""
+    out = tmp_path / "cwd.txt"
+    environ({"HOOK_OUT": str(out)})
+    write(project.repo / "docker" / "custom.sh", 'pwd > "$HOOK_OUT"\n')
+    custom.main(project.ws, project.settings(), phase="collect")
+    project.ws.target.unlink()
+
+    custom.main(project.ws, project.settings(), phase="apply")
+
+    assert out.read_text().strip() == str(project.ws.state)
+
+
+def test_apply_without_collect_says_what_to_do(project):
+    with pytest.raises(StepError) as err:
+        scripts.main(project.ws, project.settings(), phase="apply")
+    assert "scripts.json" in err.value.message and "collect" in err.value.message
+
+
+def test_no_script_and_dry_run(project, capsys, tmp_path):
+    scripts.main(project.ws, project.settings())
+    assert project.ws.read_state("scripts.json") == {"hooks": []}
+
+    write(project.repo / "docker" / "custom.sh", "touch should-not-exist\n")
+    snapshot = tree_snapshot(project.ws.root)
+    custom.main(project.ws, project.settings(), dry_run=True)
+    out = capsys.readouterr().out
+    assert "[dry-run] custom: copy " in out
+    assert "[dry-run] custom: bash -e " in out
+    assert tree_snapshot(project.ws.root) == snapshot

@@ -1,0 +1,224 @@
+"""rosdep (offline rules), debs, pip, files: real rosdep, apt-get and pip on this root host."""
+
+import json
+import logging
+import shutil
+import subprocess
+
+import pytest
+
+from docker_ros.steps import blacklist, debs, files, pip, rosdep
+from docker_ros.steps.common import StepError, is_root
+from tests.rosfixtures import make_package, rosdep_update, tree_snapshot, write_rosdep_rules
+
+pytestmark = pytest.mark.host
+needs_root = pytest.mark.skipif(
+    not is_root() or not shutil.which("apt-get"),
+    reason="installs apt packages: needs root and apt-get",
+)
+
+RULES = {
+    "jq_key": {"debian": ["jq"], "ubuntu": ["jq"]},
+    "tree_key": {"debian": ["tree"], "ubuntu": ["tree"]},
+    "six_key": {"debian": {"pip": {"packages": ["six"]}}, "ubuntu": {"pip": {"packages": ["six"]}}},
+    "ubuntu_only": {"ubuntu": ["foo"]},
+}
+
+
+@pytest.fixture(scope="module")
+def rosdep_db(tmp_path_factory):
+    env = write_rosdep_rules(tmp_path_factory.mktemp("rosdep"), RULES)
+    rosdep_update(env)
+    return env
+
+
+@pytest.fixture
+def offline_rosdep(rosdep_db, environ, monkeypatch):
+    environ(rosdep_db)
+    # Debian's ROS 1 has no ROS_DISTRO: resolution must work with the OS rules alone.
+    monkeypatch.delenv("ROS_DISTRO", raising=False)
+    return rosdep_db
+
+
+def dpkg_installed(name: str) -> bool:
+    proc = subprocess.run(
+        ["dpkg-query", "-W", "-f=${Status}", name], capture_output=True, text=True
+    )
+    return proc.stdout.strip() == "install ok installed"
+
+
+@pytest.fixture
+def ros_packages(project):
+    make_package(
+        project.repo / "app",
+        "app",
+        depends=["jq_key", "lib"],
+        test_depends=["tree_key"],
+        build_type="ament_cmake",
+    )
+    make_package(project.repo / "lib", "lib", build_depends=["six_key"], build_type="ament_cmake")
+    make_package(
+        project.repo / "old", "old", exec_depends=["ubuntu_only"], build_type="ament_cmake"
+    )
+    (project.repo / "docker").mkdir()
+    (project.repo / "docker" / "blacklisted-packages.txt").write_text("old\n")
+    return project
+
+
+def test_rosdep_collect_resolves_all_and_exec_sets(ros_packages, offline_rosdep):
+    ws = ros_packages.ws
+    before = tree_snapshot(ros_packages.repo)
+    blacklist.main(ws, ros_packages.settings())
+
+    rosdep.main(ws, ros_packages.settings(), phase="collect")
+
+    assert ws.read_state("rosdep.json") == {
+        "all": {"apt": ["jq", "tree"], "pip": ["six"]},
+        "exec": {"apt": ["jq"], "pip": []},
+    }
+    first = (ws.state / "rosdep.json").read_bytes()
+    rosdep.main(ws, ros_packages.settings(), phase="collect")
+    assert (ws.state / "rosdep.json").read_bytes() == first  # deterministic
+    assert tree_snapshot(ros_packages.repo) == before
+
+
+def test_rosdep_unresolvable_key_names_key_and_package(project, offline_rosdep):
+    make_package(
+        project.repo / "a", "pkg_a", depends=["jq_key", "no_such_key"], build_type="ament_cmake"
+    )
+    make_package(
+        project.repo / "b",
+        "pkg_b",
+        exec_depends=["no_such_key", "ubuntu_only"],
+        build_type="ament_cmake",
+    )
+    with pytest.raises(StepError) as err:
+        rosdep.main(project.ws, project.settings(), phase="collect")
+    message = err.value.message
+    assert "'no_such_key' needed by pkg_a, pkg_b" in message
+    assert "no rosdep rule for 'no_such_key'" in message
+    assert "'ubuntu_only' needed by pkg_b" in message
+    assert not (project.ws.state / "rosdep.json").exists()
+
+
+@needs_root
+def test_rosdep_apply_installs_from_state_only(ros_packages, offline_rosdep, venv_python, environ):
+    ws = ros_packages.ws
+    rosdep.main(ws, ros_packages.settings(), phase="collect")
+    # The install stage of an image has the state dir, not the sources.
+    ros_packages.ws.target.unlink()
+    environ({"DOCKER_ROS_PYTHON": str(venv_python)})
+
+    rosdep.main(ws, ros_packages.settings(), phase="apply", dependency_types="all")
+
+    assert dpkg_installed("jq") and dpkg_installed("tree")
+    subprocess.run([str(venv_python), "-c", "import six"], check=True)
+
+
+def test_rosdep_dry_run_prints_exec_install(ros_packages, offline_rosdep, capsys):
+    rosdep.main(ros_packages.ws, ros_packages.settings(), dry_run=True, dependency_types="exec")
+    out = capsys.readouterr().out
+    assert "apt-get install -y --no-install-recommends jq\n" in out
+    assert "tree" not in out
+    assert not ros_packages.ws.state.exists()
+
+
+@needs_root
+def test_debs_installs_each_entry(project, capsys):
+    (project.repo / "docker").mkdir()
+    (project.repo / "docker" / "additional-debs.txt").write_text("# tools\ntree   \n\njq # json\n")
+    debs.main(project.ws, project.settings())
+    assert project.ws.read_state("debs.json") == {"packages": ["jq", "tree"]}
+    assert dpkg_installed("tree")
+
+    debs.main(project.ws, project.settings(), phase="apply", dry_run=True)
+    assert "apt-get install -y --no-install-recommends jq tree" in capsys.readouterr().out
+
+
+def test_debs_recursive_and_missing(project, caplog):
+    caplog.set_level(logging.INFO)
+    debs.main(project.ws, project.settings(), phase="collect")
+    assert project.ws.read_state("debs.json") == {"packages": []}
+    assert "no docker/additional-debs.txt found" in caplog.text
+    (project.repo / "sub").mkdir()
+    (project.repo / "sub" / "additional-debs.txt").write_text("jq\n")
+    debs.main(project.ws, project.settings(enable_recursive_additional_debs="yes"), phase="collect")
+    assert project.ws.read_state("debs.json") == {"packages": ["jq"]}
+
+
+def test_pip_requirements_are_arguments_not_shell(
+    project, venv_python, environ, monkeypatch, tmp_path
+):
+    (project.repo / "docker").mkdir()
+    (project.repo / "docker" / "additional-pip-requirements.txt").write_text(
+        '# pinned\nsix>=1.0\nsix>=1.0 # twice\ntomli; python_version >= "3"\n'
+    )
+    environ({"DOCKER_ROS_PYTHON": str(venv_python)})
+    monkeypatch.chdir(tmp_path)
+
+    pip.main(project.ws, project.settings())
+
+    assert project.ws.read_state("pip.json") == {
+        "requirements": ["six>=1.0", 'tomli; python_version >= "3"']
+    }
+    subprocess.run([str(venv_python), "-c", "import six, tomli"], check=True)
+    # A shell would have redirected `six>=1.0` into a file named `=1.0`.
+    assert not list(tmp_path.rglob("=1.0")) and not list(project.ws.root.rglob("=1.0"))
+
+
+def test_pip_failure_names_the_file(project, venv_python, environ):
+    (project.repo / "docker").mkdir()
+    (project.repo / "docker" / "additional-pip-requirements.txt").write_text(
+        "no-such-package-docker-ros-test==0.0.0\n"
+    )
+    environ({"DOCKER_ROS_PYTHON": str(venv_python)})
+    with pytest.raises(StepError) as err:
+        pip.main(project.ws, project.settings())
+    assert "ADDITIONAL_PIP_FILE" in err.value.message
+    assert "exit code" in err.value.message
+
+
+def test_files_stages_and_copies(project, tmp_path):
+    src = project.repo / "docker" / "additional-files"
+    (src / "etc").mkdir(parents=True)
+    (src / "etc" / "app.conf").write_text("x=1\n")
+    (src / "link").symlink_to("etc/app.conf")
+    before = tree_snapshot(project.repo)
+    dest = tmp_path / "dest"
+
+    files.main(project.ws, project.settings(), phase="collect")
+    src.joinpath("etc", "app.conf").write_text("changed after collect\n")
+    files.main(project.ws, project.settings(), phase="apply", destination=str(dest))
+
+    assert (dest / "etc" / "app.conf").read_text() == "x=1\n"
+    assert (dest / "link").is_symlink()
+    files.main(project.ws, project.settings(), phase="apply", destination=str(dest))  # idempotent
+    src.joinpath("etc", "app.conf").write_text("x=1\n")
+    assert tree_snapshot(project.repo) == before
+
+
+def test_files_missing_dir_and_dry_run(project, tmp_path, caplog, capsys):
+    caplog.set_level(logging.INFO)
+    files.main(project.ws, project.settings(), destination=str(tmp_path / "dest"))
+    assert "nothing to copy" in caplog.text
+    assert (project.ws.state / "additional-files").is_dir()
+    assert not (tmp_path / "dest").exists()
+
+    (project.repo / "docker" / "additional-files").mkdir(parents=True)
+    (project.repo / "docker" / "additional-files" / "f").write_text("f")
+    snapshot = tree_snapshot(project.ws.root)
+    files.main(project.ws, project.settings(), destination=str(tmp_path / "d2"), dry_run=True)
+    out = capsys.readouterr().out
+    assert f"[dry-run] files: copy {project.repo}" not in out  # shown through src/target
+    assert f"-> {tmp_path / 'd2'}/" in out
+    assert tree_snapshot(project.ws.root) == snapshot
+    assert not (tmp_path / "d2").exists()
+
+
+def test_state_json_is_sorted_and_stable(project):
+    (project.repo / "docker").mkdir()
+    (project.repo / "docker" / "additional-debs.txt").write_text("zsh\nawk\n")
+    debs.main(project.ws, project.settings(), phase="collect")
+    text = (project.ws.state / "debs.json").read_text()
+    assert json.loads(text) == {"packages": ["awk", "zsh"]}
+    assert text == json.dumps({"packages": ["awk", "zsh"]}, indent=2, sort_keys=True) + "\n"

@@ -1,0 +1,183 @@
+"""Reusable builders of real ROS test material: packages, git repositories, rosdep rules, .repos.
+
+Pure helpers (no pytest): they write real files and run real git; tests import them."""
+
+import os
+import shutil
+import subprocess
+import textwrap
+from pathlib import Path
+from typing import Dict, Mapping, Optional, Sequence, Union
+
+GIT_ENV = {
+    "GIT_AUTHOR_NAME": "docker-ros tests",
+    "GIT_AUTHOR_EMAIL": "tests@docker-ros.invalid",
+    "GIT_COMMITTER_NAME": "docker-ros tests",
+    "GIT_COMMITTER_EMAIL": "tests@docker-ros.invalid",
+    "GIT_CONFIG_NOSYSTEM": "1",
+}
+
+DEFAULT_CPP = """\
+#include <cstdio>
+int main() {{ std::printf("{name}\\n"); return 0; }}
+"""
+
+
+def make_package(
+    directory: Union[str, Path],
+    name: str,
+    *,
+    depends: Sequence[str] = (),
+    exec_depends: Sequence[str] = (),
+    build_depends: Sequence[str] = (),
+    test_depends: Sequence[str] = (),
+    build_type: str = "cmake",
+    cpp_source: Optional[str] = None,
+    cmake_extra: str = "",
+    package_format: int = 3,
+) -> Path:
+    """A package in `directory` (created): package.xml, and for build_type cmake a CMakeLists.txt
+    with one executable `<name>_node` (from cpp_source) installed to bin/. colcon builds it
+    without ROS. Dependencies that are workspace packages get find_package() calls."""
+    path = Path(directory)
+    path.mkdir(parents=True, exist_ok=True)
+    tags = (
+        [f"  <depend>{d}</depend>" for d in depends]
+        + [f"  <build_depend>{d}</build_depend>" for d in build_depends]
+        + [f"  <exec_depend>{d}</exec_depend>" for d in exec_depends]
+        + [f"  <test_depend>{d}</test_depend>" for d in test_depends]
+    )
+    (path / "package.xml").write_text(
+        f'<?xml version="1.0"?>\n<package format="{package_format}">\n'
+        f"  <name>{name}</name>\n  <version>0.1.0</version>\n"
+        f"  <description>{name} (docker-ros test package)</description>\n"
+        '  <maintainer email="tests@docker-ros.invalid">tests</maintainer>\n'
+        "  <license>MIT</license>\n"
+        + "\n".join(tags)
+        + f"\n  <export><build_type>{build_type}</build_type></export>\n</package>\n"
+    )
+    if build_type == "cmake":
+        source = cpp_source if cpp_source is not None else DEFAULT_CPP.format(name=name)
+        (path / "main.cpp").write_text(source)
+        (path / "CMakeLists.txt").write_text(
+            textwrap.dedent(
+                f"""\
+                cmake_minimum_required(VERSION 3.10)
+                project({name} CXX)
+                add_executable({name}_node main.cpp)
+                install(TARGETS {name}_node DESTINATION bin)
+                """
+            )
+            + cmake_extra
+        )
+    return path
+
+
+def git(args: Sequence[str], cwd: Union[str, Path]) -> str:
+    env = {**os.environ, **GIT_ENV}
+    return subprocess.run(
+        ["git", *args], cwd=str(cwd), env=env, check=True, capture_output=True, text=True
+    ).stdout
+
+
+def make_git_repo(
+    path: Union[str, Path],
+    files: Mapping[str, Union[str, bytes]],
+    bare_copy_to: Optional[Union[str, Path]] = None,
+    *,
+    branch: str = "main",
+) -> str:
+    """A real git repository at `path` with `files` committed on `branch`, and a bare clone
+    (default: `<path>.git`) whose file:// URL is returned (what .repos files point to)."""
+    work = Path(path)
+    work.mkdir(parents=True, exist_ok=True)
+    for name, content in files.items():
+        target = work / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if isinstance(content, bytes):
+            target.write_bytes(content)
+        else:
+            target.write_text(content)
+    git(["init", "-q", "-b", branch], work)
+    git(["add", "-A"], work)
+    git(["commit", "-q", "--allow-empty", "-m", "initial"], work)
+    bare = Path(bare_copy_to) if bare_copy_to else work.with_name(work.name + ".git")
+    if bare.exists():
+        shutil.rmtree(str(bare))
+    git(["clone", "-q", "--bare", str(work), str(bare)], work.parent)
+    return bare.resolve().as_uri()
+
+
+def write_repos(path: Union[str, Path], repos: Mapping[str, Mapping[str, str]]) -> Path:
+    """A vcstool .repos file: {name: {"url": ..., "version": ..., "type": "git"}}."""
+    lines = ["repositories:"]
+    for name, spec in repos.items():
+        lines.append(f"  {name}:")
+        lines.append(f"    type: {spec.get('type', 'git')}")
+        lines.append(f"    url: {spec['url']}")
+        if spec.get("version"):
+            lines.append(f"    version: {spec['version']}")
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text("\n".join(lines) + "\n")
+    return target
+
+
+def _yaml_rule(value: object, indent: int) -> str:
+    pad = " " * indent
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(str(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "".join(f"\n{pad}{k}: {_yaml_rule(v, indent + 2)}" for k, v in value.items())
+    return str(value)
+
+
+def write_rosdep_rules(directory: Union[str, Path], rules: Mapping[str, object]) -> Dict[str, str]:
+    """An offline rosdep database in `directory`: rules.yaml, a sources list, an empty rosdistro
+    index and a ROS_HOME. Returns the environment (merge into os.environ) with which
+    `rosdep update` and then `rosdep resolve` work without network.
+
+    rules: {"key": {"debian": ["pkg"]}} or pip rules {"key": {"debian": {"pip": {"packages":
+    ["six"]}}}}; an OS map without versions applies to every version."""
+    base = Path(directory).resolve()
+    sources = base / "sources.list.d"
+    sources.mkdir(parents=True, exist_ok=True)
+    rules_file = base / "rules.yaml"
+    rules_file.write_text("".join(f"{key}: {_yaml_rule(rule, 2)}\n" for key, rule in rules.items()))
+    (sources / "10-docker-ros-tests.list").write_text(f"yaml {rules_file.as_uri()}\n")
+    index = base / "index-v4.yaml"
+    index.write_text("%YAML 1.1\n---\ntype: index\nversion: 4\ndistributions: {}\n")
+    home = base / "ros_home"
+    home.mkdir(exist_ok=True)
+    return {
+        "ROSDEP_SOURCE_PATH": str(sources),
+        "ROS_HOME": str(home),
+        "ROSDISTRO_INDEX_URL": index.as_uri(),
+        "ROS_PYTHON_VERSION": "3",
+    }
+
+
+def rosdep_update(env: Mapping[str, str]) -> None:
+    """`rosdep update` against the offline database of write_rosdep_rules."""
+    subprocess.run(["rosdep", "update"], env={**os.environ, **env}, check=True, capture_output=True)
+
+
+def tree_snapshot(root: Union[str, Path]) -> Dict[str, str]:
+    """Every file, dir and symlink below root with its content hash / target (before/after)."""
+    import hashlib
+
+    out: Dict[str, str] = {}
+    base = Path(root)
+    for dirpath, dirnames, filenames in os.walk(str(base)):
+        for name in sorted(dirnames + filenames):
+            full = Path(dirpath) / name
+            rel = str(full.relative_to(base))
+            if full.is_symlink():
+                out[rel] = "link:" + os.readlink(str(full))
+            elif full.is_file():
+                stat = full.stat()
+                digest = hashlib.sha256(full.read_bytes()).hexdigest()
+                out[rel] = f"file:{oct(stat.st_mode)}:{digest}"
+            else:
+                out[rel] = "dir"
+    return out

@@ -1,0 +1,375 @@
+"""Pure decisions of the steps: list files, rosdep output, pip argv, .repos, vcs/colcon output."""
+
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from docker_ros.settings import load_settings
+from docker_ros.steps import clone, colcon, debs, pip, rosdep
+from docker_ros.steps.common import (
+    StepError,
+    Workspace,
+    parse_env0,
+    phases,
+    read_list_file,
+    read_secret,
+    ros_setup_files,
+    ros_version,
+    sourced_env,
+)
+
+
+def test_read_list_file_comments_blanks_and_spaces(tmp_path):
+    path = tmp_path / "list.txt"
+    path.write_text(
+        "# heading\n\n  pkg-a  \npkg-b # trailing comment\n\t\n"
+        "git+https://host/x.git#egg=x\n   # indented comment\n"
+    )
+    assert read_list_file(path) == ["pkg-a", "pkg-b", "git+https://host/x.git#egg=x"]
+
+
+def test_debs_plan_splits_words_sorts_and_dedupes():
+    assert debs.plan_debs(["tree", "jq curl", "tree", "libfoo=1.2-3"]) == {
+        "packages": ["curl", "jq", "libfoo=1.2-3", "tree"]
+    }
+
+
+# --- rosdep ---
+
+MULTI = """#ROSDEP[jq_key]
+#apt
+jq
+#ROSDEP[six_key]
+#pip
+six
+#ROSDEP[multi]
+#apt
+jq tree
+#ROSDEP[nothing]
+#apt
+
+"""
+
+
+def test_parse_resolve_output_multi_and_single():
+    keys = ["jq_key", "six_key", "multi", "nothing"]
+    assert rosdep.parse_resolve_output(MULTI, keys) == {
+        "jq_key": {"apt": ["jq"]},
+        "six_key": {"pip": ["six"]},
+        "multi": {"apt": ["jq", "tree"]},
+        "nothing": {"apt": []},
+    }
+    # One key: rosdep prints no #ROSDEP header.
+    assert rosdep.parse_resolve_output("#apt\nlibboost-dev\n", ["boost"]) == {
+        "boost": {"apt": ["libboost-dev"]}
+    }
+
+
+def test_parse_resolve_errors():
+    stderr = (
+        "WARNING: ROS_PYTHON_VERSION is unset. Defaulting to 3\n"
+        "ERROR: no rosdep rule for 'nope'\n"
+        "ERROR: no rosdep rule for 'nope2'\n"
+        "ERROR: No definition of [ubonly] for OS [debian]\n\n"
+        "No definition of [ubonly] for OS [debian]\n\trosdep key : ubonly\n\tOS name    : debian\n"
+    )
+    assert rosdep.parse_resolve_errors(stderr) == {
+        "nope": "no rosdep rule for 'nope'",
+        "nope2": "no rosdep rule for 'nope2'",
+        "ubonly": "No definition of [ubonly] for OS [debian]",
+    }
+
+
+def test_plan_rosdep_sorted_unique_per_set():
+    resolved = {
+        "a": {"apt": ["zlib", "jq"]},
+        "b": {"apt": ["jq"], "pip": ["six"]},
+        "c": {"apt": []},
+    }
+    selected = {"all": {"a": ["p"], "b": ["p"], "c": ["q"]}, "exec": {"a": ["p"]}}
+    assert rosdep.plan_rosdep(selected, resolved) == {
+        "all": {"apt": ["jq", "zlib"], "pip": ["six"]},
+        "exec": {"apt": ["jq", "zlib"], "pip": []},
+    }
+    assert rosdep.unsupported_installers({}, {"x": {"source": ["y"]}}) == ["x (source: y)"]
+
+
+def test_format_failures_names_key_and_packages():
+    text = rosdep.format_failures({"k": "no rosdep rule for 'k'"}, {"k": ["a", "b"]})
+    assert text.startswith("cannot resolve rosdep key 'k' needed by a, b: no rosdep rule for 'k'")
+
+
+def test_resolve_argv():
+    assert rosdep.resolve_argv(["a", "b"], None) == ["rosdep", "resolve", "a", "b"]
+    assert rosdep.resolve_argv(["a"], "jazzy") == ["rosdep", "resolve", "--rosdistro", "jazzy", "a"]
+
+
+# --- pip ---
+
+
+def test_requirement_arguments_one_item_each():
+    entries = [
+        "pkg>=1.2",
+        "pkg[extra1,extra2]==2.0",
+        'pkg; python_version > "3"',
+        "name @ https://host/pkg.whl",
+        "--extra-index-url https://mirror/simple",
+        "-c 'constraints file.txt'",
+        "pkg==1.0 --hash=sha256:abc",
+    ]
+    assert pip.requirement_arguments(entries) == [
+        "pkg>=1.2",
+        "pkg[extra1,extra2]==2.0",
+        'pkg; python_version > "3"',
+        "name @ https://host/pkg.whl",
+        "--extra-index-url",
+        "https://mirror/simple",
+        "-c",
+        "constraints file.txt",
+        "pkg==1.0",
+        "--hash=sha256:abc",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("probe", "root", "flags"),
+    [
+        (
+            {"externally_managed": True, "in_venv": False, "pip": "23.0.1"},
+            True,
+            ["--break-system-packages"],
+        ),
+        (
+            {"externally_managed": True, "in_venv": False, "pip": "24.0"},
+            True,
+            ["--break-system-packages"],
+        ),
+        ({"externally_managed": True, "in_venv": False, "pip": "22.0.2"}, True, []),
+        ({"externally_managed": False, "in_venv": False, "pip": "24.0"}, True, []),
+        ({"externally_managed": False, "in_venv": True, "pip": "24.0"}, False, []),
+        ({"externally_managed": False, "in_venv": False, "pip": "20.0.2"}, False, ["--user"]),
+        (
+            {"externally_managed": True, "in_venv": False, "pip": "23.3"},
+            False,
+            ["--break-system-packages", "--user"],
+        ),
+    ],
+)
+def test_pep668_flags(probe, root, flags):
+    assert pip.install_flags(probe, root=root) == flags
+
+
+def test_pip_install_argv_and_versions():
+    argv = pip.pip_install_argv("python3", ["a>=1"], ["--break-system-packages"])
+    assert argv == ["python3", "-m", "pip", "install", "--break-system-packages", "a>=1"]
+    assert pip.version_tuple("23.0.1") == (23, 0, 1)
+    assert pip.version_tuple("24.1b1") == (24, 1)
+    assert pip.version_tuple(None) == ()
+
+
+def test_probe_of_this_interpreter():
+    import sys
+
+    data = pip.probe_python(sys.executable, step="pip")
+    assert set(data) == {"externally_managed", "in_venv", "pip"}
+    assert pip.python_command({"DOCKER_ROS_PYTHON": "/x/python"}) == "/x/python"
+    assert pip.python_command({}) == "python3"
+
+
+# --- clone ---
+
+BLOCK = """# comment
+repositories:
+  lib_a:
+    type: git
+    url: https://github.com/org/lib_a.git  # trailing
+    version: main
+  "nested/lib b":
+    type: git
+    url: 'git@host:org/lib_b.git'
+  flow: {type: git, url: https://h/flow.git, version: v1}
+"""
+
+
+def test_parse_repos():
+    assert clone.parse_repos(BLOCK) == {
+        "lib_a": {"type": "git", "url": "https://github.com/org/lib_a.git", "version": "main"},
+        "nested/lib b": {"type": "git", "url": "git@host:org/lib_b.git"},
+        "flow": {"type": "git", "url": "https://h/flow.git", "version": "v1"},
+    }
+
+
+@pytest.mark.parametrize(
+    "text", ["", "# nothing\n", "repositories: {}\n", "repositories:\n", "---\nrepositories:\n\n"]
+)
+def test_empty_repos(text):
+    assert clone.parse_repos(text) == {}
+
+
+def test_parse_repos_agrees_with_yaml_on_names():
+    yaml = pytest.importorskip("yaml")
+    assert sorted(clone.parse_repos(BLOCK)) == sorted(yaml.safe_load(BLOCK)["repositories"])
+
+
+def test_parse_vcs_failures():
+    dest = Path("/ws/src/upstream")
+    lines = [
+        "E.E",
+        "=== /ws/src/upstream/bad (git) ===",
+        "Could not clone repository 'file:///x.git': Cloning into '.'...",
+        "fatal: '/x.git' does not appear to be a git repository",
+        "fatal: Could not read from remote repository.",
+        "=== /ws/src/upstream/badver (git) ===",
+        "Could not checkout ref 'nosuch': fatal: invalid reference: nosuch",
+        "=== /ws/src/upstream/good (git) ===",
+        "Cloning into '.'...",
+    ]
+    assert clone.parse_vcs_failures(lines, dest, ["bad", "badver", "good"]) == {
+        "bad": "Could not clone repository 'file:///x.git': "
+        "fatal: '/x.git' does not appear to be a git repository",
+        "badver": "Could not checkout ref 'nosuch': fatal: invalid reference: nosuch",
+    }
+
+
+def test_import_argv():
+    argv = clone.import_argv(Path("/r/.repos"), Path("/ws/src/upstream"), skip_existing=True)
+    assert argv == [
+        "vcs",
+        "import",
+        "--recursive",
+        "--input",
+        "/r/.repos",
+        "/ws/src/upstream",
+        "--skip-existing",
+    ]
+
+
+def test_https_askpass_answers_only_for_the_server(tmp_path):
+    settings = load_settings(
+        environ={
+            "GIT_HTTPS_SERVER": "git.example.com",
+            "GIT_HTTPS_USER": "robot",
+            "GIT_HTTPS_PASSWORD": "s3cr3t-value",
+        },
+        project_dir=tmp_path,
+    )
+    with clone.git_credentials(settings, secrets_dir=tmp_path / "none") as env:
+        askpass = env["GIT_ASKPASS"]
+        full = {**os.environ, **env}
+
+        def ask(prompt):
+            return subprocess.run([askpass, prompt], env=full, capture_output=True, text=True)
+
+        assert ask("Username for 'https://git.example.com': ").stdout == "robot\n"
+        assert ask("Password for 'https://robot@git.example.com': ").stdout == "s3cr3t-value\n"
+        assert ask("Password for 'https://other.org': ").returncode != 0
+        # The secret lives in the environment only, never in a file.
+        for path in Path(askpass).parent.iterdir():
+            assert "s3cr3t-value" not in path.read_text()
+        assert oct(Path(askpass).parent.stat().st_mode & 0o777) == "0o700"
+    assert not Path(askpass).parent.exists()
+
+
+def test_secrets_come_from_secret_files_when_unset(tmp_path):
+    (tmp_path / "GIT_HTTPS_PASSWORD").write_text("from-file\n")
+    settings = load_settings(environ={}, project_dir=tmp_path)
+    assert read_secret(settings, "git_https_password", tmp_path) == "from-file"
+    assert read_secret(settings, "GIT_SSH_PRIVATE_KEY", tmp_path) is None
+    set_ = load_settings(environ={"GIT_HTTPS_PASSWORD": "env"}, project_dir=tmp_path)
+    assert read_secret(set_, "git_https_password", tmp_path) == "env"
+    with clone.git_credentials(settings, secrets_dir=tmp_path) as env:
+        assert env == {}  # a password without a server is not used
+
+
+# --- colcon ---
+
+
+def test_colcon_argv():
+    assert colcon.build_argv("-DCMAKE_BUILD_TYPE=Release '-DX=a b' --trace", ["bad"]) == [
+        "colcon",
+        "build",
+        "--base-paths",
+        "src",
+        "--packages-ignore",
+        "bad",
+        "--cmake-args",
+        "-DCMAKE_BUILD_TYPE=Release",
+        "-DX=a b",
+        " --trace",
+    ]
+    assert colcon.build_argv("", []) == ["colcon", "build", "--base-paths", "src"]
+
+
+def test_colcon_failed_packages():
+    lines = [
+        "Starting >>> a",
+        "Finished <<< a [0.5s]",
+        "Failed   <<< broken_pkg [1.2s, exited with code 2]",
+        "Aborted  <<< other [0.9s]",
+        "Summary: 1 package finished [2.0s]",
+    ]
+    assert colcon.failed_packages(lines) == ["broken_pkg"]
+
+
+# --- common ---
+
+
+def test_phases():
+    assert phases("x", "all") == (True, True)
+    assert phases("x", "collect") == (True, False)
+    assert phases("x", "apply") == (False, True)
+    with pytest.raises(StepError):
+        phases("x", "install")
+
+
+def test_parse_env0():
+    data = b"A=1\0B=x=y\0_=/usr/bin/env\0SHLVL=1\0MULTI=a\nb\0"
+    assert parse_env0(data) == {"A": "1", "B": "x=y", "MULTI": "a\nb"}
+
+
+def test_sourced_env_sources_in_order_and_reports_failures(tmp_path):
+    first = tmp_path / "first.bash"
+    first.write_text('export ROS_DISTRO=test\nexport CHAIN="a"\necho noise\n')
+    second = tmp_path / "second.bash"
+    second.write_text('export CHAIN="$CHAIN:b"\n')
+    env = sourced_env([first, second], step="t", base_env={"PATH": os.environ["PATH"]})
+    assert env["ROS_DISTRO"] == "test" and env["CHAIN"] == "a:b"
+    assert sourced_env([], step="t", base_env={"X": "1"}) == {"X": "1"}
+    broken = tmp_path / "broken.bash"
+    broken.write_text("return 4\n")
+    with pytest.raises(StepError) as err:
+        sourced_env([first, broken], step="t")
+    assert str(broken) in err.value.message
+
+
+def test_ros_setup_files(tmp_path):
+    settings = load_settings(environ={}, project_dir=tmp_path)
+    assert ros_setup_files(settings, environ={}, root=tmp_path) == []
+    humble = tmp_path / "opt/ros/humble/setup.bash"
+    humble.parent.mkdir(parents=True)
+    humble.write_text("")
+    base = tmp_path / "opt/ws_base_image/install/setup.bash"
+    base.parent.mkdir(parents=True)
+    base.write_text("")
+    assert ros_setup_files(settings, environ={}, root=tmp_path) == [humble, base]
+    jazzy = load_settings(environ={"ROS_DISTRO": "jazzy"}, project_dir=tmp_path)
+    assert ros_setup_files(jazzy, environ={}, root=tmp_path) == [base]
+
+
+def test_ros_version():
+    assert ros_version("noetic", {}) == "1"
+    assert ros_version("jazzy", {}) == "2"
+    assert ros_version(None, {}) == "1"
+    assert ros_version("jazzy", {"ROS_VERSION": "1"}) == "1"
+
+
+def test_workspace_relative_and_state(tmp_path):
+    ws = Workspace(tmp_path)
+    assert ws.relative(ws.target / "x") == "src/target/x"
+    with pytest.raises(StepError) as err:
+        ws.require_state("debs", "debs.json")
+    assert "collect" in err.value.message
+    ws.write_state("b.json", {"z": 1, "a": [2]})
+    assert (ws.state / "b.json").read_text() == '{\n  "a": [\n    2\n  ],\n  "z": 1\n}\n'
