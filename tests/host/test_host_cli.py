@@ -67,3 +67,9 @@ def test_run_step_dispatches_and_rejects_unknown(project):
     assert (project.ws.state / "blacklist.json").is_file()
     with pytest.raises(StepError):
         run_step("nope", project.ws, project.settings())
+
+
+def test_cli_collect_without_repository_says_where_it_must_be(tmp_path):
+    proc = steps_cli("rosdep", "--workspace", str(tmp_path / "ws"), "--phase", "collect")
+    assert proc.returncode == 1
+    assert f"docker-ros rosdep: {tmp_path / 'ws' / 'src' / 'target'} does not exist" in proc.stderr

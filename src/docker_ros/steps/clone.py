@@ -163,9 +163,11 @@ def _private_file(directory: str, name: str, content: str) -> str:
 
 @contextlib.contextmanager
 def git_credentials(
-    settings: Settings, *, secrets_dir: Path = SECRETS_DIR
+    settings: Settings, *, secrets_dir: Optional[Path] = None
 ) -> Iterator[Dict[str, str]]:
-    """Environment additions that let git authenticate, valid while the context is open."""
+    """Environment additions that let git authenticate, valid while the context is open.
+    Secrets not in the settings are read from BuildKit secret files in `secrets_dir`."""
+    secrets_dir = SECRETS_DIR if secrets_dir is None else secrets_dir
     server = read_secret(settings, "git_https_server", secrets_dir)
     user = read_secret(settings, "git_https_user", secrets_dir)
     password = read_secret(settings, "git_https_password", secrets_dir)
@@ -226,6 +228,7 @@ def candidates(ws: Workspace, settings: Settings) -> List[Path]:
         settings.vcs_import_file,
         recursive=settings.enable_recursive_vcs_import,
         pattern="*.repos",
+        step=STEP,
     )
 
 
@@ -242,7 +245,9 @@ def import_file(
     names = sorted(repos)
     existed = {name for name in names if (ws.upstream / name).exists()}
     argv = import_argv(repos_file, ws.upstream, skip_existing=skip_existing)
-    returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env={**os.environ, **env})
+    # Never wait for a password on a terminal (builds have none; vcs runs clones in parallel).
+    full_env = {**os.environ, "GIT_TERMINAL_PROMPT": "0", **env}
+    returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env=full_env)
     if returncode == 0:
         return
     failures = parse_vcs_failures(lines, ws.upstream, names)
@@ -275,6 +280,7 @@ def main(
     """Single phase: the hook, then every .repos file, each imported once."""
     phases(STEP, phase)
     with step_log(STEP):
+        ws.require_sources(STEP)
         run_hook(ws, settings, dry_run=dry_run)
         state = ws.read_state(STATE_FILE) or {}
         imported: Dict[str, Any] = (

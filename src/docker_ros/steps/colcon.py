@@ -63,6 +63,7 @@ def main(
     """Single phase: build with CMAKE_ARGS, blacklisted packages ignored."""
     phases(STEP, phase)
     with step_log(STEP):
+        ws.require_sources(STEP)
         ignore = blacklisted_packages(ws, settings)
         argv = build_argv(settings.cmake_args, ignore)
         setup = ros_setup_files(settings)

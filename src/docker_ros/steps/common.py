@@ -83,6 +83,15 @@ class Workspace:
             return default
         return json.loads(path.read_text())
 
+    def require_sources(self, step: str) -> None:
+        """Collect phases read the repository: a missing src/target is a setup error."""
+        if not self.target.is_dir():
+            raise StepError(
+                step,
+                f"{self.target} does not exist: the repository must be src/target of the "
+                f"workspace {self.root}",
+            )
+
     def require_state(self, step: str, name: str) -> object:
         """State a previous collect phase wrote; a clear error when it is missing."""
         path = self.state / name
@@ -240,10 +249,16 @@ def walk(
 
 
 def find_special_files(
-    ws: Workspace, relative_path: str, *, recursive: bool, pattern: Optional[str] = None
+    ws: Workspace,
+    relative_path: str,
+    *,
+    recursive: bool,
+    pattern: Optional[str] = None,
+    step: str = "docker-ros",
 ) -> List[Path]:
     """docker-ros's file discovery: the configured file in the repository, and with
     `recursive` every file of the same name (or matching `pattern`) anywhere in the workspace."""
+    ws.require_sources(step)
     found: List[Path] = []
     top = ws.target / relative_path
     if top.is_file():
@@ -273,7 +288,7 @@ def collect_list_entries(
     ws: Workspace, step: str, relative_path: str, *, recursive: bool
 ) -> Tuple[List[str], List[Path]]:
     """Entries of every list file a step reads (in discovery order), and those files."""
-    files = find_special_files(ws, relative_path, recursive=recursive)
+    files = find_special_files(ws, relative_path, recursive=recursive, step=step)
     if not files:
         LOG.info("%s: no %s found, nothing to do", step, relative_path)
     entries: List[str] = []

@@ -16,6 +16,7 @@ LOG = logging.getLogger(__name__)
 def collect(ws: Workspace, settings: Settings, *, dry_run: bool) -> None:
     """Mirror the folder into <state>/additional-files (always created, maybe empty, so the
     image can COPY it unconditionally)."""
+    ws.require_sources(STEP)
     source = ws.target / settings.additional_files_dir
     staged = ws.state / STATE_DIR
     remove_tree(staged, step=STEP, dry_run=dry_run)

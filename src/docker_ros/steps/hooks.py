@@ -43,7 +43,7 @@ def plan_hooks(ws: Workspace, step: str, sources: List[Path]) -> Dict[str, Any]:
 def collect(
     ws: Workspace, step: str, relative_path: str, *, recursive: bool, dry_run: bool
 ) -> Dict[str, Any]:
-    sources = find_special_files(ws, relative_path, recursive=recursive)
+    sources = find_special_files(ws, relative_path, recursive=recursive, step=step)
     if not sources:
         LOG.info("%s: no %s found, nothing to run", step, relative_path)
     plan = plan_hooks(ws, step, sources)

@@ -223,6 +223,7 @@ def find_packages(
     ws: Workspace, settings: object, *, step: str, environ: Optional[Mapping[str, str]] = None
 ) -> List[Package]:
     """Every ROS package of the workspace sources, conditions evaluated for ROS_DISTRO."""
+    ws.require_sources(step)
     context = condition_context(ros_distro(settings, environ), environ)
     packages = []
     for directory in find_package_dirs(ws.src):
