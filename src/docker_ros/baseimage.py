@@ -1,0 +1,177 @@
+"""Build a ROS base image from a Debian mirror (debootstrap), for machines without a registry.
+
+Debian packages ROS 1 (bookworm) and the ROS 2 build tooling (trixie) in /usr, so a minbase
+rootfs plus those packages is a base image that docker-ros can build on when neither `ros:*`
+nor `rwthika/*` images can be pulled.
+"""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+from docker_ros.settings import host_platform
+from docker_ros.steps.common import StepError, format_argv, privileged, run, step_log
+
+LOG = logging.getLogger(__name__)
+STEP = "baseimage"
+DEFAULT_MIRROR = "http://deb.debian.org/debian"
+DOCKERFILE = Path(__file__).parent / "docker" / "baseimage.Dockerfile"
+
+# What colcon-common-extensions brings, as Debian packages (same names in bookworm and trixie).
+COLCON_DEBS = tuple(
+    "python3-colcon-" + name
+    for name in (
+        "bash", "cd", "cmake", "core", "defaults", "devtools", "library-path", "metadata",
+        "output", "package-information", "package-selection", "parallel-executor",
+        "pkg-config", "python-setup-py", "recursive-crawl", "ros", "test-result",
+    )
+)
+TOOL_DEBS = (
+    "ca-certificates", "colcon", "git", "python3-pip", "python3-rosdep2", "tini", "vcstool",
+)
+
+
+@dataclass(frozen=True)
+class Flavor:
+    """A Debian suite and the ROS packages it provides; the name is the Dockerfile target."""
+
+    name: str
+    suite: str
+    debs: Tuple[str, ...]
+
+
+# ros1 is like `ros:noetic-ros-core`: no compiler, so docker-ros's dev stage must bring it.
+ROS1_DEBS = ("ros-core-dev", "catkin", "rosbash")
+# ros2 is build tooling only (Debian has no rclcpp/rclpy), with the compiler to use it.
+ROS2_DEBS = (
+    "ament-cmake", "ament-cmake-python", "python3-ament-index", "python3-ament-package",
+    "build-essential",
+)
+FLAVORS = {
+    "ros1": Flavor("ros1", "bookworm", ROS1_DEBS + TOOL_DEBS + COLCON_DEBS),
+    "ros2": Flavor("ros2", "trixie", ROS2_DEBS + TOOL_DEBS + COLCON_DEBS),
+}
+
+
+def bootstrap(
+    flavor: str,
+    *,
+    tag: str,
+    mirror: str = DEFAULT_MIRROR,
+    platform: str = "amd64",
+    ca_bundle: Optional[Path] = None,
+    force: bool = False,
+) -> str:
+    """Build the base image `tag` for `flavor` ("ros1" or "ros2"); reuse it when it exists."""
+    if flavor not in FLAVORS:
+        raise StepError(STEP, f"unknown flavor {flavor!r}; choose one of {', '.join(FLAVORS)}")
+    if ca_bundle is not None and not Path(ca_bundle).is_file():
+        raise StepError(STEP, f"CA bundle '{ca_bundle}' not found")
+    if not force and image_exists(tag):
+        LOG.info("%s: %s exists, not rebuilding it (force=True does)", STEP, tag)
+        return tag
+    spec = FLAVORS[flavor]
+    with step_log(f"{STEP} {tag}"), tempfile.TemporaryDirectory(prefix="docker-ros-base-") as tmp:
+        work = Path(tmp)
+        rootfs = work / "rootfs"
+        rootfs_tag = f"docker-ros-rootfs/{spec.suite}:{platform}-{work.name.lower()}"
+        try:
+            with step_log(f"{STEP} debootstrap {spec.suite} ({platform})"):
+                run(privileged(debootstrap_argv(spec.suite, rootfs, mirror, platform)), step=STEP)
+            with step_log(f"{STEP} import rootfs"):
+                import_rootfs(rootfs, rootfs_tag, platform, work)
+        finally:
+            remove_rootfs(rootfs)
+        try:
+            with step_log(f"{STEP} apt-get install ({len(spec.debs)} packages)"):
+                context = work / "context"
+                context.mkdir()
+                run(build_argv(spec, tag, rootfs_tag, platform, ca_bundle, context), step=STEP)
+        finally:
+            subprocess.run(["docker", "image", "rm", rootfs_tag], stdout=subprocess.DEVNULL)
+    return tag
+
+
+def image_exists(tag: str) -> bool:
+    inspect = ["docker", "image", "inspect", tag]
+    done = subprocess.run(inspect, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return done.returncode == 0
+
+
+def debootstrap_argv(suite: str, rootfs: Path, mirror: str, platform: str) -> List[str]:
+    return ["debootstrap", "--variant=minbase", f"--arch={platform}", suite, str(rootfs), mirror]
+
+
+def build_argv(
+    spec: Flavor,
+    tag: str,
+    rootfs_image: str,
+    platform: str,
+    ca_bundle: Optional[Path],
+    context: Path,
+) -> List[str]:
+    argv = ["docker", "buildx", "build", "--load", "--platform", f"linux/{platform}"]
+    argv += ["--file", str(DOCKERFILE), "--target", spec.name, "--tag", tag]
+    argv += ["--build-arg", f"ROOTFS_IMAGE={rootfs_image}"]
+    argv += ["--build-arg", "DEBS=" + " ".join(spec.debs)]
+    if ca_bundle is not None:
+        argv += ["--secret", f"id=EXTRA_CA_CERTS,src={ca_bundle}"]
+    return argv + [str(context)]
+
+
+def import_rootfs(rootfs: Path, tag: str, platform: str, work: Path) -> None:
+    """Make the rootfs an image. `docker import --platform` records the wrong architecture on
+    Engine 20.10, so a foreign rootfs goes through a `FROM scratch` build instead."""
+    if platform == host_platform():
+        pack = privileged(["tar", "-C", str(rootfs), "-c", "."])
+        tar = subprocess.Popen(pack, stdout=subprocess.PIPE)
+        imported = subprocess.run(
+            ["docker", "import", "-", tag], stdin=tar.stdout, stdout=subprocess.DEVNULL
+        )
+        assert tar.stdout is not None
+        tar.stdout.close()
+        if tar.wait() != 0 or imported.returncode != 0:
+            raise StepError(
+                STEP,
+                f"importing {rootfs} as {tag} failed"
+                f" (tar: exit code {tar.returncode}, docker import: {imported.returncode})",
+            )
+        return
+    context = work / "import"
+    context.mkdir()
+    run(privileged(["tar", "-C", str(rootfs), "-cf", str(context / "rootfs.tar"), "."]), step=STEP)
+    (context / "Dockerfile").write_text("FROM scratch\nADD rootfs.tar /\nCMD [\"bash\"]\n")
+    try:
+        build = ["docker", "buildx", "build", "--load", "--platform", f"linux/{platform}"]
+        run(build + ["--tag", tag, str(context)], step=STEP)
+    finally:
+        (context / "rootfs.tar").unlink()
+
+
+def remove_rootfs(rootfs: Path) -> None:
+    """debootstrap leaves root-owned files and, when interrupted, mounts (proc, sys, dev):
+    unmount those first and never cross into another file system while removing."""
+    if not rootfs.exists():
+        return
+    for mount in reversed(mounts_below(rootfs)):
+        LOG.warning("%s: unmounting leftover %s", STEP, mount)
+        subprocess.run(privileged(["umount", "--lazy", mount]))
+    argv = privileged(["rm", "-rf", "--one-file-system", str(rootfs)])
+    if subprocess.run(argv).returncode != 0:
+        LOG.warning("%s: could not remove %s (%s)", STEP, rootfs, format_argv(argv))
+
+
+def mounts_below(path: Path) -> List[str]:
+    """Mount points at or below `path`, outermost first (/proc/self/mounts escapes spaces)."""
+    prefix = str(path.resolve())
+    found = []
+    for line in Path("/proc/self/mounts").read_text().splitlines():
+        point = line.split()[1].replace("\\040", " ")
+        if point == prefix or point.startswith(prefix + "/"):
+            found.append(point)
+    return sorted(found, key=len)

@@ -1,0 +1,138 @@
+"""Proofs that the shared Docker fixtures give what the other tests rely on."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tarfile
+import urllib.request
+import uuid
+from pathlib import Path
+
+import pytest
+
+import docker
+
+pytestmark = pytest.mark.docker
+
+PIP_INSTALL_SIX = (
+    "pip install --no-cache-dir --retries 0 --timeout 30 --break-system-packages"
+    " --ignore-installed --no-deps six"
+)
+TINY_PACKAGE_XML = """<?xml version="1.0"?>
+<package format="3">
+  <name>tiny</name>
+  <version>0.0.1</version>
+  <description>A tiny ament_cmake package</description>
+  <maintainer email="dev@example.com">dev</maintainer>
+  <license>MIT</license>
+  <buildtool_depend>ament_cmake</buildtool_depend>
+  <export><build_type>ament_cmake</build_type></export>
+</package>
+"""
+TINY_CMAKELISTS = """cmake_minimum_required(VERSION 3.10)
+project(tiny CXX)
+find_package(ament_cmake REQUIRED)
+ament_package()
+"""
+
+
+def run(client: docker.DockerClient, image: str, script: str, **kwargs: object) -> str:
+    """Output of `bash -c script` in a throwaway container; fails the test with its stderr."""
+    try:
+        out = client.containers.run(image, ["bash", "-c", script], remove=True, **kwargs)
+    except docker.errors.ContainerError as exc:
+        stderr = exc.stderr.decode(errors="replace") if exc.stderr else ""
+        pytest.fail(f"container exited with {exc.exit_status}:\n{stderr}")
+    return out.decode(errors="replace")
+
+
+def test_ros1_image_round_trips_a_message_through_roscore(
+    docker_client: docker.DockerClient, ros1_base_image: str
+) -> None:
+    script = """set -e
+        test -z "${ROS_DISTRO:-}" && test ! -e /opt/ros  # Debian's ROS 1 lives in /usr
+        roscore >/tmp/roscore.log 2>&1 &
+        for _ in $(seq 60); do rostopic list >/dev/null 2>&1 && break; sleep 0.5; done
+        rostopic pub -r 5 /chatter std_msgs/String "data: hello from roscore" >/dev/null &
+        timeout 30 rostopic echo -n 1 /chatter
+    """
+    assert 'data: "hello from roscore"' in run(docker_client, ros1_base_image, script)
+
+
+def test_ros2_image_builds_an_ament_cmake_package(
+    docker_client: docker.DockerClient, ros2_base_image: str, tmp_path: Path
+) -> None:
+    package = tmp_path / "src" / "tiny"
+    package.mkdir(parents=True)
+    (package / "package.xml").write_text(TINY_PACKAGE_XML)
+    (package / "CMakeLists.txt").write_text(TINY_CMAKELISTS)
+    script = """set -e
+        colcon build --event-handlers console_direct-
+        source install/setup.bash
+        echo "AMENT_PREFIX_PATH=$AMENT_PREFIX_PATH"
+        python3 -c 'import ament_index_python as a; print(a.get_package_prefix("tiny"))'
+    """
+    out = run(
+        docker_client,
+        ros2_base_image,
+        script,
+        volumes={str(tmp_path): {"bind": "/ws", "mode": "rw"}},
+        working_dir="/ws",
+        user=f"{os.getuid()}:{os.getgid()}",
+        environment={"HOME": "/tmp"},
+    )
+    assert "AMENT_PREFIX_PATH=/ws/install/tiny" in out
+    assert out.rstrip().endswith("/ws/install/tiny")
+    assert (tmp_path / "install" / "setup.bash").is_file()
+
+
+def test_local_registry_pushes_and_pulls(
+    docker_client: docker.DockerClient, local_registry: str
+) -> None:
+    repository = f"{local_registry}/docker-ros-test/tiny"
+    tag = uuid.uuid4().hex[:12]
+    ref = f"{repository}:{tag}"
+    payload = io.BytesIO()
+    with tarfile.open(fileobj=payload, mode="w") as tar:
+        content = f"pushed as {ref}\n".encode()
+        info = tarfile.TarInfo("hello.txt")
+        info.size = len(content)
+        tar.addfile(info, io.BytesIO(content))
+    docker_client.api.import_image_from_data(payload.getvalue(), repository=repository, tag=tag)
+    image_id = docker_client.images.get(ref).id
+    try:
+        for line in docker_client.images.push(repository, tag=tag, stream=True, decode=True):
+            assert "error" not in line, line
+        docker_client.images.remove(ref)
+        assert docker_client.images.pull(repository, tag=tag).id == image_id
+        opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+        with opener.open(f"http://{local_registry}/v2/docker-ros-test/tiny/tags/list") as answer:
+            assert tag in json.load(answer)["tags"]
+    finally:
+        docker_client.images.remove(ref, force=True)
+
+
+def test_pip_in_a_container_trusts_pypi_only_with_the_host_ca(
+    docker_client: docker.DockerClient, ros1_base_image: str, host_ca_bundle: Path
+) -> None:
+    ca = "/run/host-ca/ca-certificates.crt"
+    out = run(
+        docker_client,
+        ros1_base_image,
+        f"{PIP_INSTALL_SIX} && python3 -c 'import six; print(six.__file__)'",
+        volumes={str(host_ca_bundle): {"bind": ca, "mode": "ro"}},
+        environment={"PIP_CERT": ca, "SSL_CERT_FILE": ca},
+    )
+    assert "/usr/local/lib/python3" in out
+
+
+def test_pip_in_a_container_fails_without_the_host_ca(
+    docker_client: docker.DockerClient, ros1_base_image: str
+) -> None:
+    if not any(Path("/usr/local/share/ca-certificates").glob("**/*.crt")):
+        pytest.skip("the host trusts no extra CA, so there is no TLS-intercepting proxy to fail on")
+    out = run(docker_client, ros1_base_image, f"{PIP_INSTALL_SIX} 2>&1 || echo PIP FAILED")
+    assert "CERTIFICATE_VERIFY_FAILED" in out
+    assert out.rstrip().endswith("PIP FAILED")

@@ -1,0 +1,57 @@
+"""Command construction of the debootstrap base images (the builds themselves: tests/docker)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from docker_ros import baseimage
+from docker_ros.steps.common import StepError
+
+
+def test_every_flavor_is_a_dockerfile_stage() -> None:
+    stages = re.findall(r"^FROM \S+ AS (\S+)$", baseimage.DOCKERFILE.read_text(), re.MULTILINE)
+    assert set(baseimage.FLAVORS) <= set(stages)
+
+
+def test_build_argv_passes_the_ca_bundle_as_a_secret_only() -> None:
+    spec = baseimage.FLAVORS["ros1"]
+    ca = Path("/etc/ssl/certs/ca-certificates.crt")
+    argv = baseimage.build_argv(spec, "t:1", "rootfs:x", "arm64", ca, Path("/ctx"))
+    assert argv[:4] == ["docker", "buildx", "build", "--load"]
+    assert argv[argv.index("--platform") + 1] == "linux/arm64"
+    assert argv[argv.index("--target") + 1] == "ros1"
+    assert argv[argv.index("--secret") + 1] == f"id=EXTRA_CA_CERTS,src={ca}"
+    assert [arg for arg in argv if str(ca) in arg] == [f"id=EXTRA_CA_CERTS,src={ca}"]
+    assert argv[-1] == "/ctx"
+    without = baseimage.build_argv(spec, "t:1", "rootfs:x", "amd64", None, Path("/ctx"))
+    assert "--secret" not in without
+
+
+def test_debs_are_one_build_arg() -> None:
+    spec = baseimage.FLAVORS["ros2"]
+    argv = baseimage.build_argv(spec, "t:1", "rootfs:x", "amd64", None, Path("/ctx"))
+    debs = [a for a in argv if a.startswith("DEBS=")]
+    assert debs == ["DEBS=" + " ".join(spec.debs)]
+    assert "ament-cmake" in spec.debs and "tini" in spec.debs
+
+
+def test_debootstrap_argv_is_minbase_for_the_platform() -> None:
+    argv = baseimage.debootstrap_argv("bookworm", Path("/tmp/r"), "http://m/debian", "arm64")
+    assert argv == [
+        "debootstrap", "--variant=minbase", "--arch=arm64", "bookworm", "/tmp/r", "http://m/debian",
+    ]  # fmt: skip
+
+
+def test_unknown_flavor_and_missing_ca_bundle_are_clear_errors(tmp_path: Path) -> None:
+    with pytest.raises(StepError, match="unknown flavor 'ros3'; choose one of ros1, ros2"):
+        baseimage.bootstrap("ros3", tag="x:y")
+    with pytest.raises(StepError, match="CA bundle .* not found"):
+        baseimage.bootstrap("ros1", tag="x:y", ca_bundle=tmp_path / "nope.pem")
+
+
+def test_mounts_below_finds_nothing_under_a_fresh_directory(tmp_path: Path) -> None:
+    assert baseimage.mounts_below(tmp_path) == []
+    assert "/proc" in baseimage.mounts_below(Path("/proc"))
