@@ -103,8 +103,8 @@ def plan_build(
     argv += ["--target", target, "--platform", f"linux/{platform}", "--tag", tag]
     argv += ["--build-arg", f"BASE_IMAGE={settings.base_image}"]
     argv += ["--build-arg", f"DOCKER_ROS_TOOLS={tools_image}"]
-    argv += [a for a in build_args(settings, dockerfile_args(dockerfile))
-             if not a.startswith(("BASE_IMAGE=", "DOCKER_ROS_TOOLS="))]
+    declared = [a for a in dockerfile_args(dockerfile) if a not in ("BASE_IMAGE", "DOCKER_ROS_TOOLS")]
+    argv += build_args(settings, declared)
     for secret_id, source in sorted(secrets.items()):
         argv += ["--secret", f"id={secret_id},{source}"]
     if not settings.buildx_attestations:

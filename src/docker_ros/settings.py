@@ -233,7 +233,7 @@ class Settings:
         return self.target
 
 
-def declarations() -> List[dataclasses.Field]:  # type: ignore[type-arg]
+def declarations() -> List[dataclasses.Field]:
     return [f for f in dataclasses.fields(Settings) if f.name != "sources"]
 
 
@@ -330,16 +330,19 @@ def load_settings(
         else:
             yaml_values[name] = value
     layers.append(("invoke.yaml", yaml_values))
-    for source, mapping in ((".env", dotenv or {}), ("environment", environ or {})):
+    env_layers: Tuple[Tuple[str, Mapping[str, Optional[str]]], ...] = (
+        (".env", dotenv or {}),
+        ("environment", environ or {}),
+    )
+    for source, env in env_layers:
         # An empty variable counts as unset (docker-ros's add_arg_if_set; CI inputs left blank).
-        values = {n: mapping[env_name(n)] for n in FIELDS if mapping.get(env_name(n))}
-        layers.append((source, values))
+        layers.append((source, {n: env[env_name(n)] for n in FIELDS if env.get(env_name(n))}))
     layers.append(("flag", {k: v for k, v in (flags or {}).items() if v is not None}))
 
     values: Dict[str, object] = {}
     sources: Dict[str, str] = {}
-    for source, mapping in layers:
-        for name, raw in mapping.items():
+    for source, layer in layers:
+        for name, raw in layer.items():
             try:
                 values[name] = parse_value(name, raw)
             except SettingsError as exc:

@@ -1,6 +1,7 @@
 """Pure planning of image builds: argv, tags, build args, secrets, log folding."""
 
 import io
+import re
 from pathlib import Path
 
 from docker_ros import build
@@ -35,6 +36,9 @@ def test_unset_settings_stay_unset_and_set_ones_are_passed():
     assert argv[argv.index("--target") + 1] == "run"
     assert argv[argv.index("--platform") + 1] == "linux/amd64"
     assert argv[-2:] == ["--load", "."]
+    pairs = [argv[i + 1] for i, a in enumerate(argv) if a == "--build-arg"]
+    assert all(re.fullmatch(r"[A-Z_]+=.*", p) for p in pairs), pairs
+    assert [p.split("=")[0] for p in pairs].count("BASE_IMAGE") == 1
 
 
 def test_secrets_are_never_build_arguments():

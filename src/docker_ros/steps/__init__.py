@@ -19,6 +19,8 @@ STEPS = (
     "colcon",
     "command",
 )
+# Image-only preparation of the base (not a pipeline step; no host task).
+IMAGE_STEPS = ("prepare",)
 
 
 def run_step(
@@ -31,7 +33,7 @@ def run_step(
     **options: str,
 ) -> None:
     """Run one step by name: `docker_ros.steps.<name>.main(ws, settings, ...)`."""
-    if name not in STEPS:
+    if name not in STEPS + IMAGE_STEPS:
         from docker_ros.steps.common import StepError
 
         raise StepError(name, f"unknown step {name!r}; steps: {', '.join(STEPS)}")

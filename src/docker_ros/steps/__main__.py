@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 from docker_ros.settings import SettingsError, load_settings
-from docker_ros.steps import STEPS, run_step
+from docker_ros.steps import IMAGE_STEPS, STEPS, run_step
 from docker_ros.steps.common import PHASES, StepError, Workspace, setup_logging
 
 DEFAULT_WORKSPACE = "/docker-ros/ws"
@@ -20,7 +20,7 @@ def parser() -> argparse.ArgumentParser:
         description="Run one docker-ros pipeline step; settings come from the environment "
         "(docker-ros variable names).",
     )
-    p.add_argument("step", choices=STEPS, help="the step to run")
+    p.add_argument("step", choices=STEPS + IMAGE_STEPS, help="the step to run")
     p.add_argument(
         "--workspace",
         default=DEFAULT_WORKSPACE,

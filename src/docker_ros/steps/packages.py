@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Dict, Iterable, List, Mapping, NamedTuple, Optional, Sequence, Set, Tuple
 
 from docker_ros.steps.common import (
+    BASE_IMAGE_WS,
     IGNORE_MARKERS,
     StepError,
     Workspace,
@@ -239,20 +240,24 @@ def find_packages(
 
 
 def select_keys(
-    packages: Sequence[Package], dependency_types: str, blacklist: Iterable[str] = ()
+    packages: Sequence[Package],
+    dependency_types: str,
+    blacklist: Iterable[str] = (),
+    underlay: Iterable[str] = (),
 ) -> Dict[str, List[str]]:
     """rosdep keys -> sorted names of the packages needing them, for "all" or "exec" types.
 
     Blacklisted packages are left out; keys naming a (non-blacklisted) workspace package are
     built from source and so are no rosdep keys (a blacklisted package's name stays a key:
-    docker-ros users blacklist a source package to get it from apt instead)."""
+    docker-ros users blacklist a source package to get it from apt instead). Packages of the
+    `underlay` (a docker-ros base image's workspace) are no keys either."""
     if dependency_types not in DEPENDENCY_SETS:
         raise ValueError(
             f"unknown dependency types {dependency_types!r}; use {' or '.join(DEPENDENCY_SETS)}"
         )
     skip: Set[str] = set(blacklist)
     kept = [p for p in packages if p.name not in skip]
-    local = {p.name for p in kept}
+    local = {p.name for p in kept} | set(underlay)
     keys: Dict[str, Set[str]] = {}
     for package in kept:
         for tag in DEPENDENCY_SETS[dependency_types]:
@@ -260,3 +265,11 @@ def select_keys(
                 if key not in local:
                     keys.setdefault(key, set()).add(package.name)
     return {key: sorted(names) for key, names in sorted(keys.items())}
+
+
+def underlay_packages(root: Path = BASE_IMAGE_WS) -> List[str]:
+    """Names of the packages installed in a base image's docker-ros workspace."""
+    share = root / "install" / "share"
+    if not share.is_dir():
+        return []
+    return sorted(p.parent.name for p in share.glob("*/package.xml"))

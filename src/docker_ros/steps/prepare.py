@@ -8,15 +8,22 @@ from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.settings import Settings
-from docker_ros.steps.common import LOG, StepError, Workspace, apt_env, run, step_log
+from docker_ros.steps.common import (
+    BASE_IMAGE_WS,
+    LOG,
+    ROS1_DISTROS,
+    StepError,
+    Workspace,
+    apt_env,
+    run,
+    step_log,
+)
 
-ROS1_DISTROS = ("boxturtle", "cturtle", "diamondback", "electric", "fuerte", "groovy", "hydro",
-                "indigo", "jade", "kinetic", "lunar", "melodic", "noetic")
 ROS_APT_SOURCE_URL = (
     "https://github.com/ros-infrastructure/ros-apt-source/releases/download/"
     "{version}/{package}_{version}.{codename}_all.deb"
 )
-BASE_WS = Path("/opt/ws_base_image")
+BASE_WS = BASE_IMAGE_WS
 
 # tool (command) -> apt package candidates, in order of preference (ROS apt repo, then Debian).
 TOOLS: Dict[str, Sequence[str]] = {

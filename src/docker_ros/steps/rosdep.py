@@ -24,7 +24,12 @@ from docker_ros.steps.common import (
     run,
     step_log,
 )
-from docker_ros.steps.packages import DEPENDENCY_SETS, find_packages, select_keys
+from docker_ros.steps.packages import (
+    DEPENDENCY_SETS,
+    find_packages,
+    select_keys,
+    underlay_packages,
+)
 from docker_ros.steps.pip import pip_install
 
 STEP = "rosdep"
@@ -209,7 +214,10 @@ def collect(
     distro = ros_distro(settings)
     packages = find_packages(ws, settings, step=STEP)
     blacklist = blacklisted_packages(ws, settings)
-    selected = {types: select_keys(packages, types, blacklist) for types in DEPENDENCY_SETS}
+    underlay = underlay_packages()
+    selected = {
+        types: select_keys(packages, types, blacklist, underlay) for types in DEPENDENCY_SETS
+    }
     all_keys = selected["all"]
     LOG.info(
         "%s: %d packages (%d blacklisted), %d rosdep keys (%d exec)",
@@ -219,13 +227,14 @@ def collect(
         len(all_keys),
         len(selected["exec"]),
     )
-    if not prepare_rosdep(distro, dry_run=dry_run):
+    # No keys, no rosdep: a workspace without dependencies needs no rosdep database.
+    if all_keys and not prepare_rosdep(distro, dry_run=dry_run):
         dry(
             STEP,
             f"resolve {len(all_keys)} keys after `rosdep update`: " + " ".join(sorted(all_keys)),
         )
         return None
-    resolved, failed = resolve(sorted(all_keys), distro)
+    resolved, failed = resolve(sorted(all_keys), distro) if all_keys else ({}, {})
     if failed:
         raise StepError(STEP, format_failures(failed, all_keys))
     for key in sorted(all_keys):
