@@ -2,7 +2,6 @@
 # docker-ros entrypoint (runs under tini): map the host user, source ROS, exec the command.
 #
 #   DOCKER_UID / DOCKER_GID / DOCKER_USER  create that user (and group) and run as it
-#   DOCKER_ROS_COMMAND                     the run image's COMMAND (used by its default CMD)
 
 source_if_exists() {
     # shellcheck disable=SC1090
@@ -50,9 +49,6 @@ map_user() {
 
 source_ros
 
-if [[ $# -eq 0 && -n "${DOCKER_ROS_COMMAND:-}" ]]; then
-    set -- bash -c "$DOCKER_ROS_COMMAND"
-fi
 if [[ $# -eq 0 ]]; then
     set -- bash
 fi
