@@ -17,6 +17,15 @@ RUN --mount=type=secret,id=EXTRA_CA_CERTS \
 ENV LANG=C.UTF-8
 CMD ["bash"]
 
+# rosdep works offline: Debian's python3-rosdep2 ships its own rules (10-debian.list, for
+# Debian's ROS packages and system libraries); a local, empty rosdistro index spares
+# `rosdep update` the trip to GitHub; GitHub's rule files (20-default.list) are dropped. Where
+# GitHub is reachable, `rosdep init` adds them back.
+RUN rm -f /etc/ros/rosdep/sources.list.d/20-default.list && \
+    mkdir -p /etc/ros/rosdistro && \
+    printf 'type: index\nversion: 4\ndistributions: {}\n' > /etc/ros/rosdistro/index-v4.yaml
+ENV ROSDISTRO_INDEX_URL=file:///etc/ros/rosdistro/index-v4.yaml
+
 # Debian's ROS 1 needs no environment: no /opt/ros, no setup.bash, no ROS_DISTRO.
 FROM debs AS ros1
 

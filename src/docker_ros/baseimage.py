@@ -31,6 +31,8 @@ COLCON_DEBS = tuple(
         "pkg-config", "python-setup-py", "recursive-crawl", "ros", "test-result",
     )
 )
+# The tools the steps need. No compiler: run images are built on this base and must not carry
+# one; dev images get build-essential from the image's prepare stage.
 TOOL_DEBS = (
     "ca-certificates", "colcon", "git", "python3-pip", "python3-rosdep2", "tini", "vcstool",
 )
@@ -46,7 +48,8 @@ class Flavor:
 
 
 # ros1 is like `ros:noetic-ros-core`: no compiler, so docker-ros's dev stage must bring it.
-ROS1_DEBS = ("ros-core-dev", "catkin", "rosbash")
+# ROS 1 at run time (roscore, roslaunch, rostopic...); -dev packages come from rosdep.
+ROS1_DEBS = ("ros-core", "rosbash")
 # ros2 is build tooling only (Debian has no rclcpp/rclpy), with the compiler to use it.
 ROS2_DEBS = (
     "ament-cmake", "ament-cmake-python", "python3-ament-index", "python3-ament-package",
@@ -56,6 +59,11 @@ FLAVORS = {
     "ros1": Flavor("ros1", "bookworm", ROS1_DEBS + TOOL_DEBS + COLCON_DEBS),
     "ros2": Flavor("ros2", "trixie", ROS2_DEBS + TOOL_DEBS + COLCON_DEBS),
 }
+
+
+def default_tag(flavor: str) -> str:
+    """docker-ros/ros1:bookworm, docker-ros/ros2:trixie."""
+    return f"docker-ros/{flavor}:{FLAVORS[flavor].suite}"
 
 
 def bootstrap(

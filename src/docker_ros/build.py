@@ -103,7 +103,8 @@ def plan_build(
     argv += ["--target", target, "--platform", f"linux/{platform}", "--tag", tag]
     argv += ["--build-arg", f"BASE_IMAGE={settings.base_image}"]
     argv += ["--build-arg", f"DOCKER_ROS_TOOLS={tools_image}"]
-    declared = [a for a in dockerfile_args(dockerfile) if a not in ("BASE_IMAGE", "DOCKER_ROS_TOOLS")]
+    argv += ["--build-arg", f"DOCKER_ROS_CACHE_ID={cache_id(settings, platform)}"]
+    declared = [a for a in dockerfile_args(dockerfile) if a != "BASE_IMAGE"]
     argv += build_args(settings, declared)
     for secret_id, source in sorted(secrets.items()):
         argv += ["--secret", f"id={secret_id},{source}"]
@@ -114,6 +115,13 @@ def plan_build(
     argv += ["--push" if push else "--load"]
     argv.append(str(Path(settings.build_context)))
     return argv
+
+
+def cache_id(settings: Settings, platform: str) -> str:
+    """Build caches (colcon build/) are per repository and platform: object files of another
+    workspace or architecture must never be reused."""
+    key = f"{Path(settings.build_context).resolve()}\0{settings.image_name}\0{platform}"
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
 def fold_markers(environ: Mapping[str, str]) -> Tuple[str, str]:

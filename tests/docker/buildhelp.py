@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import os
+import queue
+import re
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Dict, List, Optional
@@ -53,20 +56,40 @@ def run_until(ref: str, needle: str, seconds: float, *docker_args: str) -> str:
     name = f"docker-ros-test-{os.getpid()}-{int(time.time() * 1000)}"
     proc = subprocess.Popen(["docker", "run", "--rm", "--name", name, *docker_args, ref],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    lines: List[str] = []
+    lines: queue.Queue[str] = queue.Queue()
+    assert proc.stdout is not None
+    reader = threading.Thread(target=lambda: [lines.put(line) for line in proc.stdout],
+                              daemon=True)
+    reader.start()
+    seen: List[str] = []
     deadline = time.monotonic() + seconds
     try:
-        assert proc.stdout is not None
-        os.set_blocking(proc.stdout.fileno(), False)
-        while time.monotonic() < deadline and proc.poll() is None:
-            chunk = proc.stdout.readline()
-            if chunk:
-                lines.append(chunk)
-                if needle in chunk:
+        while time.monotonic() < deadline:
+            try:
+                seen.append(lines.get(timeout=0.5))
+            except queue.Empty:
+                if proc.poll() is not None:
                     break
-            else:
-                time.sleep(0.2)
+                continue
+            if needle in seen[-1]:
+                break
     finally:
         subprocess.run(["docker", "rm", "-f", name], capture_output=True)
         proc.wait(timeout=60)
-    return "".join(lines)
+    return "".join(seen)
+
+
+def cached_vertices(log: str) -> Dict[str, bool]:
+    """BuildKit plain log -> {vertex name: came from cache?}, e.g. '[run 2/3] RUN ...'."""
+    names: Dict[str, str] = {}
+    cached: Dict[str, bool] = {}
+    for line in log.splitlines():
+        match = re.match(r"#(\d+) (\[.*)", line)
+        if match:
+            names[match.group(1)] = match.group(2)
+            cached.setdefault(match.group(2), False)
+            continue
+        match = re.match(r"#(\d+) CACHED", line)
+        if match and match.group(1) in names:
+            cached[names[match.group(1)]] = True
+    return cached

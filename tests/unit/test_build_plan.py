@@ -113,3 +113,12 @@ def _mk(tmp_path):
     out = tmp_path / "staged"
     out.mkdir()
     return out
+
+
+def test_build_cache_is_per_repository_and_platform():
+    a, b = settings(), settings(IMAGE="other/img")
+    assert build.cache_id(a, "amd64") == build.cache_id(a, "amd64")
+    assert len({build.cache_id(a, "amd64"), build.cache_id(a, "arm64"),
+                build.cache_id(b, "amd64")}) == 3
+    argv = plan(a)
+    assert f"DOCKER_ROS_CACHE_ID={build.cache_id(a, 'amd64')}" in argv

@@ -373,3 +373,26 @@ def test_workspace_relative_and_state(tmp_path):
     assert "collect" in err.value.message
     ws.write_state("b.json", {"z": 1, "a": [2]})
     assert (ws.state / "b.json").read_text() == '{\n  "a": [\n    2\n  ],\n  "z": 1\n}\n'
+
+
+def test_colcon_stamps_only_files_whose_content_changed(tmp_path):
+    import os
+
+    from docker_ros.steps import colcon
+    from docker_ros.steps.common import Workspace
+
+    ws = Workspace(tmp_path)
+    (ws.src / "pkg").mkdir(parents=True)
+    (ws.root / "build").mkdir()
+    same, edited = ws.src / "pkg" / "same.cpp", ws.src / "pkg" / "edited.cpp"
+    same.write_text("a")
+    edited.write_text("b")
+    first = colcon.stamp_changed_sources(ws)
+    (ws.root / "build" / colcon.STAMP_FILE).write_text(__import__("json").dumps(first))
+    for path in (same, edited):
+        os.utime(path, (1000, 1000))  # old times, as COPY may give
+    edited.write_text("c")
+    os.utime(edited, (1000, 1000))
+    colcon.stamp_changed_sources(ws)
+    assert same.stat().st_mtime == 1000
+    assert edited.stat().st_mtime > 1000

@@ -47,6 +47,12 @@ def parser() -> argparse.ArgumentParser:
         default=None,
         help="files apply: target folder (default /docker-ros/additional-files)",
     )
+    p.add_argument(
+        "--stamp-changed",
+        action="store_true",
+        help="colcon: give sources whose content changed since the last build the current time "
+        "(image builds, where build/ is a cache mount and COPY keeps old times)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return p
 
@@ -60,6 +66,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         options["dependency_types"] = args.dependency_types
     if args.destination:
         options["destination"] = args.destination
+    if args.stamp_changed:
+        options["stamp_changed"] = "true"
     try:
         settings = load_settings(environ=os.environ, project_dir=Path(ws.target))
         run_step(args.step, ws, settings, phase=args.phase, dry_run=args.dry_run, **options)

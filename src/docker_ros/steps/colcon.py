@@ -1,9 +1,14 @@
 """colcon: `colcon build` the workspace, over ROS and the base image's workspace."""
 
+import hashlib
+import json
 import logging
+import os
 import re
 import shlex
-from typing import List, Sequence
+import time
+from pathlib import Path
+from typing import Dict, List, Sequence
 
 from docker_ros.settings import Settings
 from docker_ros.steps.blacklist import blacklisted_packages
@@ -20,6 +25,7 @@ from docker_ros.steps.common import (
 )
 
 STEP = "colcon"
+STAMP_FILE = ".docker-ros-source-hashes.json"
 LOG = logging.getLogger(__name__)
 _FAILED = re.compile(r"^Failed\s+<<<\s+(\S+)")
 
@@ -40,6 +46,39 @@ def build_argv(cmake_args: str, ignore: Sequence[str]) -> List[str]:
     if arguments:
         argv += ["--cmake-args", *arguments]
     return argv
+
+
+def source_hashes(src: Path) -> Dict[str, str]:
+    """sha256 of every file below src (not .git), by relative path."""
+    hashes = {}
+    for dirpath, dirnames, filenames in os.walk(str(src)):
+        dirnames[:] = [d for d in dirnames if d != ".git"]
+        for name in filenames:
+            path = Path(dirpath, name)
+            if path.is_file():
+                digest = hashlib.sha256(path.read_bytes()).hexdigest()
+                hashes[path.relative_to(src).as_posix()] = digest
+    return hashes
+
+
+def changed_files(old: Dict[str, str], new: Dict[str, str]) -> List[str]:
+    return sorted(path for path, digest in new.items() if old.get(path) != digest)
+
+
+def stamp_changed_sources(ws: Workspace) -> Dict[str, str]:
+    """In the image, build/ is a cache mount reused across builds, and COPY keeps the context's
+    modification times: a file whose content changed but whose time is older than its object
+    file would not be recompiled. Give every file whose content changed since the last
+    successful build the current time; return the hashes to record after the build."""
+    record = ws.root / "build" / STAMP_FILE
+    old = json.loads(record.read_text()) if record.is_file() else {}
+    new = source_hashes(ws.src)
+    now = time.time()
+    changed = changed_files(old, new)
+    for rel in changed:
+        os.utime(str(ws.src / rel), (now, now))
+    LOG.info("%s: %d of %d source files changed since the last build", STEP, len(changed), len(new))
+    return new
 
 
 def failed_packages(lines: Sequence[str]) -> List[str]:
@@ -73,6 +112,7 @@ def main(
             run(argv, step=STEP, dry_run=True, cwd=ws.root)
             return
         env = sourced_env(setup, step=STEP)
+        stamps = stamp_changed_sources(ws) if options.get("stamp_changed") else None
         returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env=env)
         if returncode != 0:
             failed = failed_packages(lines)
@@ -84,3 +124,6 @@ def main(
             raise StepError(
                 STEP, f"{what} (exit code {returncode}); see the output above", returncode
             )
+        if stamps is not None:
+            # Only after success: a failed build must find the same files changed next time.
+            (ws.root / "build" / STAMP_FILE).write_text(json.dumps(stamps, sort_keys=True))

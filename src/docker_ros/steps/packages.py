@@ -268,8 +268,9 @@ def select_keys(
 
 
 def underlay_packages(root: Path = BASE_IMAGE_WS) -> List[str]:
-    """Names of the packages installed in a base image's docker-ros workspace."""
-    share = root / "install" / "share"
-    if not share.is_dir():
-        return []
-    return sorted(p.parent.name for p in share.glob("*/package.xml"))
+    """Names of the packages installed in a base image's docker-ros workspace (colcon's
+    package index, isolated or merged layout)."""
+    install = root / "install"
+    index = [*install.glob("share/colcon-core/packages/*"),
+             *install.glob("*/share/colcon-core/packages/*")]
+    return sorted({p.name for p in index if p.is_file()})
