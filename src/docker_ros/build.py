@@ -25,7 +25,7 @@ TOOLS_PATTERNS = ("__init__.py", "settings.py", "steps/*.py", "docker/*.sh")
 SECRETS = ("git_https_password", "git_ssh_private_key")
 # Settings that shape the build through the tool itself rather than a Dockerfile ARG.
 HANDLED_BY_TOOL = frozenset({
-    "base_image", "build_context", "buildx_attestations", "cache_from", "extra_ca_certs",
+    "base_image", "build_context", "build_network", "buildx_attestations", "cache_from", "extra_ca_certs",
     "image", "image_name", "image_tag", "dev_image_name", "dev_image_tag", "platform", "target",
     "git_https_password", "git_ssh_private_key",
 })
@@ -108,6 +108,8 @@ def plan_build(
     argv += build_args(settings, declared)
     for secret_id, source in sorted(secrets.items()):
         argv += ["--secret", f"id={secret_id},{source}"]
+    if settings.build_network:
+        argv += ["--network", settings.build_network]
     if not settings.buildx_attestations:
         argv += ["--provenance=false"]
     if settings.cache_from:

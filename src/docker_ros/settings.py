@@ -220,6 +220,12 @@ class Settings:
     cache_from: Optional[str] = setting(
         None, "Registry image to reuse as build cache (`--cache-from`)", group="ours"
     )
+    build_network: Optional[str] = setting(
+        None,
+        "Network of the build's RUN steps (`host` reaches services on this machine's loopback,"
+        " e.g. a local git server)",
+        group="ours",
+    )
     ros_apt_source_version: str = setting(
         "1.1.0", "Pinned version of the ros-apt-source package used to install ROS", group="ours"
     )
