@@ -11,10 +11,10 @@ import urllib.request
 from pathlib import Path
 from typing import Iterator
 
+import docker
 import pytest
 import yaml
 
-import docker
 from docker_ros import baseimage
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"

@@ -10,9 +10,8 @@ import urllib.request
 import uuid
 from pathlib import Path
 
-import pytest
-
 import docker
+import pytest
 
 pytestmark = pytest.mark.docker
 
