@@ -115,7 +115,8 @@ def test_colcon_dry_run_builds_nothing(packages, capsys):
     colcon.main(packages.ws, packages.settings(cmake_args="-DX=1 --trace"), dry_run=True)
     out = capsys.readouterr().out
     assert (
-        "[dry-run] colcon: colcon build --base-paths src --packages-ignore unwanted"
+        "[dry-run] colcon: colcon build --base-paths src --event-handlers console_cohesion+"
+        " --packages-ignore unwanted"
         " --cmake-args -DX=1 ' --trace'" in out
     )
     assert not packages.ws.install.exists()

@@ -292,6 +292,8 @@ def test_colcon_argv():
         "build",
         "--base-paths",
         "src",
+        "--event-handlers",
+        "console_cohesion+",
         "--packages-ignore",
         "bad",
         "--cmake-args",
@@ -299,7 +301,7 @@ def test_colcon_argv():
         "-DX=a b",
         " --trace",
     ]
-    assert colcon.build_argv("", []) == ["colcon", "build", "--base-paths", "src"]
+    assert colcon.build_argv("", [])[-2:] == ["--event-handlers", "console_cohesion+"]
 
 
 def test_colcon_failed_packages():

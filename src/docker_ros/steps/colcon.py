@@ -39,7 +39,8 @@ def cmake_arguments(cmake_args: str) -> List[str]:
 
 
 def build_argv(cmake_args: str, ignore: Sequence[str]) -> List[str]:
-    argv = ["colcon", "build", "--base-paths", "src"]
+    # console_cohesion+: each package's full build output (compiler errors included) in the log.
+    argv = ["colcon", "build", "--base-paths", "src", "--event-handlers", "console_cohesion+"]
     if ignore:
         argv += ["--packages-ignore", *ignore]
     arguments = cmake_arguments(cmake_args)
