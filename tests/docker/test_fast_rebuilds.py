@@ -1,0 +1,141 @@
+"""Fast rebuilds and the CA setting (issue 5): cache mounts recompile one package, a registry
+image serves as cache on an empty machine, extra CAs work during the build and stay out."""
+
+from __future__ import annotations
+
+import io
+import re
+import subprocess
+import tarfile
+import uuid
+from pathlib import Path
+from typing import Dict, List
+
+import pytest
+
+from tests.docker.buildhelp import cached_vertices, docker_ros, image_exists, sh, write_env
+from tests.rosfixtures import make_package
+
+pytestmark = pytest.mark.docker
+HOST_EXTRA_CAS = sorted(Path("/usr/local/share/ca-certificates").glob("*.crt"))
+
+
+def compiled_objects(log: str) -> Dict[str, List[str]]:
+    """colcon's per-package output (console_cohesion+) -> the objects make compiled."""
+    compiled: Dict[str, List[str]] = {}
+    package = None
+    for line in log.splitlines():
+        text = re.sub(r"^#\d+ [\d.]+ ", "", line)
+        started = re.match(r"--- output: (\S+)", text)
+        if started:
+            package = started.group(1)
+            continue
+        if package and "Building CXX object" in text:
+            compiled.setdefault(package, []).append(text.split("Building CXX object")[-1])
+    return compiled
+
+
+def test_one_file_change_recompiles_one_package(ros1_base_image: str, tmp_path: Path) -> None:
+    for name in ("pkg_a", "pkg_b", "pkg_c"):
+        make_package(tmp_path / name, name)
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE="docker-ros-test/fast:1",
+              COMMAND="pkg_a_node && pkg_b_node && pkg_c_node")
+    first = docker_ros(tmp_path, "build", "--target", "run")
+    assert first.returncode == 0, first.stdout[-4000:]
+
+    source = tmp_path / "pkg_b" / "main.cpp"
+    source.write_text(source.read_text().replace('"pkg_b', '"pkg_b changed'))
+    second = docker_ros(tmp_path, "build", "--target", "run")
+    assert second.returncode == 0, second.stdout[-4000:]
+    assert list(compiled_objects(second.stdout)) == ["pkg_b"], compiled_objects(second.stdout)
+
+    ran = subprocess.run(["docker", "run", "--rm", "docker-ros-test/fast:1"],
+                         capture_output=True, text=True, timeout=120)
+    assert ran.stdout.split() == ["pkg_a", "pkg_b", "changed", "pkg_c"], ran
+
+
+def test_registry_image_serves_as_cache_on_an_empty_machine(
+    ros1_base_image: str, local_registry: str, tmp_path: Path
+) -> None:
+    ref = f"{local_registry}/docker-ros-test/cached:latest"
+    make_package(tmp_path / "pkg", "pkg")
+    (tmp_path / "docker").mkdir()
+    (tmp_path / "docker" / "additional-debs.txt").write_text("jq\n")
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE=ref, COMMAND="jq --version",
+              CACHE_FROM=ref)
+    built = docker_ros(tmp_path, "build", "--target", "run")
+    assert built.returncode == 0, built.stdout[-4000:]
+    pushed = subprocess.run(["docker", "push", ref], capture_output=True, text=True)
+    assert pushed.returncode == 0, pushed.stderr
+
+    # An empty machine: no image, no build cache (the base image stays: it is not ours).
+    subprocess.run(["docker", "image", "rm", ref], capture_output=True)
+    subprocess.run(["docker", "builder", "prune", "-af"], capture_output=True, check=True)
+    assert not image_exists(ref)
+
+    rebuilt = docker_ros(tmp_path, "build", "--target", "run")
+    assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
+    installs = {name: cached for name, cached in cached_vertices(rebuilt.stdout).items()
+                if "debs --phase apply" in name}
+    assert installs and all(installs.values()), installs
+    assert "Setting up jq" not in rebuilt.stdout
+    assert sh(ref, "jq --version").stdout.startswith("jq-")
+
+
+@pytest.mark.skipif(not HOST_EXTRA_CAS, reason="this machine's HTTPS is not re-signed by a proxy")
+def test_extra_ca_certs_work_during_the_build_and_stay_out_of_images(
+    ros1_base_image: str, tmp_path: Path
+) -> None:
+    project = tmp_path / "ws"
+    make_package(project / "pkg", "pkg")
+    (project / "docker").mkdir()
+    # A requirement no earlier build had, so no cached layer hides the download.
+    unique = f"tomli-w>=1.0,!=0.0.{uuid.uuid4().int % 10**9}\n"
+    (project / "docker" / "additional-pip-requirements.txt").write_text(unique)
+    write_env(project, BASE_IMAGE=ros1_base_image, IMAGE="docker-ros-test/ca:1",
+              COMMAND="python3 -c 'import tomli_w'", TARGET="dev,run")
+
+    without = docker_ros(project, "build")
+    assert without.returncode != 0
+    assert "failed in step pip" in without.stdout.strip().splitlines()[-1]
+    assert "CERTIFICATE_VERIFY_FAILED" in without.stdout
+
+    certs = tmp_path / "certs"  # outside the repository (the build context)
+    certs.mkdir()
+    for ca in HOST_EXTRA_CAS:
+        (certs / ca.name).write_bytes(ca.read_bytes())
+    built = docker_ros(project, "build", env={"EXTRA_CA_CERTS": str(certs)})
+    assert built.returncode == 0, built.stdout[-4000:]
+    assert subprocess.run(["docker", "run", "--rm", "docker-ros-test/ca:1"]).returncode == 0
+
+    # The CA's body must be in no layer of either image.
+    needles = [ca.read_text().splitlines()[1].encode() for ca in HOST_EXTRA_CAS]
+    for ref in ("docker-ros-test/ca:1", "docker-ros-test/ca:1-dev"):
+        archive = tmp_path / "image.tar"
+        subprocess.run(["docker", "save", "-o", str(archive), ref], check=True)
+        content = layer_bytes(archive)
+        for needle in needles:
+            assert needle not in content, f"CA found in {ref}"
+        archive.unlink()
+
+
+def layer_bytes(archive: Path) -> bytes:
+    """The content of every file of every layer of a `docker save` archive, concatenated."""
+    chunks = []
+    with tarfile.open(archive) as image:
+        for member in image.getmembers():
+            if not member.isfile():
+                continue
+            data = image.extractfile(member)
+            assert data is not None
+            blob = data.read()
+            if member.name.endswith(".tar"):
+                with tarfile.open(fileobj=io.BytesIO(blob)) as layer:
+                    for entry in layer.getmembers():
+                        if entry.isfile():
+                            content = layer.extractfile(entry)
+                            assert content is not None
+                            chunks.append(content.read())
+            else:
+                chunks.append(blob)
+    return b"".join(chunks)
