@@ -6,14 +6,16 @@ the step modules or the image build. Errors users can fix end as one line and a 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import getpass
 import inspect
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Sequence, Tuple
+from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
 
@@ -95,24 +97,36 @@ def settings_task(name: str, help: str, flags: Sequence[Flag] = ()) -> Callable[
     return decorate
 
 
-def host_workspace(settings: Settings, *, dry_run: bool) -> Workspace:
-    """The host workspace, with the repository linked (never copied or moved) at src/target."""
-    assert settings.workspace
-    ws = Workspace(Path(settings.workspace).expanduser())
-    repository = Path(settings.build_context).resolve()
+def link_repository(ws: Workspace, repository: Path) -> None:
+    """src/target -> the repository (linked, never copied, moved or modified)."""
     if ws.target.is_symlink() or ws.target.exists():
         if ws.target.resolve() != repository:
             raise TaskError(
                 f"workspace {ws.root}: src/target points to {ws.target.resolve()}, not to "
                 f"{repository}; set WORKSPACE to another folder"
             )
-        return ws
-    if dry_run:
-        print(f"[dry-run] would link {ws.target} -> {repository}")
-        return ws
+        return
     ws.src.mkdir(parents=True, exist_ok=True)
     ws.target.symlink_to(repository, target_is_directory=True)
-    return ws
+
+
+@contextlib.contextmanager
+def host_workspace(settings: Settings, *, dry_run: bool) -> Iterator[Workspace]:
+    """The host workspace. A dry run before the first real run uses a throw-away workspace,
+    so that it can show what would happen without creating WORKSPACE."""
+    assert settings.workspace
+    ws = Workspace(Path(settings.workspace).expanduser())
+    repository = Path(settings.build_context).resolve()
+    if dry_run and not ws.target.is_symlink():
+        with tempfile.TemporaryDirectory(prefix="docker-ros-dry-run-") as tmp:
+            print(f"[dry-run] would create {ws.root} with src/target -> {repository}"
+                  f" (showing the steps in a temporary workspace: {tmp})")
+            temporary = Workspace(tmp)
+            link_repository(temporary, repository)
+            yield temporary
+        return
+    link_repository(ws, repository)
+    yield ws
 
 
 def host_options(step: str, ws: Workspace) -> Dict[str, str]:
@@ -122,9 +136,9 @@ def host_options(step: str, ws: Workspace) -> Dict[str, str]:
 def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -> None:
     from docker_ros.steps import run_step
 
-    ws = host_workspace(settings, dry_run=dry_run)
-    for step in steps:
-        run_step(step, ws, settings, phase="all", dry_run=dry_run, **host_options(step, ws))
+    with host_workspace(settings, dry_run=dry_run) as ws:
+        for step in steps:
+            run_step(step, ws, settings, phase="all", dry_run=dry_run, **host_options(step, ws))
 
 
 def make_step_task(step: str) -> Task:

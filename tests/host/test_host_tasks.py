@@ -1,0 +1,98 @@
+"""The user's commands on the host: `inv`/`docker-ros` tasks, as real subprocesses."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.rosfixtures import make_package, tree_snapshot
+
+pytestmark = pytest.mark.host
+REPO = Path(__file__).resolve().parents[2]
+
+
+def cli(project: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    full = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    full.update(env or {})
+    return subprocess.run([sys.executable, "-m", "docker_ros", *args], cwd=project, env=full,
+                          capture_output=True, text=True, timeout=600)
+
+
+def inv(project: Path, *args: str) -> subprocess.CompletedProcess:
+    invoke = shutil.which("inv", path=os.path.dirname(sys.executable)) or "inv"
+    return subprocess.run([invoke, *args], cwd=project, capture_output=True, text=True)
+
+
+@pytest.fixture
+def project(tmp_path: Path) -> Path:
+    repo = tmp_path / "my_repo"
+    make_package(repo / "pkg_a", "pkg_a")
+    make_package(repo / "pkg_b", "pkg_b", depends=["pkg_a"])
+    (repo / "tasks.py").write_text((REPO / "tasks.py").read_text())
+    (repo / ".env").write_text(f"WORKSPACE={tmp_path / 'ws'}\nCOMMAND=pkg_b_node && echo done\n")
+    return repo
+
+
+def task_names(listing: str) -> list:
+    return sorted(line.split()[0] for line in listing.splitlines() if line.startswith("  "))
+
+
+def test_inv_and_docker_ros_list_the_same_tasks(project: Path) -> None:
+    via_inv, via_cli = inv(project, "--list"), cli(project, "--list")
+    assert via_inv.returncode == 0 and via_cli.returncode == 0, via_inv.stderr + via_cli.stderr
+    names = task_names(via_inv.stdout)
+    for expected in ("clone", "blacklist", "scripts", "rosdep", "debs", "pip", "files",
+                     "custom", "colcon", "command", "build", "dev", "run", "config", "dev-shell"):
+        assert expected in names
+    assert names == task_names(via_cli.stdout.split("Subcommands:")[-1])
+
+
+def test_run_host_runs_all_ten_steps_then_command_and_is_idempotent(project: Path) -> None:
+    before = tree_snapshot(project)
+    first = cli(project, "run", "--host")
+    assert first.returncode == 0, first.stderr[-3000:]
+    for step in ("clone", "blacklist", "scripts", "rosdep", "debs", "pip", "files", "custom",
+                 "colcon", "command"):
+        assert f"Starting >>> {step}" in first.stderr
+    assert first.stdout.split()[-2:] == ["pkg_b", "done"]
+    again = cli(project, "run", "--host")
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert again.stdout.split()[-2:] == ["pkg_b", "done"]
+    assert tree_snapshot(project) == before, "the user's repository was modified"
+
+
+def test_step_dry_run_changes_nothing(project: Path, tmp_path: Path) -> None:
+    before = tree_snapshot(project)
+    result = cli(project, "run", "--host", "--dry-run")
+    assert result.returncode == 0, result.stderr
+    assert "[dry-run] colcon: colcon build" in result.stdout
+    assert "[dry-run] command:" in result.stdout
+    assert not (tmp_path / "ws").exists()
+    assert tree_snapshot(project) == before
+
+
+def test_config_shows_sources_and_masks_secrets(project: Path) -> None:
+    (project / "invoke.yaml").write_text("docker_ros:\n  image_tag: from-yaml\n")
+    result = inv(project, "config", "--cmake-args", "-DX=1")
+    assert result.returncode == 0, result.stderr
+    rows = {line.split()[0]: line.split() for line in result.stdout.splitlines()[1:]}
+    assert rows["IMAGE_TAG"][1:] == ["from-yaml", "invoke.yaml"]
+    assert rows["CMAKE_ARGS"][1:] == ["-DX=1", "flag"]
+    assert rows["COMMAND"][-1] == ".env"
+    masked = cli(project, "config", env={"GIT_HTTPS_PASSWORD": "hunter2"})
+    assert "hunter2" not in masked.stdout and "****" in masked.stdout
+
+
+def test_bad_input_is_one_clear_line_and_non_zero(project: Path) -> None:
+    result = cli(project, "config", env={"ENABLE_SLIM": "maybe"})
+    assert result.returncode != 0
+    assert "ENABLE_SLIM='maybe'" in result.stderr and "Traceback" not in result.stderr
+    (project / ".env").unlink()
+    missing = cli(project, "build", "--target", "dev,run")
+    assert missing.returncode != 0
+    assert "BASE_IMAGE" in missing.stderr and "COMMAND" in missing.stderr
