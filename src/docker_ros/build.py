@@ -135,7 +135,7 @@ def fold_markers(environ: Mapping[str, str]) -> Tuple[str, str]:
             "\x1b[0Ksection_start:{time}:{id}[collapsed=true]\r\x1b[0K{title}",
             "\x1b[0Ksection_end:{time}:{id}\r\x1b[0K",
         )
-    return "----- {title}", "----- end of {title}"
+    return "", ""  # plain log: the step's own Starting/Finished lines are the markers
 
 
 def fold(template: str, title: str) -> str:
@@ -149,11 +149,11 @@ def stream_build(lines: Iterator[str], out: IO[str], environ: Mapping[str, str])
     errors: List[str] = []
     for line in lines:
         begun = STEP_START.search(line)
-        if begun:
+        if begun and start:
             out.write(fold(start, begun.group(1)) + "\n")
         out.write(line)
         ended = STEP_END.search(line)
-        if ended:
+        if ended and end:
             out.write(fold(end, ended.group(2)) + "\n")
         failed = STEP_ERROR.search(line)
         if failed and "docker-ros" in line:
@@ -261,15 +261,14 @@ def build_image(
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         argv = plan_build(settings, target=target, platform=platform, tools_image=tools,
                           tag=tag, secrets=secrets, push=push, dockerfile=dockerfile)
-        start, end = fold_markers(environ)
-        out.write(fold(start, f"build {target} ({platform}) -> {tag}") + "\n")
+        # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
+        out.write(f"==> docker-ros build {target} ({platform}) -> {tag}\n")
         began = time.monotonic()
         proc = subprocess.Popen(argv, env=child_env, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True, bufsize=1)
         assert proc.stdout is not None
         errors = stream_build(iter(proc.stdout.readline, ""), out, environ)
         code = proc.wait()
-        out.write(fold(end, f"build {target} ({platform}) -> {tag}") + "\n")
     if code != 0:
         cause = errors[-1] if errors else "see the build log above"
         raise BuildError(f"building target '{target}' ({platform}) failed in step {cause}", code)

@@ -73,13 +73,15 @@ def test_log_folding_per_ci():
     for environ, start, end in (
         ({"GITHUB_ACTIONS": "true"}, "::group::rosdep", "::endgroup::"),
         ({"GITLAB_CI": "true"}, "section_start:", "section_end:"),
-        ({}, "----- rosdep", "----- end of rosdep"),
     ):
         out = io.StringIO()
         build.stream_build(iter(lines), out, environ)
         text = out.getvalue()
         assert start in text and end in text
         assert text.index(start) < text.index("something") < text.index(end)
+    plain = io.StringIO()
+    build.stream_build(iter(lines), plain, {})
+    assert plain.getvalue() == "".join(lines)
 
 
 def test_step_errors_are_collected_from_the_log():
