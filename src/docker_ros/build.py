@@ -104,6 +104,7 @@ def plan_build(
     argv += ["--build-arg", f"BASE_IMAGE={settings.base_image}"]
     argv += ["--build-arg", f"DOCKER_ROS_TOOLS={tools_image}"]
     argv += ["--build-arg", f"DOCKER_ROS_CACHE_ID={cache_id(settings, platform)}"]
+    argv += ["--build-arg", f"DOCKER_ROS_APT_CACHE_ID={apt_cache_id(settings, platform)}"]
     declared = [a for a in dockerfile_args(dockerfile) if a != "BASE_IMAGE"]
     argv += build_args(settings, declared)
     for secret_id, source in sorted(secrets.items()):
@@ -124,6 +125,11 @@ def cache_id(settings: Settings, platform: str) -> str:
     workspace or architecture must never be reused."""
     key = f"{Path(settings.build_context).resolve()}\0{settings.image_name}\0{platform}"
     return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+def apt_cache_id(settings: Settings, platform: str) -> str:
+    """apt lists and archives are shared by the builds on one base image and platform."""
+    return hashlib.sha256(f"{settings.base_image}\0{platform}".encode()).hexdigest()[:16]
 
 
 def fold_markers(environ: Mapping[str, str]) -> Tuple[str, str]:

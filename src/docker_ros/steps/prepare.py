@@ -134,6 +134,22 @@ def apt_available(packages: Sequence[str]) -> List[str]:
     return available
 
 
+APT_KEEP_CACHE = Path("/etc/apt/apt.conf.d/docker-ros-keep-cache")
+DOCKER_CLEAN = Path("/etc/apt/apt.conf.d/docker-clean")
+
+
+def keep_apt_downloads(*, dry_run: bool) -> None:
+    """Official Debian/Ubuntu images delete downloaded .debs (docker-clean); the build keeps
+    them in a cache mount instead, so a rebuild downloads nothing twice."""
+    if dry_run:
+        print(f"[dry-run] prepare: remove {DOCKER_CLEAN}, write {APT_KEEP_CACHE}")
+        return
+    if DOCKER_CLEAN.exists():
+        DOCKER_CLEAN.unlink()
+    if APT_KEEP_CACHE.parent.is_dir():
+        APT_KEEP_CACHE.write_text('Binary::apt::APT::Keep-Downloaded-Packages "true";\n')
+
+
 def move_base_workspace(ws: Workspace, *, dry_run: bool) -> None:
     """A base image built by docker-ros has its install at /docker-ros/ws/install: underlay it."""
     if not ws.install.is_dir():
@@ -162,6 +178,7 @@ def main(
     environ = os.environ if environ is None else environ
     with step_log("prepare"):
         move_base_workspace(ws, dry_run=dry_run)
+        keep_apt_downloads(dry_run=dry_run)
         distro = settings.ros_distro or environ.get("ROS_DISTRO")
         commands = plan_ros_installation(
             ros_installed=ros_present(distro=distro),
