@@ -2,10 +2,16 @@
 
 Pure helpers (no pytest): they write real files and run real git; tests import them."""
 
+import base64
 import os
 import shutil
+import socket
 import subprocess
 import textwrap
+import threading
+import time
+from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Dict, Mapping, Optional, Sequence, Union
 
@@ -181,3 +187,151 @@ def tree_snapshot(root: Union[str, Path]) -> Dict[str, str]:
             else:
                 out[rel] = "dir"
     return out
+
+
+def git_http_server(root: Union[str, Path], user: str, password: str) -> ThreadingHTTPServer:
+    """A smart-HTTP git server (`git http-backend`) for the bare repositories in `root` on
+    127.0.0.1:<free port>, Basic auth `user`/`password` required. Serves in a daemon thread;
+    the caller ends it with `server.shutdown(); server.server_close()`."""
+    expected = "Basic " + base64.b64encode(f"{user}:{password}".encode()).decode()
+
+    class Handler(BaseHTTPRequestHandler):
+        def log_message(self, *args: object) -> None:
+            pass
+
+        def do_GET(self) -> None:
+            self.serve()
+
+        def do_POST(self) -> None:
+            self.serve()
+
+        def serve(self) -> None:
+            if self.headers.get("Authorization") != expected:
+                self.send_response(401)
+                self.send_header("WWW-Authenticate", 'Basic realm="git"')
+                self.send_header("Content-Length", "0")
+                self.end_headers()
+                return
+            path, _, query = self.path.partition("?")
+            length = int(self.headers.get("Content-Length") or 0)
+            body = self.rfile.read(length) if length else b""
+            env = {
+                "PATH": os.environ["PATH"],
+                "GIT_PROJECT_ROOT": str(root),
+                "GIT_HTTP_EXPORT_ALL": "1",
+                "PATH_INFO": path,
+                "QUERY_STRING": query,
+                "REQUEST_METHOD": self.command,
+                "CONTENT_TYPE": self.headers.get("Content-Type", ""),
+                "CONTENT_LENGTH": str(len(body)),
+                "HTTP_CONTENT_ENCODING": self.headers.get("Content-Encoding", ""),
+                "GIT_PROTOCOL": self.headers.get("Git-Protocol", ""),
+                "REMOTE_USER": user,
+            }
+            out = subprocess.run(
+                ["git", "http-backend"], input=body, env=env, capture_output=True, check=True
+            ).stdout
+            sep = b"\r\n\r\n" if b"\r\n\r\n" in out else b"\n\n"
+            head, _, payload = out.partition(sep)
+            status, headers = 200, []
+            for line in head.decode().splitlines():
+                name, _, value = line.partition(":")
+                if name.lower() == "status":
+                    status = int(value.split()[0])
+                elif name:
+                    headers.append((name, value.strip()))
+            self.send_response(status)
+            for name, value in headers:
+                self.send_header(name, value)
+            self.send_header("Content-Length", str(len(payload)))
+            self.end_headers()
+            self.wfile.write(payload)
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def ssh_keygen(path: Union[str, Path], comment: str = "docker-ros tests") -> str:
+    """A new ed25519 key pair at `path` (private) and `path`.pub; returns the private key text."""
+    key = Path(path)
+    subprocess.run(
+        ["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", comment, "-f", str(key)],
+        check=True, capture_output=True,
+    )
+    return key.read_text()
+
+
+@dataclass
+class SshServer:
+    """A running sshd (see sshd_server)."""
+
+    proc: "subprocess.Popen[bytes]"
+    port: int
+    log: Path
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def sshd_server(
+    work: Union[str, Path], authorized_key: str, sshd: str = "/usr/sbin/sshd"
+) -> SshServer:
+    """Debian's OpenSSH server on 127.0.0.1:<free port>, in the foreground, with its own host
+    key and config in `work`: public-key login only, as the user
+    running it (root: `PermitRootLogin prohibit-password`), accepting `authorized_key` (a public
+    key line). Git repositories are then served by absolute path:
+    `ssh://root@127.0.0.1:<port>/abs/path/repo.git`. The caller terminates the process."""
+    base = Path(work)
+    base.mkdir(parents=True, exist_ok=True)
+    host_key = base / "ssh_host_ed25519_key"
+    ssh_keygen(host_key, "docker-ros tests host key")
+    authorized = base / "authorized_keys"
+    authorized.write_text(authorized_key.strip() + "\n")
+    authorized.chmod(0o600)
+    port = free_port()
+    config = base / "sshd_config"
+    config.write_text(
+        f"ListenAddress 127.0.0.1:{port}\n"
+        f"HostKey {host_key}\n"
+        f"PidFile {base / 'sshd.pid'}\n"
+        f"AuthorizedKeysFile {authorized}\n"
+        "PermitRootLogin prohibit-password\n"
+        "PubkeyAuthentication yes\n"
+        "PasswordAuthentication no\n"
+        "KbdInteractiveAuthentication no\n"
+        "UsePAM no\n"
+        # the temporary directories below /tmp are not what StrictModes accepts
+        "StrictModes no\n"
+        "LogLevel VERBOSE\n"
+        "Subsystem sftp internal-sftp\n"
+    )
+    # Privilege separation directory: Debian creates it at boot (systemd), containers may not.
+    Path("/run/sshd").mkdir(mode=0o755, exist_ok=True)
+    log_path = base / "sshd.log"
+    with log_path.open("wb") as log:
+        proc = subprocess.Popen(
+            [sshd, "-D", "-e", "-f", str(config), "-p", str(port)], stdout=log, stderr=log
+        )
+    server = SshServer(proc, port, log_path)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"sshd exited with {proc.returncode}: {log_path.read_text()}")
+        with socket.socket() as probe:
+            if probe.connect_ex(("127.0.0.1", port)) == 0:
+                return server
+        time.sleep(0.05)
+    server.stop()
+    raise RuntimeError(f"sshd did not listen within 10 s: {log_path.read_text()}")

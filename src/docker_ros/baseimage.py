@@ -7,6 +7,8 @@ nor `rwthika/*` images can be pulled.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import subprocess
 import tempfile
@@ -31,11 +33,16 @@ COLCON_DEBS = tuple(
         "pkg-config", "python-setup-py", "recursive-crawl", "ros", "test-result",
     )
 )
-# The tools the steps need. No compiler: run images are built on this base and must not carry
-# one; dev images get build-essential from the image's prepare stage.
+# The tools the steps need (openssh-client: git over ssh in the clone step). No compiler: run
+# images are built on this base and must not carry one; dev images get build-essential from the
+# image's prepare stage.
 TOOL_DEBS = (
-    "ca-certificates", "colcon", "git", "python3-pip", "python3-rosdep2", "tini", "vcstool",
+    "ca-certificates", "colcon", "git", "openssh-client", "python3-pip", "python3-rosdep2", "tini",
+    "vcstool",
 )
+# Image label holding the recipe fingerprint: an existing image is reused only if it was built
+# from the same recipe (a changed package list or Dockerfile rebuilds it).
+RECIPE_LABEL = "org.docker-ros.base-recipe"
 
 
 @dataclass(frozen=True)
@@ -75,15 +82,18 @@ def bootstrap(
     ca_bundle: Optional[Path] = None,
     force: bool = False,
 ) -> str:
-    """Build the base image `tag` for `flavor` ("ros1" or "ros2"); reuse it when it exists."""
+    """Build the base image `tag` for `flavor` ("ros1" or "ros2"); reuse it when it exists and
+    was built from the current recipe (RECIPE_LABEL), else rebuild it."""
     if flavor not in FLAVORS:
         raise StepError(STEP, f"unknown flavor {flavor!r}; choose one of {', '.join(FLAVORS)}")
     if ca_bundle is not None and not Path(ca_bundle).is_file():
         raise StepError(STEP, f"CA bundle '{ca_bundle}' not found")
-    if not force and image_exists(tag):
-        LOG.info("%s: %s exists, not rebuilding it (force=True does)", STEP, tag)
-        return tag
     spec = FLAVORS[flavor]
+    if not force and image_exists(tag):
+        if image_label(tag, RECIPE_LABEL) == recipe(spec):
+            LOG.info("%s: %s exists, not rebuilding it (force=True does)", STEP, tag)
+            return tag
+        LOG.info("%s: %s was built from another recipe (package list), rebuilding it", STEP, tag)
     with step_log(f"{STEP} {tag}"), tempfile.TemporaryDirectory(prefix="docker-ros-base-") as tmp:
         work = Path(tmp)
         rootfs = work / "rootfs"
@@ -103,6 +113,22 @@ def bootstrap(
         finally:
             subprocess.run(["docker", "image", "rm", rootfs_tag], stdout=subprocess.DEVNULL)
     return tag
+
+
+def recipe(spec: Flavor) -> str:
+    """Fingerprint of what an image of `spec` is built from: Dockerfile, target and packages."""
+    text = "\0".join([DOCKERFILE.read_text(), spec.name, spec.suite, *spec.debs])
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def image_label(tag: str, label: str) -> Optional[str]:
+    inspect = ["docker", "image", "inspect", "--format", "{{json .Config.Labels}}", tag]
+    done = subprocess.run(inspect, capture_output=True, text=True)
+    if done.returncode != 0:
+        return None
+    labels = json.loads(done.stdout.strip() or "null") or {}
+    value = labels.get(label)
+    return str(value) if value is not None else None
 
 
 def image_exists(tag: str) -> bool:
@@ -127,6 +153,7 @@ def build_argv(
     argv += ["--file", str(DOCKERFILE), "--target", spec.name, "--tag", tag]
     argv += ["--build-arg", f"ROOTFS_IMAGE={rootfs_image}"]
     argv += ["--build-arg", "DEBS=" + " ".join(spec.debs)]
+    argv += ["--label", f"{RECIPE_LABEL}={recipe(spec)}"]
     if ca_bundle is not None:
         argv += ["--secret", f"id=EXTRA_CA_CERTS,src={ca_bundle}"]
     return argv + [str(context)]

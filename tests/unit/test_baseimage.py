@@ -38,6 +38,16 @@ def test_debs_are_one_build_arg() -> None:
     assert "ament-cmake" in spec.debs and "tini" in spec.debs
 
 
+def test_the_recipe_label_changes_with_the_package_list() -> None:
+    spec = baseimage.FLAVORS["ros1"]
+    argv = baseimage.build_argv(spec, "t:1", "rootfs:x", "amd64", None, Path("/ctx"))
+    assert argv[argv.index("--label") + 1] == f"{baseimage.RECIPE_LABEL}={baseimage.recipe(spec)}"
+    more = baseimage.Flavor(spec.name, spec.suite, spec.debs + ("htop",))
+    assert baseimage.recipe(more) != baseimage.recipe(spec)
+    assert baseimage.recipe(spec) != baseimage.recipe(baseimage.FLAVORS["ros2"])
+    assert "openssh-client" in spec.debs  # git over ssh in the clone step
+
+
 def test_debootstrap_argv_is_minbase_for_the_platform() -> None:
     argv = baseimage.debootstrap_argv("bookworm", Path("/tmp/r"), "http://m/debian", "arm64")
     assert argv == [

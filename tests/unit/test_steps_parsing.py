@@ -283,6 +283,24 @@ def test_secrets_come_from_secret_files_when_unset(tmp_path):
         assert env == {}  # a password without a server is not used
 
 
+@pytest.mark.parametrize(
+    ("url", "ssh"),
+    [
+        ("ssh://git@host:2222/org/repo.git", True),
+        ("git+ssh://host/repo.git", True),
+        ("git@github.com:org/repo.git", True),
+        ("host:repo.git", True),
+        ("https://user@host/org/repo.git", False),
+        ("http://127.0.0.1:8080/repo.git", False),
+        ("file:///srv/repo.git", False),
+        ("/srv/git/repo.git", False),
+        ("../sibling/repo.git", False),
+    ],
+)
+def test_uses_ssh_follows_gits_url_rules(url, ssh):
+    assert clone.uses_ssh(url) is ssh
+
+
 # --- colcon ---
 
 

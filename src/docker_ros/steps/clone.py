@@ -146,6 +146,32 @@ def _repo_of(path: str, dest: Path, names: Sequence[str]) -> Optional[str]:
 # --- credentials ---
 
 
+def uses_ssh(url: str) -> bool:
+    """Whether git clones `url` over SSH: ssh:// (git+ssh://, ssh+git://) URLs and the
+    scp-like `[user@]host:path` form (a colon before the first slash, no scheme)."""
+    if re.match(r"^(ssh|git\+ssh|ssh\+git)://", url):
+        return True
+    return "://" not in url and ":" in url.split("/", 1)[0]
+
+
+def require_ssh(repos: Mapping[str, Mapping[str, str]], env: Mapping[str, str]) -> None:
+    """git runs `ssh` for SSH URLs: without it, fail naming the repositories (git's own message,
+    'ssh: not found', is buried in vcstool's output)."""
+    own_program = os.environ.get("GIT_SSH_COMMAND") or os.environ.get("GIT_SSH")
+    if own_program and "GIT_SSH_COMMAND" not in env:
+        return  # the user's own ssh program, not ours
+    needing = sorted(name for name, spec in repos.items() if uses_ssh(spec.get("url", "")))
+    if not needing or shutil.which("ssh"):
+        return
+    listed = ", ".join(f"'{name}' ({repos[name]['url']})" for name in needing)
+    what = "repository" if len(needing) == 1 else "repositories"
+    raise StepError(
+        STEP,
+        f"{what} {listed} cloned over SSH, but there is no `ssh` command here: install "
+        "openssh-client in the base image (docker-ros's bootstrapped base images have it)",
+    )
+
+
 def _multiline(value: str) -> str:
     """Keys given in one line with literal `\\n` (docker-ros used `echo -e`) become real lines."""
     if "\n" not in value and "\\n" in value:
@@ -191,6 +217,9 @@ def git_credentials(
             )
             LOG.info("%s: HTTPS credentials for %s in use", STEP, host)
         if key:
+            if not shutil.which("ssh"):
+                LOG.warning("%s: GIT_SSH_PRIVATE_KEY is set, but there is no `ssh` command: "
+                            "SSH URLs cannot be cloned (install openssh-client)", STEP)
             key_file = _private_file(tmp, "id", _multiline(key))
             command = ["ssh", "-i", key_file, "-o", "IdentitiesOnly=yes"]
             if known_hosts:
@@ -242,6 +271,7 @@ def import_file(
 ) -> None:
     """One `vcs import`; on failure, the repositories it created are removed (so a re-run
     clones them again) and the error names each failed repository with vcstool's reason."""
+    require_ssh(repos, env)
     names = sorted(repos)
     existed = {name for name in names if (ws.upstream / name).exists()}
     argv = import_argv(repos_file, ws.upstream, skip_existing=skip_existing)
