@@ -10,7 +10,6 @@ from docker_ros.settings import Settings
 from docker_ros.steps.common import (
     Workspace,
     collect_list_entries,
-    dry,
     phases,
     step_log,
     unique,
@@ -81,7 +80,4 @@ def main(
                 name,
                 ", ".join(paths),
             )
-        if dry_run:
-            dry(STEP, f"write {ws.state / STATE_FILE}")
-        else:
-            ws.write_state(STATE_FILE, data)
+        ws.save_plan(STEP, STATE_FILE, data, dry_run=dry_run)

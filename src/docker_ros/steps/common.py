@@ -14,7 +14,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 LOG = logging.getLogger("docker_ros")
 
@@ -105,6 +105,18 @@ class Workspace:
             raise StepError(
                 step, f"{path} is not valid JSON ({exc}): re-run its collect phase"
             ) from None
+
+    def load_plan(self, step: str, name: str) -> Dict[str, Any]:
+        """The JSON object a previous collect phase wrote (see require_state)."""
+        data = self.require_state(step, name)
+        return data if isinstance(data, dict) else {}
+
+    def save_plan(self, step: str, name: str, plan: object, *, dry_run: bool) -> None:
+        """Write a collect phase's result (a dry run only says so)."""
+        if dry_run:
+            dry(step, f"write {self.state / name}")
+        else:
+            self.write_state(name, plan)
 
     def write_state(self, name: str, data: object) -> Path:
         """Deterministic JSON (sorted keys) so identical inputs give byte-identical files."""

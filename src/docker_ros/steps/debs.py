@@ -7,7 +7,6 @@ from docker_ros.steps.common import (
     Workspace,
     apt_install,
     collect_list_entries,
-    dry,
     phases,
     step_log,
 )
@@ -42,14 +41,10 @@ def main(
                 recursive=settings.enable_recursive_additional_debs,
             )
             plan = plan_debs(entries)
-            if dry_run:
-                dry(STEP, f"write {ws.state / STATE_FILE}")
-            else:
-                ws.write_state(STATE_FILE, plan)
+            ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
         if do_apply:
             if not do_collect:
-                data = ws.require_state(STEP, STATE_FILE)
-                plan = data if isinstance(data, dict) else {}
+                plan = ws.load_plan(STEP, STATE_FILE)
             packages: List[str] = list(plan.get("packages") or [])
             apt_install(
                 packages,

@@ -57,10 +57,7 @@ def collect(
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(str(source), str(dest))
         os.chmod(str(dest), 0o755)
-    if dry_run:
-        dry(step, f"write {ws.state / (step + '.json')}")
-    else:
-        ws.write_state(step + ".json", plan)
+    ws.save_plan(step, step + ".json", plan, dry_run=dry_run)
     return plan
 
 
@@ -100,6 +97,5 @@ def main(
             plan = collect(ws, step, relative_path, recursive=recursive, dry_run=dry_run)
         if do_apply:
             if not do_collect:
-                data = ws.require_state(step, step + ".json")
-                plan = data if isinstance(data, dict) else {}
+                plan = ws.load_plan(step, step + ".json")
             apply(ws, step, plan, dry_run=dry_run)

@@ -17,7 +17,6 @@ from docker_ros.steps.common import (
     StepError,
     Workspace,
     collect_list_entries,
-    dry,
     is_root,
     phases,
     run,
@@ -150,14 +149,10 @@ def main(
                 recursive=settings.enable_recursive_additional_pip,
             )
             plan = {"requirements": unique(entries)}
-            if dry_run:
-                dry(STEP, f"write {ws.state / STATE_FILE}")
-            else:
-                ws.write_state(STATE_FILE, plan)
+            ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
         if do_apply:
             if not do_collect:
-                data = ws.require_state(STEP, STATE_FILE)
-                plan = data if isinstance(data, dict) else {}
+                plan = ws.load_plan(STEP, STATE_FILE)
             arguments = requirement_arguments(list(plan.get("requirements") or []))
             pip_install(
                 arguments,

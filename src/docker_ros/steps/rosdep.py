@@ -248,10 +248,7 @@ def collect(
             "keys resolve to installers docker-ros cannot use (only apt and pip): "
             + ", ".join(bad),
         )
-    if dry_run:
-        dry(STEP, f"write {ws.state / STATE_FILE}")
-    else:
-        ws.write_state(STATE_FILE, plan)
+    ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
     return plan
 
 
@@ -283,8 +280,7 @@ def main(
             plan = collect(ws, settings, dry_run=dry_run)
         if do_apply:
             if not do_collect:
-                data = ws.require_state(STEP, STATE_FILE)
-                plan = data if isinstance(data, dict) else {}
+                plan = ws.load_plan(STEP, STATE_FILE)
             if plan is None:
                 dry(STEP, f"install the resolved {dependency_types!r} dependencies")
                 return
