@@ -44,3 +44,15 @@ def tests(session: nox.Session) -> None:
     """pytest; arguments after `--` go to pytest (e.g. `nox -s tests -- -m "not docker"`)."""
     session.install("-e", ".[test]")
     session.run("pytest", *session.posargs)
+
+
+@nox.session
+def bench(session: nox.Session) -> None:
+    """Build times and image sizes (scripts/bench.py); only on request: `nox -s bench -- ARGS`.
+
+    Not a test and not a default session. Arguments after `--` go to the script, e.g.
+    `nox -s bench -- -n 5 --json bench.json`. Without --no-prune the script runs
+    `docker builder prune -af`, which empties the BuildKit cache of every project on the engine.
+    """
+    session.install("-e", ".")
+    session.run("python", "scripts/bench.py", *session.posargs)

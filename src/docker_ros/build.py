@@ -132,6 +132,25 @@ def apt_cache_id(settings: Settings, platform: str) -> str:
     return hashlib.sha256(f"{settings.base_image}\0{platform}".encode()).hexdigest()[:16]
 
 
+def mount_ids(settings: Settings, platform: str) -> Dict[str, str]:
+    """The ARGs the Dockerfile uses in cache mount ids, with their values."""
+    return {
+        "DOCKER_ROS_CACHE_ID": cache_id(settings, platform),
+        "DOCKER_ROS_APT_CACHE_ID": apt_cache_id(settings, platform),
+    }
+
+
+def expand_mount_ids(dockerfile: Path, ids: Mapping[str, str]) -> None:
+    """Write the cache mount ids into the staged Dockerfile. The Dockerfile frontend built into
+    Engine 20.10 (BuildKit v0.8) does not expand ARGs in RUN --mount options (the log shows them
+    expanded, the cache id stays the literal `docker-ros-build-${DOCKER_ROS_CACHE_ID}`), so every
+    repository and platform would share one build/ cache and its change record."""
+    text = dockerfile.read_text()
+    for name, value in ids.items():
+        text = text.replace("${" + name + "}", value)
+    dockerfile.write_text(text)
+
+
 def fold_markers(environ: Mapping[str, str]) -> Tuple[str, str]:
     """Start/end templates for collapsible log sections of the CI we run in ({id}, {title})."""
     if environ.get("GITHUB_ACTIONS"):
@@ -265,6 +284,7 @@ def build_image(
             bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
             secrets["EXTRA_CA_CERTS"] = f"src={bundle}"
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
+        expand_mount_ids(dockerfile, mount_ids(settings, platform))
         argv = plan_build(settings, target=target, platform=platform, tools_image=tools,
                           tag=tag, secrets=secrets, push=push, dockerfile=dockerfile)
         # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.

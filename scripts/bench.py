@@ -1,0 +1,706 @@
+#!/usr/bin/env python3
+"""Benchmark docker-ros image builds (issue 5, "Fast rebuilds"): figures, never assertions.
+
+Generates a workspace of N C++ packages (cmake build type, chains of dependent shared
+libraries, one rosdep key), then in ONE run and strictly one after the other builds it with the
+real CLI (`python -m docker_ros build`, TARGET=dev,run from the workspace's .env) and times:
+
+  1   cold build (bench images removed, BuildKit cache pruned unless --no-prune)
+  2   no-change rebuild
+  3   one-file change in the LAST package (nothing depends on it)
+  B   baseline: what the original docker-ros does after that change, a full `colcon build` of
+      the workspace from scratch, in a fresh container of the dev image
+  3b  one-file change in the FIRST package (others depend on it)
+  4   one added apt dependency (a <depend> on another rosdep key)
+  5   dev and run image sizes
+
+and checks while measuring that the run image runs the changed code. Prints one table;
+--json writes the figures to a file. Timings are wall-clock and as noisy as the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO / "src") not in sys.path:
+    sys.path.insert(0, str(REPO / "src"))
+
+import docker_ros.baseimage as baseimage  # noqa: E402
+from docker_ros.settings import FIELDS, env_name  # noqa: E402
+
+IMAGE = "docker-ros-bench/ws:latest"
+DEV_IMAGE = "docker-ros-bench/ws:latest-dev"
+DEFAULT_BASE_IMAGE = "docker-ros/ros1:bookworm"
+WS = "/docker-ros/ws"
+COMPILE_MARK = "docker-ros-bench compiles"
+COMPILED = re.compile(re.escape(COMPILE_MARK) + r" (\S+?\.cpp)")
+# the first vertex of every buildx invocation (vertex numbers restart there)
+INVOCATION = re.compile(r"^#1 \[internal\] load build definition")
+VERTEX = re.compile(r"^#(\d+) (\[.*)")
+VERTEX_STATE = re.compile(r"^#(\d+) (CACHED|DONE)")
+STAMPED = re.compile(r"colcon: (\d+) of (\d+) source files changed")
+SUMMARY = re.compile(r"^(\S+)\s+(\S+)\s+\S+\s+(?:\d+ MB|-)\s+([\d.]+) s\s*$")
+
+DESCRIBE_CPP = """\
+// {name}: what the package is (the one-file changes edit kMark).
+#include <algorithm>
+#include <map>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "{name}/{name}.hpp"
+{upstream_include}
+#pragma message("{mark} {name}/src/describe.cpp")
+
+namespace {name} {{
+namespace {{
+const char* const kMark = "original";
+
+template <typename T, int K>
+struct Stage {{
+  static std::string render(const std::vector<T>& values) {{
+    std::map<T, int> counts;
+    for (const T& value : values) counts[value] += K;
+    std::vector<std::pair<T, int>> sorted(counts.begin(), counts.end());
+    std::sort(sorted.begin(), sorted.end(),
+              [](const std::pair<T, int>& a, const std::pair<T, int>& b) {{
+                return a.second > b.second;
+              }});
+    std::ostringstream out;
+    for (const auto& entry : sorted) out << entry.first << ':' << entry.second << ' ';
+    return out.str() + Stage<T, K - 1>::render(values);
+  }}
+}};
+template <typename T>
+struct Stage<T, 0> {{
+  static std::string render(const std::vector<T>&) {{ return std::string(); }}
+}};
+}}  // namespace
+
+std::string describe() {{
+  std::string own = std::string("{name}[") + kMark + "]";
+  std::regex pattern("([a-z_]+)_([0-9]+)\\\\[([a-z-]+)\\\\]");
+  std::smatch match;
+  if (!std::regex_search(own, match, pattern)) own += "?";
+  const std::string noise = Stage<int, {depth}>::render({{1, 2, 3}}) +
+                            Stage<std::string, {depth}>::render({{"a", "b"}});
+  own += noise.empty() ? "!" : "";
+  return own{upstream_call};
+}}
+
+}}  // namespace {name}
+"""
+
+CHECKSUM_CPP = """\
+// {name}: a checksum over template instantiations (compile-time weight).
+#include <algorithm>
+#include <iostream>
+#include <map>
+#include <numeric>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "{name}/{name}.hpp"
+
+#pragma message("{mark} {name}/src/checksum.cpp")
+
+namespace {name} {{
+namespace {{
+template <typename T, int K>
+struct Fold {{
+  static T apply(std::vector<T> values) {{
+    std::sort(values.begin(), values.end());
+    std::map<int, T> buckets;
+    for (std::size_t i = 0; i < values.size(); ++i) buckets[static_cast<int>(i) % K] += values[i];
+    std::ostringstream out;
+    for (const auto& bucket : buckets) out << bucket.first << '=' << bucket.second << ';';
+    values.push_back(static_cast<T>(out.str().size()));
+    return std::accumulate(values.begin(), values.end(), T()) + Fold<T, K - 1>::apply(values);
+  }}
+}};
+template <typename T>
+struct Fold<T, 0> {{
+  static T apply(const std::vector<T>&) {{ return T(); }}
+}};
+}}  // namespace
+
+long checksum() {{
+  const double d = Fold<double, {depth}>::apply({{1.5, 2.5}});
+  const long l = Fold<long, {depth}>::apply({{3, 4, 5}});
+  const float f = Fold<float, {depth}>::apply({{0.5f}});
+  if (d < 0) std::cerr << "negative checksum" << std::endl;
+  return l + static_cast<long>(d) + static_cast<long>(f);
+}}
+
+}}  // namespace {name}
+"""
+
+MAIN_CPP = """\
+#include <iostream>
+
+#include "{name}/{name}.hpp"
+
+#pragma message("{mark} {name}/src/main.cpp")
+
+int main() {{
+  std::cout << {name}::describe() << " checksum " << {name}::checksum() << std::endl;
+  return 0;
+}}
+"""
+
+HEADER = """\
+#pragma once
+#include <string>
+
+namespace {name} {{
+std::string describe();
+long checksum();
+}}  // namespace {name}
+"""
+
+
+@dataclass
+class Scenario:
+    """One measured row of the table."""
+
+    name: str
+    seconds: float
+    compiled: List[str] = field(default_factory=list)
+    deps_layers: str = "-"  # reused | rebuilt | - (not an image build)
+    changed_sources: str = "-"  # what the colcon step took for changed ("3/140"), - if not run
+    check: str = "-"  # OK | FAIL | -
+    detail: str = ""
+    ratio_cold: Optional[float] = None
+    ratio_baseline: Optional[float] = None
+    image_seconds: Dict[str, float] = field(default_factory=dict)
+    load1: float = 0.0
+
+
+class BenchError(Exception):
+    pass
+
+
+# ----------------------------------------------------------------------------------------------
+# the workspace
+
+
+def package_name(index: int) -> str:
+    return f"bench_pkg_{index:02d}"
+
+
+def upstream(index: int, chain: int) -> Optional[int]:
+    """Package i depends on package i-1 unless it starts a chain (i % chain == 0)."""
+    return index - 1 if index % chain else None
+
+
+def chain_end(index: int, count: int, chain: int) -> int:
+    """The last package of the dependency chain that index belongs to."""
+    end = index
+    while end + 1 < count and upstream(end + 1, chain) == end:
+        end += 1
+    return end
+
+
+def write_package(root: Path, index: int, *, chain: int, depth: int, keys: Sequence[str]) -> None:
+    name = package_name(index)
+    up = upstream(index, chain)
+    up_name = package_name(up) if up is not None else None
+    path = root / name
+    (path / "src").mkdir(parents=True)
+    (path / "include" / name).mkdir(parents=True)
+    depends = ([up_name] if up_name else []) + list(keys)
+    (path / "package.xml").write_text(
+        '<?xml version="1.0"?>\n<package format="3">\n'
+        f"  <name>{name}</name>\n  <version>0.1.0</version>\n"
+        f"  <description>{name}: docker-ros benchmark package</description>\n"
+        '  <maintainer email="bench@docker-ros.invalid">docker-ros bench</maintainer>\n'
+        "  <license>MIT</license>\n"
+        + "".join(f"  <depend>{d}</depend>\n" for d in depends)
+        + "  <export><build_type>cmake</build_type></export>\n</package>\n"
+    )
+    find = f"find_package({up_name} REQUIRED)\n" if up_name else ""
+    link = f"target_link_libraries({name} PUBLIC {up_name}::{up_name})\n" if up_name else ""
+    (path / "CMakeLists.txt").write_text(
+        textwrap.dedent(
+            f"""\
+            cmake_minimum_required(VERSION 3.10)
+            project({name} CXX)
+            set(CMAKE_CXX_STANDARD 17)
+            set(CMAKE_INSTALL_RPATH "${{CMAKE_INSTALL_PREFIX}}/lib")
+            set(CMAKE_INSTALL_RPATH_USE_LINK_PATH TRUE)
+            """
+        )
+        + find
+        + textwrap.dedent(
+            f"""\
+            add_library({name} SHARED src/describe.cpp src/checksum.cpp)
+            target_include_directories({name} PUBLIC
+              $<BUILD_INTERFACE:${{CMAKE_CURRENT_SOURCE_DIR}}/include>
+              $<INSTALL_INTERFACE:include>)
+            """
+        )
+        + link
+        + textwrap.dedent(
+            f"""\
+            add_executable({name}_node src/main.cpp)
+            target_link_libraries({name}_node {name})
+            install(TARGETS {name} EXPORT {name}Targets
+              LIBRARY DESTINATION lib ARCHIVE DESTINATION lib RUNTIME DESTINATION bin)
+            install(TARGETS {name}_node RUNTIME DESTINATION bin)
+            install(DIRECTORY include/ DESTINATION include)
+            install(EXPORT {name}Targets NAMESPACE {name}:: DESTINATION share/{name}/cmake)
+            install(FILES {name}Config.cmake DESTINATION share/{name}/cmake)
+            """
+        )
+    )
+    (path / f"{name}Config.cmake").write_text(
+        "include(CMakeFindDependencyMacro)\n"
+        + (f"find_dependency({up_name})\n" if up_name else "")
+        + f'include("${{CMAKE_CURRENT_LIST_DIR}}/{name}Targets.cmake")\n'
+    )
+    (path / "include" / name / f"{name}.hpp").write_text(HEADER.format(name=name))
+    (path / "src" / "describe.cpp").write_text(
+        DESCRIBE_CPP.format(
+            name=name,
+            mark=COMPILE_MARK,
+            depth=depth,
+            upstream_include=f'#include "{up_name}/{up_name}.hpp"' if up_name else "",
+            upstream_call=f' + " <- " + {up_name}::describe()' if up_name else "",
+        )
+    )
+    (path / "src" / "checksum.cpp").write_text(
+        CHECKSUM_CPP.format(name=name, mark=COMPILE_MARK, depth=depth)
+    )
+    (path / "src" / "main.cpp").write_text(MAIN_CPP.format(name=name, mark=COMPILE_MARK))
+
+
+def write_workspace(
+    root: Path, *, count: int, chain: int, depth: int, key: str, base_image: str,
+    cmake_args: str,
+) -> None:
+    root.mkdir(parents=True)
+    for index in range(count):
+        write_package(root, index, chain=chain, depth=depth, keys=[key] if index == 0 else [])
+    env = {
+        "BASE_IMAGE": base_image,
+        "COMMAND": f"{package_name(count - 1)}_node",
+        "IMAGE": IMAGE,
+        "TARGET": "dev,run",
+        "CMAKE_ARGS": cmake_args,
+    }
+    # python-dotenv reads a double-quoted value literally (no shell involved).
+    (root / ".env").write_text("".join(f'{k}="{v}"\n' for k, v in env.items()))
+
+
+def set_mark(root: Path, index: int, mark: str) -> None:
+    """The one-file change: a new kMark in describe.cpp of package index."""
+    source = root / package_name(index) / "src" / "describe.cpp"
+    text, count = re.subn(r'kMark = "[^"]*"', f'kMark = "{mark}"', source.read_text())
+    if count != 1:
+        raise BenchError(f"{source}: kMark not found")
+    source.write_text(text)
+
+
+def add_depend(root: Path, index: int, key: str) -> None:
+    package_xml = root / package_name(index) / "package.xml"
+    text = package_xml.read_text()
+    package_xml.write_text(text.replace("  <export>", f"  <depend>{key}</depend>\n  <export>"))
+
+
+# ----------------------------------------------------------------------------------------------
+# docker and the CLI
+
+
+def clean_environ() -> Dict[str, str]:
+    """The caller's environment without docker-ros settings (they would beat the .env)."""
+    names = {env_name(n) for n in FIELDS}
+    return {k: v for k, v in os.environ.items() if k not in names}
+
+
+def docker(*args: str, timeout: int = 600) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(["docker", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def image_id(ref: str) -> str:
+    return docker("image", "inspect", "--format", "{{.Id}}", ref).stdout.strip()
+
+
+def image_mb(ref: str) -> float:
+    out = docker("image", "inspect", "--format", "{{.Size}}", ref).stdout.strip()
+    return int(out or 0) / 1e6
+
+
+def resolve_keys(base_image: str, keys: Sequence[str]) -> Dict[str, List[str]]:
+    """Resolve rosdep keys offline in a container of the base image: key -> apt packages."""
+    found: Dict[str, List[str]] = {}
+    for key in keys:
+        argv = ["docker", "run", "--rm", "--network", "none", "--entrypoint", "sh", base_image,
+                "-c", 'rosdep update >/dev/null 2>&1; exec rosdep resolve "$1"', "sh", key]
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+        packages = [w for line in proc.stdout.splitlines() if not line.startswith("#")
+                    for w in line.split()]
+        if proc.returncode != 0 or not packages:
+            raise BenchError(
+                f"rosdep key '{key}' does not resolve offline in {base_image}: "
+                f"{(proc.stderr or proc.stdout).strip()} (choose another key, see --help)"
+            )
+        found[key] = packages
+    return found
+
+
+def run_cli(project: Path, log: Path, *, verbose: bool) -> tuple[float, str]:
+    """`python -m docker_ros build` in project, as a user runs it; (seconds, output)."""
+    argv = [sys.executable, "-m", "docker_ros", "build"]
+    env = clean_environ()
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO / "src"), env.get("PYTHONPATH")]))
+    began = time.monotonic()
+    proc = subprocess.Popen(argv, cwd=project, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, bufsize=1)
+    assert proc.stdout is not None
+    lines: List[str] = []
+    with log.open("a") as out:
+        out.write(f"\n===== {shlex.join(argv)} (cwd {project})\n")
+        for line in proc.stdout:
+            lines.append(line)
+            out.write(line)
+            if verbose:
+                sys.stdout.write(line)
+    code = proc.wait()
+    seconds = time.monotonic() - began
+    if code != 0:
+        tail = "".join(lines[-25:])
+        raise BenchError(f"docker-ros build failed (exit code {code}); log: {log}\n{tail}")
+    return seconds, "".join(lines)
+
+
+def compiled_units(output: str) -> List[str]:
+    """Translation units the build compiled (each source prints a #pragma message)."""
+    return sorted(set(COMPILED.findall(output)))
+
+
+def dependency_layers(output: str) -> str:
+    """'rebuilt' when a dependencies-{dev,run} RUN executed, 'reused' when all came from cache.
+    Vertex numbers restart with every buildx invocation (one per target)."""
+    names: Dict[str, str] = {}
+    cached: Dict[str, bool] = {}
+    ran = False
+    seen = False
+    for line in output.splitlines():
+        if INVOCATION.match(line):
+            names, cached = {}, {}
+            continue
+        match = VERTEX.match(line)
+        if match:
+            names[match.group(1)] = match.group(2)
+            continue
+        match = VERTEX_STATE.match(line)
+        if not match or match.group(1) not in names:
+            continue
+        name = names[match.group(1)]
+        if not (name.startswith("[dependencies-") and " RUN " in name):
+            continue
+        seen = True
+        if match.group(2) == "CACHED":
+            cached[match.group(1)] = True
+        elif not cached.get(match.group(1)):
+            ran = True
+    if not seen:
+        return "?"
+    return "rebuilt" if ran else "reused"
+
+
+def changed_sources(output: str) -> str:
+    """The colcon step's own count of changed source files (it re-stamps those)."""
+    found = STAMPED.findall(output)
+    return "/".join(found[-1]) if found else "-"
+
+
+def image_seconds(output: str) -> Dict[str, float]:
+    """Per-image build times from the CLI's summary table."""
+    found: Dict[str, float] = {}
+    for line in output.splitlines():
+        match = SUMMARY.match(line.strip())
+        if match and f"{match.group(1)}:{match.group(2)}" in (IMAGE, DEV_IMAGE):
+            target = "dev" if f"{match.group(1)}:{match.group(2)}" == DEV_IMAGE else "run"
+            found[target] = float(match.group(3))
+    return found
+
+
+def run_output(ref: str, *command: str) -> str:
+    """Run ref (its default command, or command) through its entrypoint; stdout+stderr."""
+    proc = subprocess.run(["docker", "run", "--rm", ref, *command], capture_output=True,
+                          text=True, timeout=300)
+    return (proc.stdout + proc.stderr).strip()
+
+
+def installed(ref: str, packages: Sequence[str]) -> List[str]:
+    """Which of packages are installed in ref."""
+    argv = ["docker", "run", "--rm", "--entrypoint", "dpkg-query", ref, "-W",
+            "-f=${Package} ${db:Status-Status}\n", *packages]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+    return [line.split()[0] for line in proc.stdout.splitlines() if line.endswith(" installed")]
+
+
+def load1() -> float:
+    return os.getloadavg()[0]
+
+
+# ----------------------------------------------------------------------------------------------
+# the scenarios
+
+
+class Bench:
+    def __init__(self, args: argparse.Namespace, root: Path, log: Path) -> None:
+        self.args = args
+        self.root = root
+        self.log = log
+        self.count: int = args.packages
+        self.rows: List[Scenario] = []
+
+    def say(self, text: str) -> None:
+        print(f"[bench] {text}", flush=True)
+
+    def build(self, name: str) -> Scenario:
+        self.say(f"{name} ...")
+        load = load1()
+        seconds, output = run_cli(self.root, self.log, verbose=self.args.verbose)
+        row = Scenario(name, seconds, compiled_units(output), dependency_layers(output),
+                       changed_sources=changed_sources(output),
+                       image_seconds=image_seconds(output), load1=load)
+        self.say(f"{name}: {seconds:.1f} s, {len(row.compiled)} TUs compiled, "
+                 f"dependency layers {row.deps_layers}, sources taken as changed "
+                 f"{row.changed_sources}")
+        self.rows.append(row)
+        return row
+
+    def check(self, row: Scenario, ok: bool, detail: str) -> None:
+        row.check = "OK" if ok else "FAIL"
+        row.detail = detail
+        if not ok:
+            self.say(f"{row.name}: CHECK FAILED: {detail}")
+
+    def check_run(self, row: Scenario, expected: str, *command: str) -> None:
+        output = run_output(IMAGE, *command)
+        ok = expected in output
+        self.check(row, ok, f"run image, `{shlex.join(command) or 'default command'}` printed "
+                   f"{output[-300:]!r}" + ("" if ok else f", expected {expected!r}"))
+
+    def cold(self) -> None:
+        for ref in (IMAGE, DEV_IMAGE):
+            docker("image", "rm", "-f", ref)
+        if self.args.prune:
+            self.say("pruning the BuildKit cache (docker builder prune -af; --no-prune skips)")
+            proc = docker("builder", "prune", "-af", timeout=1800)
+            if proc.returncode != 0:
+                raise BenchError(f"docker builder prune failed: {proc.stderr.strip()}")
+        row = self.build("1  cold build")
+        last = package_name(self.count - 1)
+        self.check_run(row, f"{last}[original]")
+
+    def no_change(self) -> None:
+        before = {ref: image_id(ref) for ref in (DEV_IMAGE, IMAGE)}
+        row = self.build("2  no-change rebuild")
+        after = {ref: image_id(ref) for ref in (DEV_IMAGE, IMAGE)}
+        same = before == after
+        self.check(row, same, "dev and run image ids unchanged" if same else
+                   f"image ids changed: {before} -> {after}")
+
+    def change_last(self) -> None:
+        last = self.count - 1
+        set_mark(self.root, last, "changed-last")
+        row = self.build("3  one .cpp changed, last pkg")
+        self.check_run(row, f"{package_name(last)}[changed-last]")
+
+    def baseline(self) -> None:
+        """docker-ros (the original) after a one-file change: colcon builds everything anew."""
+        self.say("B  baseline: full colcon build in the dev image ...")
+        cmake = shlex.split(self.args.cmake_args)
+        script = f"cd {WS} && rm -rf build install log && colcon build --base-paths src"
+        if cmake:
+            script += " --cmake-args " + shlex.join(cmake)
+        argv = ["docker", "run", "--rm", DEV_IMAGE, "bash", "-c", script]
+        load = load1()
+        began = time.monotonic()
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=3600)
+        seconds = time.monotonic() - began
+        with self.log.open("a") as out:
+            out.write(f"\n===== {shlex.join(argv)}\n{proc.stdout}{proc.stderr}")
+        if proc.returncode != 0:
+            raise BenchError(f"baseline colcon build failed ({proc.returncode}); log: {self.log}")
+        row = Scenario("B  baseline: full colcon build", seconds,
+                       compiled_units(proc.stdout + proc.stderr), load1=load)
+        total = 3 * self.count
+        self.check(row, len(row.compiled) == total,
+                   f"{len(row.compiled)} of {total} TUs compiled")
+        self.say(f"baseline: {seconds:.1f} s, {len(row.compiled)} TUs compiled")
+        self.rows.append(row)
+
+    def change_first(self) -> None:
+        set_mark(self.root, 0, "changed-first")
+        row = self.build("3b one .cpp changed, first pkg")
+        end = chain_end(0, self.count, self.args.chain)
+        self.check_run(row, f"{package_name(0)}[changed-first]", f"{package_name(end)}_node")
+
+    def add_dependency(self, packages: Sequence[str]) -> None:
+        add_depend(self.root, self.count - 1, self.args.add_key)
+        row = self.build(f"4  +1 apt dependency ({self.args.add_key})")
+        missing = {ref: sorted(set(packages) - set(installed(ref, packages)))
+                   for ref in (DEV_IMAGE, IMAGE)}
+        ok = not any(missing.values())
+        self.check(row, ok, f"{', '.join(packages)} installed in dev and run" if ok else
+                   f"not installed: {missing}")
+
+
+def ratio(value: float, reference: Optional[float]) -> Optional[float]:
+    return value / reference if reference else None
+
+
+def table(rows: Sequence[Scenario], sizes: Dict[str, float], total_units: int) -> str:
+    head = ("scenario", "seconds", "x cold", "x baseline", "TUs compiled", "src changed",
+            "dep layers", "dev/run s", "load1", "check")
+    lines: List[Tuple[str, ...]] = [head]
+    for row in rows:
+        per_image = "/".join(f"{row.image_seconds[t]:.0f}" for t in ("dev", "run")
+                             if t in row.image_seconds) or "-"
+        lines.append((
+            row.name,
+            f"{row.seconds:.1f}",
+            f"{row.ratio_cold:.2f}" if row.ratio_cold is not None else "-",
+            f"{row.ratio_baseline:.2f}" if row.ratio_baseline is not None else "-",
+            f"{len(row.compiled)}/{total_units}",
+            row.changed_sources,
+            row.deps_layers,
+            per_image,
+            f"{row.load1:.1f}",
+            row.check,
+        ))
+    for target, mb in sizes.items():
+        lines.append((f"5  {target} image size", f"{mb:.0f} MB") + ("",) * (len(head) - 2))
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    rendered = ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in lines]
+    rendered.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(rendered)
+
+
+def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0] if __doc__ else None,
+        epilog="WARNING: the cold build starts with `docker builder prune -af`, which removes "
+               "the BuildKit cache of EVERY project on this Docker engine, not only the bench's. "
+               "Use --no-prune to keep it (the 'cold' figure is then warmer than cold). "
+               "Timings are wall-clock; other builds on the engine make them noisy.",
+    )
+    parser.add_argument("-n", "--packages", type=int, default=10,
+                        help="number of C++ packages in the workspace (default 10)")
+    parser.add_argument("--chain", type=int, default=4,
+                        help="package i depends on package i-1 except when i %% CHAIN == 0 "
+                             "(default 4: chains 0<-1<-2<-3, 4<-5<-6<-7, ...)")
+    parser.add_argument("--depth", type=int, default=4,
+                        help="template recursion depth: compile weight of each .cpp (default 4)")
+    parser.add_argument("--base-image", default=DEFAULT_BASE_IMAGE,
+                        help=f"BASE_IMAGE; bootstrapped (ROS 1 on Debian bookworm) when missing "
+                             f"(default {DEFAULT_BASE_IMAGE})")
+    parser.add_argument("--key", default="std_msgs",
+                        help="rosdep key the first package depends on (default std_msgs; must "
+                             "resolve offline in the base image: Debian's rules in bookworm only "
+                             "know ROS package keys)")
+    parser.add_argument("--add-key", default="angles",
+                        help="rosdep key added to the last package in scenario 4 (default angles)")
+    parser.add_argument("--cmake-args", default="-DCMAKE_BUILD_TYPE=Release",
+                        help="CMAKE_ARGS of the workspace (default -DCMAKE_BUILD_TYPE=Release)")
+    parser.add_argument("--no-prune", dest="prune", action="store_false",
+                        help="do not run `docker builder prune -af` before the cold build (by "
+                             "default it runs and removes ALL BuildKit cache of this engine, "
+                             "other projects' included)")
+    parser.add_argument("--json", type=Path, metavar="FILE", help="also write the figures here")
+    parser.add_argument("--keep", action="store_true",
+                        help="keep the generated workspace and the build log (path printed)")
+    parser.add_argument("-v", "--verbose", action="store_true", help="stream the build logs")
+    args = parser.parse_args(argv)
+    if args.packages < 1 or args.chain < 1 or args.depth < 1:
+        parser.error("--packages, --chain and --depth must be at least 1")
+    return args
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = parse_args(argv)
+    if not shutil.which("docker"):
+        print("bench: docker not found", file=sys.stderr)
+        return 2
+    tmp = Path(tempfile.mkdtemp(prefix="docker-ros-bench-"))
+    root = tmp / "ws"
+    log = tmp / "build.log"
+    failed = False
+    try:
+        baseimage.bootstrap("ros1", tag=args.base_image)
+        resolved = resolve_keys(args.base_image, [args.key, args.add_key])
+        print(f"[bench] rosdep keys (offline, in {args.base_image}): {resolved}", flush=True)
+        write_workspace(root, count=args.packages, chain=args.chain, depth=args.depth,
+                        key=args.key, base_image=args.base_image, cmake_args=args.cmake_args)
+        print(f"[bench] workspace of {args.packages} packages in {root}; log {log}", flush=True)
+        bench = Bench(args, root, log)
+        bench.cold()
+        bench.no_change()
+        bench.change_last()
+        bench.baseline()
+        bench.change_first()
+        bench.add_dependency(resolved[args.add_key])
+        sizes = {"dev": image_mb(DEV_IMAGE), "run": image_mb(IMAGE)}
+    except BenchError as exc:
+        print(f"bench: {exc}", file=sys.stderr)
+        print(f"bench: workspace and log kept in {tmp}", file=sys.stderr)
+        return 1
+    rows = bench.rows
+    cold = rows[0].seconds
+    baseline = next(r.seconds for r in rows if r.name.startswith("B "))
+    for row in rows:
+        row.ratio_cold = ratio(row.seconds, cold)
+        if row.name.startswith("3"):
+            row.ratio_baseline = ratio(row.seconds, baseline)
+    total_units = 3 * args.packages
+    print()
+    print(table(rows, sizes, total_units))
+    print(f"\nTUs: translation units compiled of {total_units} (3 .cpp per package); "
+          "src changed: source files the colcon step took for changed (and re-stamped); "
+          "dep layers: the dependencies-{dev,run} RUN layers; dev/run s: the CLI's per-image "
+          "times; x baseline: our whole `docker-ros build` (dev+run images) against a bare "
+          "colcon build from scratch; load1: load average when the scenario started.")
+    failed = any(r.check == "FAIL" for r in rows)
+    for row in rows:
+        if row.check == "FAIL":
+            print(f"FAIL {row.name}: {row.detail}")
+    if args.json:
+        args.json.write_text(json.dumps({
+            "packages": args.packages, "chain": args.chain, "depth": args.depth,
+            "base_image": args.base_image, "pruned": args.prune, "cpus": os.cpu_count(),
+            "scenarios": [asdict(r) for r in rows],
+            "sizes_mb": sizes,
+        }, indent=2) + "\n")
+        print(f"figures written to {args.json}")
+    if args.keep:
+        print(f"workspace and log kept in {tmp}")
+    else:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
