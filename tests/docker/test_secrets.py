@@ -343,3 +343,31 @@ def test_ssh_private_key_from_environment(
     assert_upstream_built(built)
     assert re.search(r"SSH private key in use", built.log), built.log[-4000:]
     assert_nothing_leaked(built, material)
+
+
+@pytest.fixture(scope="module")
+def base_without_ssh(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A base image like Ubuntu's ros:*-ros-core: no ssh client."""
+    tag = f"{IMAGE_PREFIX}nossh-base:1"
+    context = tmp_path_factory.mktemp("nossh")
+    (context / "Dockerfile").write_text(
+        f"FROM {ros1_base_image}\nRUN apt-get purge -y openssh-client && ! command -v ssh\n"
+    )
+    subprocess.run(["docker", "buildx", "build", "--load", "-t", tag, str(context)],
+                   check=True, capture_output=True)
+    return tag
+
+
+def test_ssh_clone_on_a_base_without_ssh_installs_it_for_the_clone_only(
+    base_without_ssh: str, ssh_remote: SshRemote, material: Material, tmp_path: Path
+) -> None:
+    repo = project(tmp_path, "ssh-nossh", ssh_remote.url)
+    env = {"GIT_SSH_PRIVATE_KEY": material.key, "GIT_SSH_KNOWN_HOST_KEYS": ssh_remote.known_hosts}
+    built = build(repo, base_without_ssh, "ssh-nossh", env)
+    assert_upstream_built(built)
+    assert "installing openssh-client for SSH clones" in built.log
+    for ref in (built.dev, built.run):
+        probe = subprocess.run(["docker", "run", "--rm", "--entrypoint", "sh", ref, "-c",
+                                "command -v ssh || echo absent"], capture_output=True, text=True)
+        assert probe.stdout.strip() == "absent", ref
+    assert_nothing_leaked(built, material)

@@ -20,10 +20,12 @@ from docker_ros.steps.common import (
     SECRETS_DIR,
     StepError,
     Workspace,
+    apt_install,
     dry,
     file_sha256,
     find_special_files,
     format_argv,
+    is_root,
     phases,
     read_secret,
     remove_tree,
@@ -163,12 +165,18 @@ def require_ssh(repos: Mapping[str, Mapping[str, str]], env: Mapping[str, str]) 
     needing = sorted(name for name, spec in repos.items() if uses_ssh(spec.get("url", "")))
     if not needing or shutil.which("ssh"):
         return
+    if os.environ.get("DOCKER_ROS") == "1" and is_root():
+        # In the image's source stage, which no image ships: fetch ssh for the clone only.
+        LOG.info("%s: installing openssh-client for SSH clones (source stage only)", STEP)
+        apt_install(["openssh-client"], step=STEP, dry_run=False, what="installing ssh")
+        if shutil.which("ssh"):
+            return
     listed = ", ".join(f"'{name}' ({repos[name]['url']})" for name in needing)
     what = "repository" if len(needing) == 1 else "repositories"
     raise StepError(
         STEP,
         f"{what} {listed} cloned over SSH, but there is no `ssh` command here: install "
-        "openssh-client in the base image (docker-ros's bootstrapped base images have it)",
+        "openssh-client (docker-ros installs it by itself in image builds)",
     )
 
 
