@@ -197,6 +197,8 @@ def tools_tree(destination: Path) -> str:
             digest.update(str(rel).encode() + b"\0" + path.read_bytes() + b"\0")
             (lib / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(path, lib / rel)
+            if path.suffix == ".sh":  # a wheel install may not keep the executable bit
+                (lib / rel).chmod(0o755)
     return digest.hexdigest()[:16]
 
 
