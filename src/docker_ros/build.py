@@ -252,6 +252,20 @@ def ca_bundle(path: Path, destination: Path) -> Path:
     return destination
 
 
+def check_engine() -> None:
+    """A Docker daemon that answers and the buildx plugin, or one message saying what to do."""
+    try:
+        info = subprocess.run(["docker", "info", "--format", "{{.ServerVersion}}"],
+                              capture_output=True, text=True)
+    except FileNotFoundError:
+        raise BuildError("no `docker` command: install Docker (scripts/setup.sh)") from None
+    if info.returncode != 0:
+        raise BuildError("no Docker daemon answers (`docker info` failed): start it, "
+                         "e.g. with scripts/setup.sh")
+    if subprocess.run(["docker", "buildx", "version"], capture_output=True).returncode != 0:
+        raise BuildError("the docker buildx plugin is missing: install it (scripts/setup.sh)")
+
+
 def base_image_available(ref: str) -> bool:
     if image_exists(ref):
         return True
@@ -298,8 +312,8 @@ def build_image(
         errors = stream_build(iter(proc.stdout.readline, ""), out, environ)
         code = proc.wait()
     if code != 0:
-        cause = errors[-1] if errors else "see the build log above"
-        raise BuildError(f"building target '{target}' ({platform}) failed in step {cause}", code)
+        where = f"in step {errors[-1]}" if errors else "(see the BuildKit error above)"
+        raise BuildError(f"building target '{target}' ({platform}) failed {where}", code)
     return BuiltImage(target, tag, platform, time.monotonic() - began)
 
 

@@ -179,6 +179,11 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List
     settings = dataclasses.replace(settings, target=tuple(targets))
     require(settings, required_for_build(settings))
     assert settings.base_image
+    if not dry_run:
+        try:
+            build.check_engine()
+        except build.BuildError as exc:
+            raise TaskError(str(exc)) from None
     if not dry_run and not build.base_image_available(settings.base_image):
         raise TaskError(
             f"BASE_IMAGE '{settings.base_image}' is neither a local image nor pullable: check "

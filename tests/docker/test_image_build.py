@@ -198,3 +198,14 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
     for needle in needles:
         assert needle in last, last
     assert not image_exists(tag)
+
+
+def test_no_docker_daemon_is_one_clear_message(tmp_path: Path) -> None:
+    cmake_package(tmp_path, "pkg")
+    write_env(tmp_path, BASE_IMAGE="any:1", COMMAND="pkg", IMAGE="docker-ros-test/never:1")
+    result = docker_ros(tmp_path, "build", env={"DOCKER_HOST": "unix:///nonexistent.sock"})
+    assert result.returncode != 0
+    assert result.stdout.strip().splitlines()[-1] == (
+        "docker-ros build: no Docker daemon answers (`docker info` failed): start it, "
+        "e.g. with scripts/setup.sh"
+    )
