@@ -215,6 +215,23 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
 
 @settings_task(
+    "push",
+    "Build the TARGET images, then push them (docker-ros tags; one manifest list per image "
+    "for several platforms); REGISTRY_USER/REGISTRY_PASSWORD log in first",
+    [DRY_RUN],
+)
+def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+    from docker_ros.push import push
+
+    _build(settings, settings.target, dry_run=dry_run)
+    try:
+        for name in push(settings, settings.target, dry_run=dry_run):
+            print(f"pushed {name}")
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
+
+
+@settings_task(
     "dev-shell",
     "Interactive shell in the dev image: repository mounted, host user mapped, ws sourced",
     [("rebuild", False, "Build the dev image first even if it exists")],
@@ -290,7 +307,8 @@ def collection() -> Collection:
     ns = Collection()
     for step in STEPS:
         ns.add_task(make_step_task(step))
-    for task in (config, dev, run, build_task, dev_shell, bootstrap_base_image, example):
+    for task in (config, dev, run, build_task, push_task, dev_shell, bootstrap_base_image,
+                 example):
         ns.add_task(task)
     return ns
 

@@ -1,0 +1,84 @@
+"""Pushing built images with docker-ros's tag rules: plan (pure) and run."""
+
+from __future__ import annotations
+
+import subprocess
+from typing import List, Sequence
+
+from docker_ros.build import BuildError, image_ref, platform_ref
+from docker_ros.settings import Settings
+from docker_ros.steps.common import format_argv
+
+LOCAL_REGISTRIES = ("localhost", "127.0.0.1")
+
+
+def latest_ref(ref: str, target: str) -> str:
+    """ENABLE_PUSH_AS_LATEST: `latest` for run, `latest-dev` for dev."""
+    name = ref.rsplit(":", 1)[0] if ":" in ref.rsplit("/", 1)[-1] else ref
+    return f"{name}:latest-dev" if target == "dev" else f"{name}:latest"
+
+
+def insecure(ref: str) -> List[str]:
+    """`docker manifest` talks plain http to a loopback registry only with --insecure."""
+    host = ref.split("/", 1)[0].split(":")[0]
+    return ["--insecure"] if "/" in ref and host in LOCAL_REGISTRIES else []
+
+
+def plan_push(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
+    """docker commands that push the built TARGET images for every PLATFORM."""
+    platforms = settings.platform
+    commands: List[List[str]] = []
+    for target in targets:
+        ref = image_ref(settings, target)
+        names = [ref] + ([latest_ref(ref, target)] if settings.enable_push_as_latest else [])
+        if len(platforms) == 1:
+            if settings.enable_singlearch_push:  # for a manifest made later from arch runners
+                names.append(f"{ref}-{platforms[0]}")
+            for name in names:
+                if name != ref:
+                    commands.append(["docker", "tag", ref, name])
+                commands.append(["docker", "push", name])
+            continue
+        # Several platforms: the per-arch images (`-amd64`, `-arm64`) go to the registry, as the
+        # manifest list refers to them; then one manifest list per name.
+        arch_refs = [platform_ref(ref, p, platforms) for p in platforms]
+        commands += [["docker", "push", arch] for arch in arch_refs]
+        for name in names:
+            commands.append(["docker", "manifest", "create", *insecure(name), "--amend", name,
+                             *arch_refs])
+            commands.append(["docker", "manifest", "push", *insecure(name), name])
+    return commands
+
+
+def login(settings: Settings) -> None:
+    """`docker login` with the password on standard input: never on a command line or log."""
+    if not (settings.registry_user and settings.registry_password):
+        return
+    argv = ["docker", "login", "--username", settings.registry_user, "--password-stdin"]
+    argv += [settings.registry] if settings.registry else []
+    proc = subprocess.run(argv, input=settings.registry_password, capture_output=True, text=True)
+    if proc.returncode != 0:
+        reason = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no reason given"
+        raise BuildError(f"docker login to {settings.registry or 'Docker Hub'} as "
+                         f"{settings.registry_user} failed: {reason}")
+
+
+def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
+    """Push; return the pushed names. Fails with the command and docker's reason."""
+    commands = plan_push(settings, targets)
+    if dry_run:
+        for argv in commands:
+            print("[dry-run] push:", format_argv(argv))
+        return []
+    login(settings)
+    pushed = []
+    for argv in commands:
+        print("push:", format_argv(argv), flush=True)
+        proc = subprocess.run(argv, capture_output=True, text=True)
+        if proc.returncode != 0:
+            reason = (proc.stderr.strip() or proc.stdout.strip()).splitlines()
+            raise BuildError(f"{format_argv(argv)} failed with exit code {proc.returncode}: "
+                             f"{reason[-1] if reason else 'no reason given'}")
+        if argv[1] == "push" or argv[:3] == ["docker", "manifest", "push"]:
+            pushed.append(argv[-1])
+    return pushed
