@@ -103,8 +103,6 @@ def plan_build(
     argv += ["--target", target, "--platform", f"linux/{platform}", "--tag", tag]
     argv += ["--build-arg", f"BASE_IMAGE={settings.base_image}"]
     argv += ["--build-arg", f"DOCKER_ROS_TOOLS={tools_image}"]
-    argv += ["--build-arg", f"DOCKER_ROS_CACHE_ID={cache_id(settings, platform)}"]
-    argv += ["--build-arg", f"DOCKER_ROS_APT_CACHE_ID={apt_cache_id(settings, platform)}"]
     declared = [a for a in dockerfile_args(dockerfile) if a != "BASE_IMAGE"]
     argv += build_args(settings, declared)
     for secret_id, source in sorted(secrets.items()):

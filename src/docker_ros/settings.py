@@ -234,10 +234,6 @@ class Settings:
     def source_of(self, name: str) -> str:
         return self.sources.get(name, "default")
 
-    @property
-    def targets(self) -> Tuple[str, ...]:
-        return self.target
-
 
 def declarations() -> List[dataclasses.Field]:
     return [f for f in dataclasses.fields(Settings) if f.name != "sources"]
