@@ -77,8 +77,16 @@ fi
 # --- buildx plugin, from Debian's docker-buildx package (never touching the host's apt lists) ---
 if docker buildx version >/dev/null 2>&1; then
     ok "docker buildx"
+elif apt-cache show docker-buildx >/dev/null 2>&1; then
+    # The distribution packages it (Ubuntu 22.04+, Debian 13+): the plain way.
+    installing "docker buildx (docker-buildx from the distribution)"
+    "${SUDO[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q docker-buildx
+    docker buildx version || die "docker buildx does not run after installing docker-buildx"
 else
     installing "docker buildx (docker-buildx from Debian $BUILDX_SUITE)"
+    if [ ! -e /usr/share/keyrings/debian-archive-keyring.gpg ]; then
+        "${SUDO[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q debian-archive-keyring
+    fi
     tmp="$(mktemp -d)"
     trap 'rm -rf "$tmp"' EXIT
     mkdir -p "$tmp/lists/partial" "$tmp/parts" "$tmp/cache/archives/partial"
