@@ -57,6 +57,19 @@ class BuiltImage:
     seconds: float
 
 
+# The first Dockerfile stage with the step done and the sources in place (scripts..custom:
+# the dev image, i.e. the state just before colcon).
+STAGE_OF_STEP = {
+    "clone": "source", "blacklist": "source", "scripts": "dev", "rosdep": "dev", "debs": "dev",
+    "pip": "dev", "files": "dev", "custom": "dev", "colcon": "build", "command": "run",
+}
+
+
+def until_ref(settings: Settings, step: str) -> str:
+    """Tag of an image built up to a step: <IMAGE_NAME>:<IMAGE_TAG>-until-<step>."""
+    return f"{settings.image_name}:{settings.image_tag}-until-{step}"
+
+
 def dockerfile_args(dockerfile: Path = DOCKERFILE) -> List[str]:
     """Names of the ARGs the Dockerfile declares."""
     names = re.findall(r"^ARG\s+([A-Z_]+)", dockerfile.read_text(), flags=re.MULTILINE)

@@ -209,9 +209,38 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List
     return built
 
 
-@settings_task("build", "Build the TARGET images (dev, run) for every PLATFORM", [DRY_RUN])
-def build_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+@settings_task(
+    "build",
+    "Build the TARGET images (dev, run) for every PLATFORM",
+    [DRY_RUN, ("until", "", "Build only up to (and including) this step, tag the result "
+               "<IMAGE>-until-<step> and stop: inspect it with `docker run -it <tag> bash`")],
+)
+def build_task(c: Context, settings: Settings, *, dry_run: bool, until: str) -> None:
+    if until:
+        _build_until(settings, until, dry_run=dry_run)
+        return
     _build(settings, settings.target, dry_run=dry_run)
+
+
+def _build_until(settings: Settings, step: str, *, dry_run: bool) -> None:
+    if step not in build.STAGE_OF_STEP:
+        raise TaskError(f"--until {step!r}: use one of {', '.join(build.STAGE_OF_STEP)}")
+    require(settings, ["base_image"] + (["command"] if step == "command" else []))
+    stage, tag = build.STAGE_OF_STEP[step], build.until_ref(settings, step)
+    platform = settings.platform[0]
+    if dry_run:
+        argv = build.plan_build(settings, target=stage, platform=platform,
+                                tools_image=f"{build.TOOLS_REPOSITORY}:<hash>", tag=tag,
+                                secrets={})
+        print("[dry-run] build:", format_argv(argv))
+        return
+    try:
+        build.check_engine()
+        built = build.build_image(settings, target=stage, platform=platform, tag=tag)
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
+    print(build.summary_table([built]))
+    print(f"built up to {step} (stage {stage}): docker run --rm -it {tag} bash")
 
 
 @settings_task(

@@ -209,3 +209,20 @@ def test_no_docker_daemon_is_one_clear_message(tmp_path: Path) -> None:
         "docker-ros build: no Docker daemon answers (`docker info` failed): start it, "
         "e.g. with scripts/setup.sh"
     )
+
+
+def test_build_until_a_step_stops_there(ros1_base_image: str, tmp_path: Path) -> None:
+    cmake_package(tmp_path, "pkg")
+    (tmp_path / "docker").mkdir()
+    (tmp_path / "docker" / "additional-debs.txt").write_text("jq\n")
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND="pkg", IMAGE="docker-ros-test/until:1")
+    result = docker_ros(tmp_path, "build", "--until", "debs")
+    assert result.returncode == 0, result.stdout[-3000:]
+    assert "Starting >>> colcon" not in result.stdout
+    tag = "docker-ros-test/until:1-until-debs"
+    state = sh(tag, "jq --version && ls src/target/pkg/package.xml && ls /docker-ros/ws")
+    assert state.returncode == 0, state.stderr
+    assert "install" not in state.stdout.split()
+    assert not image_exists("docker-ros-test/until:1")
+    bad = docker_ros(tmp_path, "build", "--until", "nope")
+    assert bad.returncode != 0 and "--until 'nope': use one of clone" in bad.stdout
