@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import List, Optional, Tuple
 
+from docker_ros.build import image_exists
 from docker_ros.settings import host_platform
 from docker_ros.steps.common import StepError, format_argv, privileged, run, step_log
 
@@ -129,12 +130,6 @@ def image_label(tag: str, label: str) -> Optional[str]:
     labels = json.loads(done.stdout.strip() or "null") or {}
     value = labels.get(label)
     return str(value) if value is not None else None
-
-
-def image_exists(tag: str) -> bool:
-    inspect = ["docker", "image", "inspect", tag]
-    done = subprocess.run(inspect, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return done.returncode == 0
 
 
 def debootstrap_argv(suite: str, rootfs: Path, mirror: str, platform: str) -> List[str]:

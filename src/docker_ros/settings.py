@@ -208,7 +208,7 @@ class Settings:
     # --- beyond docker-ros ---
     workspace: Optional[str] = setting(
         None,
-        "Host workspace for the steps run with `--host` (the repository appears as src/target)",
+        "Host workspace of the step tasks and `--host` composites (repository at src/target)",
         default_doc="`~/.cache/docker-ros/ws/<repository folder name>`",
         group="ours",
     )

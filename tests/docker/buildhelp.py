@@ -13,6 +13,8 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional
 
+from docker_ros.build import image_exists  # noqa: F401  (re-exported for the tests)
+
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "example"
 
@@ -34,11 +36,6 @@ def write_env(project: Path, **values: str) -> None:
 def copy_example(destination: Path) -> Path:
     shutil.copytree(EXAMPLE, destination)
     return destination
-
-
-def image_exists(ref: str) -> bool:
-    return subprocess.run(["docker", "image", "inspect", ref],
-                          capture_output=True).returncode == 0
 
 
 def remove_image(ref: str) -> None:
