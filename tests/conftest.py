@@ -19,8 +19,9 @@ from docker_ros import baseimage
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"
 ROS2_BASE_IMAGE = "docker-ros-test/ros2:trixie"
-# The one address dockerd treats as an insecure (plain http) registry without configuration.
-REGISTRY_ADDRESS = ("127.0.0.1", 5000)
+# dockerd treats 127.0.0.0/8 as an insecure (plain http) registry without configuration; a free
+# port keeps parallel test runs (and a user's own registry on 5000) apart.
+REGISTRY_HOST = "127.0.0.1"
 HOST_CA_BUNDLE = Path("/etc/ssl/certs/ca-certificates.crt")
 SETUP_HINT = "run `bash scripts/setup.sh` first"
 
@@ -57,14 +58,7 @@ def local_registry(
     executable = shutil.which("docker-registry")
     if executable is None:
         pytest.fail(f"docker-registry (Debian package) is not installed; {SETUP_HINT}")
-    host, port = REGISTRY_ADDRESS
-    address = f"{host}:{port}"
-    with socket.socket() as probe:
-        if probe.connect_ex(REGISTRY_ADDRESS) == 0:
-            pytest.fail(
-                f"{address} is busy: stop what listens there (dockerd trusts only this address as "
-                "a plain-http registry without daemon configuration)"
-            )
+    address = f"{REGISTRY_HOST}:{free_port()}"
     work = tmp_path_factory.mktemp("registry")
     config = {
         "version": 0.1,
@@ -91,6 +85,12 @@ def local_registry(
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait()
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind((REGISTRY_HOST, 0))
+        return int(probe.getsockname()[1])
 
 
 def wait_for_registry(address: str, server: subprocess.Popen, log_path: Path) -> None:
