@@ -91,10 +91,12 @@ def bootstrap(
         raise StepError(STEP, f"CA bundle '{ca_bundle}' not found")
     spec = FLAVORS[flavor]
     if not force and image_exists(tag):
-        if image_label(tag, RECIPE_LABEL) == recipe(spec):
+        reason = stale_reason(image_label(tag, RECIPE_LABEL), image_architecture(tag),
+                              recipe=recipe(spec), platform=platform)
+        if not reason:
             LOG.info("%s: %s exists, not rebuilding it (force=True does)", STEP, tag)
             return tag
-        LOG.info("%s: %s was built from another recipe (package list), rebuilding it", STEP, tag)
+        LOG.info("%s: %s %s, rebuilding it", STEP, tag, reason)
     with step_log(f"{STEP} {tag}"), tempfile.TemporaryDirectory(prefix="docker-ros-base-") as tmp:
         work = Path(tmp)
         rootfs = work / "rootfs"
@@ -120,6 +122,23 @@ def recipe(spec: Flavor) -> str:
     """Fingerprint of what an image of `spec` is built from: Dockerfile, target and packages."""
     text = "\0".join([DOCKERFILE.read_text(), spec.name, spec.suite, *spec.debs])
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def stale_reason(
+    label: Optional[str], architecture: Optional[str], *, recipe: str, platform: str
+) -> str:
+    """Why an existing base image cannot be reused ('' when it can)."""
+    if architecture != platform:
+        return f"is built for {architecture or 'an unknown architecture'}, not {platform}"
+    if label != recipe:
+        return "was built from another recipe (package list)"
+    return ""
+
+
+def image_architecture(tag: str) -> Optional[str]:
+    inspect = ["docker", "image", "inspect", "--format", "{{.Architecture}}", tag]
+    done = subprocess.run(inspect, capture_output=True, text=True)
+    return done.stdout.strip() or None if done.returncode == 0 else None
 
 
 def image_label(tag: str, label: str) -> Optional[str]:

@@ -64,6 +64,12 @@ def settings_task(name: str, help: str, flags: Sequence[Flag] = ()) -> Callable[
 
         def body(c: Context, **kwargs: Any) -> Any:
             setup_logging()
+            if invoke_dry(c):
+                # invoke's -R/--dry means "do not act": our dry run, or a refusal, never ignored.
+                if "dry_run" not in kwargs:
+                    raise Exit(f"docker-ros {name}: has no dry run; invoke's -R/--dry is only "
+                               "accepted by tasks with --dry-run", code=2)
+                kwargs["dry_run"] = True
             overrides = {n: kwargs.pop(n) for n in list(kwargs) if n in FIELDS}
             try:
                 cfg = c.config.get("docker_ros", None) or {}
@@ -95,6 +101,14 @@ def settings_task(name: str, help: str, flags: Sequence[Flag] = ()) -> Callable[
         return Task(body, name=name, help=help_map, auto_shortflags=False)
 
     return decorate
+
+
+def invoke_dry(c: Context) -> bool:
+    """invoke's core flag -R/--dry (config run.dry)."""
+    try:
+        return bool(c.config.run.dry)
+    except AttributeError:
+        return False
 
 
 def link_repository(ws: Workspace, repository: Path) -> None:

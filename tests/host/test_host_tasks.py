@@ -76,6 +76,18 @@ def test_step_dry_run_changes_nothing(project: Path, tmp_path: Path) -> None:
     assert tree_snapshot(project) == before
 
 
+def test_invokes_dry_flag_is_our_dry_run_or_refused(project: Path, tmp_path: Path) -> None:
+    before = tree_snapshot(project)
+    result = cli(project, "-R", "clone")
+    assert result.returncode == 0, result.stderr
+    assert "[dry-run]" in result.stdout
+    assert not (tmp_path / "ws").exists(), "-R ran the step for real"
+    assert tree_snapshot(project) == before
+    refused = cli(project, "--dry", "config")
+    assert refused.returncode != 0
+    assert "docker-ros config: has no dry run" in refused.stderr
+
+
 def test_config_shows_sources_and_masks_secrets(project: Path) -> None:
     (project / "invoke.yaml").write_text("docker_ros:\n  image_tag: from-yaml\n")
     result = inv(project, "config", "--cmake-args", "-DX=1")

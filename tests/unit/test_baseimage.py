@@ -65,3 +65,12 @@ def test_unknown_flavor_and_missing_ca_bundle_are_clear_errors(tmp_path: Path) -
 def test_mounts_below_finds_nothing_under_a_fresh_directory(tmp_path: Path) -> None:
     assert baseimage.mounts_below(tmp_path) == []
     assert "/proc" in baseimage.mounts_below(Path("/proc"))
+
+
+def test_existing_base_image_is_reused_only_for_the_same_recipe_and_architecture() -> None:
+    same = baseimage.stale_reason("r1", "amd64", recipe="r1", platform="amd64")
+    assert same == ""
+    other_arch = baseimage.stale_reason("r1", "amd64", recipe="r1", platform="arm64")
+    assert "amd64, not arm64" in other_arch
+    assert "recipe" in baseimage.stale_reason("r0", "arm64", recipe="r1", platform="arm64")
+    assert "unknown" in baseimage.stale_reason(None, None, recipe="r1", platform="amd64")
