@@ -131,6 +131,22 @@ def plan_build(
     return argv
 
 
+def secret_env(settings: Settings) -> Dict[str, str]:
+    """The environment of the buildx process that carries the secret values."""
+    return {f"DOCKER_ROS_SECRET_{env_name(n)}": getattr(settings, n) for n in SECRETS
+            if getattr(settings, n)}
+
+
+def plan_secrets(settings: Settings, ca_bundle: Optional[Path]) -> Dict[str, str]:
+    """BuildKit secret id -> source. Values come from the environment (secret_env), so the
+    argv (and a dry run printing it) holds only variable names, never a secret."""
+    secrets = {env_name(n): f"env=DOCKER_ROS_SECRET_{env_name(n)}" for n in SECRETS
+               if getattr(settings, n)}
+    if settings.extra_ca_certs:
+        secrets["EXTRA_CA_CERTS"] = f"src={ca_bundle or '<bundle of EXTRA_CA_CERTS>'}"
+    return secrets
+
+
 def cache_id(settings: Settings, platform: str) -> str:
     """Build caches (colcon build/) are per repository and platform: object files of another
     workspace or architecture must never be reused."""
@@ -299,17 +315,13 @@ def build_image(
     tools = ensure_tools_image(platform)
     child_env = dict(environ)
     child_env.setdefault("DOCKER_BUILDKIT", "1")
-    secrets: Dict[str, str] = {}
     with tempfile.TemporaryDirectory(prefix="docker-ros-build-") as tmp:
-        for name in SECRETS:
-            value = getattr(settings, name)
-            if value:
-                # Passed by environment to buildx only: never argv, never a file, never a log.
-                child_env[f"DOCKER_ROS_SECRET_{env_name(name)}"] = value
-                secrets[env_name(name)] = f"env=DOCKER_ROS_SECRET_{env_name(name)}"
+        # Passed by environment to buildx only: never argv, never a file, never a log.
+        child_env.update(secret_env(settings))
+        bundle = None
         if settings.extra_ca_certs:
             bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
-            secrets["EXTRA_CA_CERTS"] = f"src={bundle}"
+        secrets = plan_secrets(settings, bundle)
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
         argv = plan_build(settings, target=target, platform=platform, tools_image=tools,

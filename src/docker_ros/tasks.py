@@ -210,7 +210,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List
             if dry_run:
                 argv = build.plan_build(settings, target=target, platform=platform,
                                         tools_image=f"{build.TOOLS_REPOSITORY}:<hash>",
-                                        tag=tag, secrets={})
+                                        tag=tag, secrets=build.plan_secrets(settings, None))
                 print("[dry-run] build:", format_argv(argv))
                 continue
             try:
@@ -245,7 +245,7 @@ def _build_until(settings: Settings, step: str, *, dry_run: bool) -> None:
     if dry_run:
         argv = build.plan_build(settings, target=stage, platform=platform,
                                 tools_image=f"{build.TOOLS_REPOSITORY}:<hash>", tag=tag,
-                                secrets={})
+                                secrets=build.plan_secrets(settings, None))
         print("[dry-run] build:", format_argv(argv))
         return
     try:

@@ -108,3 +108,13 @@ def test_bad_input_is_one_clear_line_and_non_zero(project: Path) -> None:
     missing = cli(project, "build", "--target", "dev,run")
     assert missing.returncode != 0
     assert "BASE_IMAGE" in missing.stderr and "COMMAND" in missing.stderr
+
+
+def test_build_dry_run_shows_secret_arguments_without_their_values(project: Path) -> None:
+    env = {"GIT_HTTPS_PASSWORD": "hunter2", "GIT_HTTPS_SERVER": "git.example.com",
+           "GIT_HTTPS_USER": "me", "BASE_IMAGE": "docker-ros-test/ros1:bookworm"}
+    result = cli(project, "build", "--dry-run", env=env)
+    assert result.returncode == 0, result.stderr
+    secret = "--secret id=GIT_HTTPS_PASSWORD,env=DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD"
+    assert secret in result.stdout
+    assert "hunter2" not in result.stdout + result.stderr
