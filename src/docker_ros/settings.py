@@ -344,60 +344,85 @@ def load_settings(
     values: Dict[str, object] = {}
     sources: Dict[str, str] = {}
     for source, layer in layers:
-        for name, raw in layer.items():
+        for name, raw in split_image(layer, source).items():
+            value, origin = raw if isinstance(raw, Derived) else (raw, source)
             try:
-                values[name] = parse_value(name, raw)
+                values[name] = parse_value(name, value)
             except SettingsError as exc:
                 errors.append(f"{exc} (from {source})")
                 continue
-            sources[name] = source
+            sources[name] = origin
     if errors:
         raise SettingsError("invalid configuration:\n  " + "\n  ".join(errors))
-    values.update(derived_defaults(values, environ or {}, project_dir or Path.cwd()))
+    derived = derived_defaults(values, sources, environ or {}, project_dir or Path.cwd())
+    for name, (value, origin) in derived.items():
+        values[name] = value
+        if origin:
+            sources[name] = origin
     return Settings(**values, sources=sources)  # type: ignore[arg-type]
 
 
-def derived_defaults(
-    values: Mapping[str, object], environ: Mapping[str, str], project_dir: Path
-) -> Dict[str, object]:
-    """Defaults that depend on other values or on the CI we run in (docker-ros's rules)."""
-    out: Dict[str, object] = {}
-    image = values.get("image")
-    if isinstance(image, str) and image and "image_name" not in values:
+class Derived(Tuple[object, str]):
+    """A value computed from another setting, with the provenance to show for it."""
+
+
+def split_image(layer: Mapping[str, object], source: str) -> Dict[str, object]:
+    """IMAGE=name:tag stands for IMAGE_NAME and IMAGE_TAG at the precedence of the source that
+    sets it (as docker-ros build.sh); an IMAGE_NAME/IMAGE_TAG of the same source wins."""
+    out = dict(layer)
+    image = out.get("image")
+    if isinstance(image, str) and image:
         name, _, tag = image.rpartition(":")
         if not name or "/" in tag:  # "host:5000/img" has no tag
             name, tag = image, "latest"
-        out["image_name"], out["image_tag"] = name, tag
-    if "image_name" not in values and "image_name" not in out:
-        if environ.get("GITHUB_REPOSITORY"):
-            out["image_name"] = "ghcr.io/" + environ["GITHUB_REPOSITORY"]
-        elif environ.get("CI_REGISTRY_IMAGE"):
-            out["image_name"] = environ["CI_REGISTRY_IMAGE"]
-        else:
-            out["image_name"] = project_dir.resolve().name
-    merged = {**values, **out}
-    out["image_name"] = str(merged["image_name"]).lower()
-    tag = str(merged.get("image_tag", "latest"))
-    if not merged.get("dev_image_name"):
-        out["dev_image_name"] = out["image_name"]
-    if not merged.get("dev_image_tag"):
-        out["dev_image_tag"] = f"{tag}-dev"
-    if not merged.get("slim_image_name"):
-        out["slim_image_name"] = out["image_name"]
-    if not merged.get("slim_image_tag"):
-        out["slim_image_tag"] = f"{tag}-slim"
-    for name in ("dev_image_name", "slim_image_name"):
-        out[name] = str(merged.get(name) or out[name]).lower()
-    if not merged.get("platform"):
-        out["platform"] = (host_platform(),)
-    if not merged.get("workspace"):
+        origin = f"derived from IMAGE ({source})"
+        out.setdefault("image_name", Derived((name, origin)))
+        out.setdefault("image_tag", Derived((tag, origin)))
+    return out
+
+
+def derived_defaults(
+    values: Mapping[str, object],
+    sources: Mapping[str, str],
+    environ: Mapping[str, str],
+    project_dir: Path,
+) -> Dict[str, Tuple[object, str]]:
+    """Defaults that depend on other values or on the CI we run in (docker-ros's rules), each
+    with its provenance ('' keeps "default")."""
+    out: Dict[str, Tuple[object, str]] = {}
+
+    def origin(name: str) -> str:
+        return f"derived from {env_name(name)} ({sources.get(name, 'default')})"
+
+    name = values.get("image_name")
+    if name:
+        out["image_name"] = (str(name).lower(), "")
+    elif environ.get("GITHUB_REPOSITORY"):
+        out["image_name"] = ("ghcr.io/" + environ["GITHUB_REPOSITORY"].lower(),
+                             "derived from GITHUB_REPOSITORY (environment)")
+    elif environ.get("CI_REGISTRY_IMAGE"):
+        out["image_name"] = (environ["CI_REGISTRY_IMAGE"].lower(),
+                             "derived from CI_REGISTRY_IMAGE (environment)")
+    else:
+        out["image_name"] = (project_dir.resolve().name.lower(), "")
+    image_name = str(out["image_name"][0])
+    tag = str(values.get("image_tag", "latest"))
+    for image in ("dev", "slim"):
+        own = values.get(f"{image}_image_name")
+        out[f"{image}_image_name"] = ((str(own).lower(), "") if own
+                                      else (image_name, origin("image_name")))
+        if not values.get(f"{image}_image_tag"):
+            out[f"{image}_image_tag"] = (f"{tag}-{image}", origin("image_tag"))
+    if not values.get("platform"):
+        out["platform"] = ((host_platform(),), "")
+    if not values.get("workspace"):
         cache = Path(environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-        out["workspace"] = str(cache / "docker-ros" / "ws" / project_dir.resolve().name)
-    if not merged.get("registry"):
+        out["workspace"] = (str(cache / "docker-ros" / "ws" / project_dir.resolve().name), "")
+    if not values.get("registry"):
         if environ.get("GITHUB_ACTIONS"):
-            out["registry"] = "ghcr.io"
+            out["registry"] = ("ghcr.io", "derived from GITHUB_ACTIONS (environment)")
         elif environ.get("CI_REGISTRY"):
-            out["registry"] = environ["CI_REGISTRY"]
+            out["registry"] = (environ["CI_REGISTRY"], "derived from CI_REGISTRY (environment)")
     return out
 
 

@@ -119,6 +119,37 @@ def test_docker_ros_derived_names_and_tags():
     assert load(environ={"IMAGE": "localhost:5000/img"}).image_tag == "latest"
 
 
+@pytest.mark.parametrize(
+    "layers, name, tag, tag_source",
+    [
+        ({"dotenv": {"IMAGE": "a/b:v1"}}, "a/b", "v1", "derived from IMAGE (.env)"),
+        ({"dotenv": {"IMAGE": "a/b:v1"}, "flags": {"image_tag": "fromflag"}},
+         "a/b", "fromflag", "flag"),
+        ({"dotenv": {"IMAGE": "a/b:v1"}, "environ": {"IMAGE_TAG": "env"}},
+         "a/b", "env", "environment"),
+        ({"dotenv": {"IMAGE": "a/b:v1", "IMAGE_TAG": "own"}}, "a/b", "own", ".env"),
+        ({"dotenv": {"IMAGE_TAG": "dot"}, "environ": {"IMAGE": "c/d:v2"}},
+         "c/d", "v2", "derived from IMAGE (environment)"),
+        ({"invoke_config": {"image_name": "y/z"}, "dotenv": {"IMAGE": "a/b"}},
+         "a/b", "latest", "derived from IMAGE (.env)"),
+    ],
+)
+def test_image_splits_at_its_own_precedence_with_provenance(layers, name, tag, tag_source):
+    s = load(**layers)
+    assert (s.image_name, s.image_tag) == (name, tag)
+    assert s.source_of("image_tag") == tag_source
+    assert s.dev_image_tag == f"{tag}-dev"
+    assert s.source_of("dev_image_tag") == f"derived from IMAGE_TAG ({tag_source})"
+
+
+def test_derived_names_say_where_they_come_from():
+    s = load(dotenv={"IMAGE": "a/b:v1"})
+    assert s.source_of("image_name") == "derived from IMAGE (.env)"
+    assert s.source_of("slim_image_name") == "derived from IMAGE_NAME (derived from IMAGE (.env))"
+    gh = load(environ={"GITHUB_REPOSITORY": "Org/Repo"})
+    assert gh.source_of("image_name") == "derived from GITHUB_REPOSITORY (environment)"
+
+
 def test_secrets_are_masked_and_not_exported_by_default():
     s = load(environ={"GIT_HTTPS_PASSWORD": "hunter2", "REGISTRY_PASSWORD": "pw"})
     assert display_value(s, "git_https_password") == "****"
