@@ -313,6 +313,29 @@ def _did_you_mean(key: str) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+def parse_set(items: Iterable[str]) -> Dict[str, str]:
+    """`--set NAME=VALUE` (repeatable) -> {field name: raw value}; NAME as in .env
+    (ENABLE_SLIM) or as the flag (enable-slim). Secrets are refused: a command line is
+    visible to every process on the machine."""
+    out: Dict[str, str] = {}
+    errors: List[str] = []
+    for item in items:
+        key, sep, value = item.partition("=")
+        name = key.strip().lower().replace("-", "_")
+        if not sep or not name:
+            errors.append(f"--set {item!r}: use --set NAME=VALUE")
+        elif name not in FIELDS:
+            errors.append(f"--set {key}: unknown setting{_did_you_mean(name)}")
+        elif is_secret(name):
+            errors.append(f"--set {env_name(name)}: a secret is never given on a command line; "
+                          "set it in the environment or .env")
+        else:
+            out[name] = value
+    if errors:
+        raise SettingsError("invalid configuration:\n  " + "\n  ".join(errors))
+    return out
+
+
 def load_settings(
     *,
     invoke_config: Optional[Mapping[str, object]] = None,
@@ -491,10 +514,18 @@ def default_doc(name: str) -> str:
     return f"`{default}`"
 
 
-def markdown_table() -> str:
-    """The README configuration table, derived from the declarations."""
+def markdown_table(flag_tasks: Optional[Mapping[str, Iterable[str]]] = None) -> str:
+    """The README configuration table, derived from the declarations; flag_tasks says which
+    tasks have a setting as a flag (others are reached with --set NAME=VALUE)."""
+    flag_tasks = flag_tasks or {}
     rows = ["| variable | flag | default | description |", "|---|---|---|---|"]
     for name, f in FIELDS.items():
+        if is_secret(name):
+            flag = "none: environment or `.env` only"
+        elif flag_tasks.get(name):
+            flag = f"`{flag_name(name)}`"
+        else:
+            flag = f"`--set {env_name(name)}=...`"
         help_text = str(f.metadata["help"])
         extras = []
         if f.metadata["choices"]:
@@ -506,6 +537,6 @@ def markdown_table() -> str:
         if extras:
             help_text += " (" + "; ".join(extras) + ")"
         rows.append(
-            f"| `{env_name(name)}` | `{flag_name(name)}` | {default_doc(name)} | {help_text} |"
+            f"| `{env_name(name)}` | {flag} | {default_doc(name)} | {help_text} |"
         )
     return "\n".join(rows)

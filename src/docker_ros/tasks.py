@@ -14,6 +14,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import textwrap
 from pathlib import Path
 from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
 
@@ -26,7 +27,9 @@ from docker_ros.settings import (
     FIELDS,
     Settings,
     SettingsError,
+    default_doc,
     is_secret,
+    parse_set,
     require,
     required_for_build,
 )
@@ -38,15 +41,15 @@ DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change not
 HOST: Flag = ("host", False, "Run the steps directly on this machine instead of in an image")
 
 STEP_HELP = {
-    "clone": "Run the before-dependency-identification hook and import .repos files with vcstool",
-    "blacklist": "Leave the packages listed in BLACKLISTED_PACKAGES_FILE out of build and deps",
+    "clone": "Run the identification hook, import .repos files with vcstool",
+    "blacklist": "Leave BLACKLISTED_PACKAGES_FILE's packages out of build and deps",
     "scripts": "Run the before-dependency-installation hook script(s)",
     "rosdep": "Resolve package.xml dependencies with rosdep and install them",
     "debs": "Install the apt packages listed in ADDITIONAL_DEBS_FILE",
     "pip": "Install the pip requirements listed in ADDITIONAL_PIP_FILE",
-    "files": "Copy ADDITIONAL_FILES_DIR into place (/docker-ros/additional-files in images)",
+    "files": "Copy ADDITIONAL_FILES_DIR (images: /docker-ros/additional-files)",
     "custom": "Run the after-dependency-installation script(s)",
-    "colcon": "Build the workspace with colcon (CMAKE_ARGS; underlays /opt/ws_base_image)",
+    "colcon": "Build the workspace with colcon (underlay: /opt/ws_base_image)",
     "command": "Run COMMAND in the built workspace's environment",
 }
 DEV_STEPS = STEPS[: STEPS.index("custom") + 1]
@@ -56,11 +59,39 @@ class TaskError(Exception):
     """An expected failure outside the steps (bad repository layout, failed build...)."""
 
 
-def settings_task(name: str, help: str, flags: Sequence[Flag] = ()) -> Callable[..., Task]:
-    """Make an invoke Task whose flags are the task's own plus one per setting."""
+# Settings every image task takes as flags; any other setting: --set NAME=VALUE.
+IMAGE_SETTINGS = (
+    "base_image", "image", "image_tag", "platform", "ros_distro", "cmake_args", "cache_from",
+    "build_network", "extra_ca_certs", "build_context",
+)
+HOST_SETTINGS = ("workspace", "build_context")
+# Each step's own variables (the SPEC's table), flags of its task.
+STEP_SETTINGS: Dict[str, Tuple[str, ...]] = {
+    "clone": ("vcs_import_file", "enable_recursive_vcs_import", "git_https_server",
+              "git_https_user", "before_dependency_identification_script"),
+    "blacklist": ("blacklisted_packages_file", "enable_recursive_blacklisted_packages"),
+    "scripts": ("before_dependency_installation_script",),
+    "rosdep": ("ros_distro",),
+    "debs": ("additional_debs_file", "enable_recursive_additional_debs"),
+    "pip": ("additional_pip_file", "enable_recursive_additional_pip"),
+    "files": ("additional_files_dir",),
+    "custom": ("after_dependency_installation_script",),
+    "colcon": ("cmake_args", "ros_distro"),
+    "command": ("command",),
+}
+PUSH_SETTINGS = ("registry", "registry_user", "enable_push_as_latest", "enable_singlearch_push")
+SET: Flag = ("set", None, "Any setting, as NAME=VALUE (repeatable), e.g. --set ENABLE_SLIM=false")
+
+
+def settings_task(
+    name: str, help: str, flags: Sequence[Flag] = (), uses: Sequence[str] = ()
+) -> Callable[..., Task]:
+    """Make an invoke Task whose flags are the task's own, one per setting it uses, and
+    --set NAME=VALUE for any other setting (the full reference: README and `inv config`)."""
 
     def decorate(func: Callable[..., Any]) -> Task:
         own = [f[0] for f in flags]
+        settings_flags = [n for n in dict.fromkeys(uses) if n not in own and not is_secret(n)]
 
         def body(c: Context, **kwargs: Any) -> Any:
             setup_logging()
@@ -70,8 +101,13 @@ def settings_task(name: str, help: str, flags: Sequence[Flag] = ()) -> Callable[
                     raise Exit(f"docker-ros {name}: has no dry run; invoke's -R/--dry is only "
                                "accepted by tasks with --dry-run", code=2)
                 kwargs["dry_run"] = True
-            overrides = {n: kwargs.pop(n) for n in list(kwargs) if n in FIELDS}
             try:
+                # A named flag beats a --set of the same setting.
+                overrides: Dict[str, object] = dict(parse_set(kwargs.pop("set") or ()))
+                overrides.update({n: kwargs.pop(n) for n in settings_flags
+                                  if kwargs[n] is not None})
+                for n in settings_flags:
+                    kwargs.pop(n, None)
                 cfg = c.config.get("docker_ros", None) or {}
                 settings = read_settings(dict(cfg), overrides)
                 return func(c, settings, **kwargs)
@@ -81,26 +117,33 @@ def settings_task(name: str, help: str, flags: Sequence[Flag] = ()) -> Callable[
                 text = exc.message if isinstance(exc, StepError) else str(exc)
                 raise Exit(f"docker-ros {where}: {text}", code=code) from None
 
+        keyword = inspect.Parameter.KEYWORD_ONLY
         params = [inspect.Parameter("c", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
-        params += [
-            inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=d) for n, d, _ in flags
-        ]
+        params += [inspect.Parameter(n, keyword, default=d) for n, d, _ in [*flags, SET]]
         # Secrets get no flag: a command line is visible to every process on the machine.
-        params += [
-            inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=None)
-            for n in FIELDS
-            if n not in own and not is_secret(n)
-        ]
+        params += [inspect.Parameter(n, keyword, default=None) for n in settings_flags]
         body.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
-        body.__doc__ = help
+        # First paragraph: the one line of `--list` (at most 76 characters, a test checks);
+        # the others wrapped for 80 columns.
+        first, *rest = help.split("\n\n")
+        body.__doc__ = "\n\n".join([first, *(textwrap.fill(part, 76) for part in rest)])
         body.__name__ = name.replace("-", "_")
-        help_map: Dict[str, str] = {n: h for n, _, h in flags}
-        for n, f in FIELDS.items():
-            if not is_secret(n):
-                help_map.setdefault(n, f"{f.metadata['help']} [{n.upper()}]")
-        return Task(body, name=name, help=help_map, auto_shortflags=False)
+        help_map: Dict[str, str] = {n: h for n, _, h in [*flags, SET]}
+        for n in settings_flags:
+            help_map[n] = setting_help(n)
+        return Task(body, name=name, help=help_map, auto_shortflags=False, iterable=["set"])
 
     return decorate
+
+
+def setting_help(name: str) -> str:
+    """A setting's flag help: its description and default (the flag names the variable).
+    A default with a word too long for the help column is left to `inv config`."""
+    default = default_doc(name).replace("`", "").replace("*", "")
+    text = str(FIELDS[name].metadata["help"])
+    if not default or max(len(word) for word in default.split()) > 24:
+        return text
+    return f"{text} (default: {default})"
 
 
 def invoke_dry(c: Context) -> bool:
@@ -156,7 +199,10 @@ def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -
 
 
 def make_step_task(step: str) -> Task:
-    @settings_task(step, STEP_HELP[step] + " (on the host)", [DRY_RUN])
+    number = f"{STEPS.index(step) + 1}/{len(STEPS)}"
+    summary = f"[step {number}] {STEP_HELP[step]}\n\nRuns on this machine, in WORKSPACE."
+    @settings_task(step, summary, [DRY_RUN],
+                   uses=STEP_SETTINGS[step] + HOST_SETTINGS)
     def step_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
         run_host_steps(settings, [step], dry_run=dry_run)
 
@@ -168,7 +214,8 @@ def config(c: Context, settings: Settings) -> None:
     print(config_table(settings))
 
 
-@settings_task("dev", "Build the dev image, or with --host run clone..custom here", [HOST, DRY_RUN])
+@settings_task("dev", "Build the dev image, or with --host run clone..custom here", [HOST, DRY_RUN],
+               uses=IMAGE_SETTINGS + HOST_SETTINGS)
 def dev(c: Context, settings: Settings, *, host: bool, dry_run: bool) -> None:
     if host:
         run_host_steps(settings, DEV_STEPS, dry_run=dry_run)
@@ -177,7 +224,10 @@ def dev(c: Context, settings: Settings, *, host: bool, dry_run: bool) -> None:
 
 
 @settings_task(
-    "run", "Build the run image, or with --host run all ten steps and COMMAND here", [HOST, DRY_RUN]
+    "run",
+    "Build the run image, or with --host run all ten steps and COMMAND here",
+    [HOST, DRY_RUN],
+    uses=IMAGE_SETTINGS + ("command",) + HOST_SETTINGS,
 )
 def run(c: Context, settings: Settings, *, host: bool, dry_run: bool) -> None:
     if host:
@@ -228,6 +278,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List
     "Build the TARGET images (dev, run) for every PLATFORM",
     [DRY_RUN, ("until", "", "Build only up to (and including) this step, tag the result "
                "<IMAGE>-until-<step> and stop: inspect it with `docker run -it <tag> bash`")],
+    uses=("target",) + IMAGE_SETTINGS + ("command",),
 )
 def build_task(c: Context, settings: Settings, *, dry_run: bool, until: str) -> None:
     if until:
@@ -259,9 +310,11 @@ def _build_until(settings: Settings, step: str, *, dry_run: bool) -> None:
 
 @settings_task(
     "push",
-    "Build the TARGET images, then push them (docker-ros tags; one manifest list per image "
-    "for several platforms); REGISTRY_USER/REGISTRY_PASSWORD log in first",
+    "Build the TARGET images, then push them with docker-ros's tags\n\n"
+    "Several platforms: one manifest list per image. REGISTRY_USER and REGISTRY_PASSWORD "
+    "(environment or .env only) log in first.",
     [DRY_RUN],
+    uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     from docker_ros.push import push
@@ -276,8 +329,9 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
 @settings_task(
     "dev-shell",
-    "Interactive shell in the dev image: repository mounted, host user mapped, ws sourced",
+    "Shell in the dev image: repository mounted, host user mapped, ws sourced",
     [("rebuild", False, "Build the dev image first even if it exists")],
+    uses=IMAGE_SETTINGS,
 )
 def dev_shell(c: Context, settings: Settings, *, rebuild: bool) -> None:
     ref = build.image_ref(settings, "dev")
@@ -300,13 +354,14 @@ def dev_shell_argv(
 
 @settings_task(
     "bootstrap-base-image",
-    "Build a ROS base image from a Debian mirror with debootstrap (no registry needed)",
+    "Build a ROS base image from a Debian mirror (debootstrap, no registry)",
     [
         ("flavor", "ros1", "ros1 (Debian bookworm + ROS 1) or ros2 (Debian trixie + ament/colcon)"),
         ("tag", "", "Image tag (default docker-ros/<flavor>:<suite>)"),
         ("mirror", "http://deb.debian.org/debian", "Debian mirror"),
         ("force", False, "Rebuild even if the tag exists"),
     ],
+    uses=("platform",),
 )
 def bootstrap_base_image(
     c: Context, settings: Settings, *, flavor: str, tag: str, mirror: str, force: bool
@@ -323,7 +378,7 @@ def bootstrap_base_image(
 
 @settings_task(
     "example",
-    "Bootstrap the ROS 1 base image if missing, build the example's dev+run images, run it",
+    "Build and run the bundled example (bootstraps its ROS 1 base image)",
     [("seconds", 20, "How long to let the example's run image run")],
 )
 def example(c: Context, settings: Settings, *, seconds: int) -> None:

@@ -90,7 +90,7 @@ def test_invokes_dry_flag_is_our_dry_run_or_refused(project: Path, tmp_path: Pat
 
 def test_config_shows_sources_and_masks_secrets(project: Path) -> None:
     (project / "invoke.yaml").write_text("docker_ros:\n  image_tag: from-yaml\n")
-    result = inv(project, "config", "--cmake-args", "-DX=1")
+    result = inv(project, "config", "--set", "CMAKE_ARGS=-DX=1")
     assert result.returncode == 0, result.stderr
     rows = {line.split()[0]: line.split() for line in result.stdout.splitlines()[1:]}
     assert rows["IMAGE_TAG"][1:] == ["from-yaml", "invoke.yaml"]

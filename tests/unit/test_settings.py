@@ -5,13 +5,13 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros import readme
 from docker_ros.settings import (
     FIELDS,
     SettingsError,
     as_env,
     display_value,
     load_settings,
-    markdown_table,
     require,
     required_for_build,
 )
@@ -200,4 +200,4 @@ def test_readme_configuration_table_matches_declarations():
     begin, end = "<!-- settings-table:begin -->", "<!-- settings-table:end -->"
     assert begin in text and end in text, "README lacks the generated settings table"
     table = text.split(begin, 1)[1].split(end, 1)[0].strip()
-    assert table == markdown_table(), "regenerate with: python -m docker_ros.readme"
+    assert table == readme.table(), "regenerate with: python -m docker_ros.readme"
