@@ -3,11 +3,13 @@ host's CA bundle. Tests that need Docker are marked `@pytest.mark.docker`."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import socket
 import subprocess
 import time
 import urllib.request
+import uuid
 from pathlib import Path
 from typing import Iterator
 
@@ -36,6 +38,48 @@ def docker_client() -> Iterator[docker.DockerClient]:
         pytest.fail(f"no Docker daemon answers ({exc}); {SETUP_HINT}")
     yield client
     client.close()
+
+
+def pytest_collection_modifyitems(items: list) -> None:
+    """Every docker test runs after the foreign cache record exists."""
+    for item in items:
+        if item.get_closest_marker("docker") and "foreign_cache_record" not in item.fixturenames:
+            item.fixturenames.insert(0, "foreign_cache_record")
+
+
+@pytest.fixture(scope="session")
+def foreign_cache_record(
+    ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[str]:
+    """A BuildKit cache record that stands for another project's, made before any docker test:
+    tests/docker/test_zz_engine_untouched.py checks that the suite left it alone (the engine is
+    shared; the tool and its tests remove only what they made). Yields its description marker."""
+    marker = f"/docker-ros-test-foreign-{uuid.uuid4().hex[:12]}"
+    context = tmp_path_factory.mktemp("foreign")
+    (context / "Dockerfile").write_text(
+        f"FROM {ros1_base_image}\nRUN --mount=type=cache,id={marker[1:]},target={marker} "
+        f"touch {marker}/x\n")
+    built = subprocess.run(["docker", "buildx", "build", "--output", "type=cacheonly",
+                            str(context)], capture_output=True, text=True)
+    assert built.returncode == 0, built.stderr
+    assert cache_record_id(marker), "the foreign cache record was not created"
+    yield marker
+    record = cache_record_id(marker)
+    if record:
+        subprocess.run(["docker", "buildx", "prune", "-f", "--filter", f"id={record}"],
+                       capture_output=True)
+
+
+def cache_record_id(marker: str) -> str:
+    """ID of the BuildKit cache record whose description holds marker ('' if none)."""
+    du = subprocess.run(["docker", "buildx", "du", "--verbose"], capture_output=True, text=True)
+    record = ""
+    for line in du.stdout.splitlines():
+        if line.startswith("ID:"):
+            record = line.split()[-1]
+        elif marker in line:
+            return record
+    return ""
 
 
 @pytest.fixture(scope="session")
@@ -115,3 +159,50 @@ def host_ca_bundle() -> Path:
     if not HOST_CA_BUNDLE.is_file():
         pytest.fail(f"{HOST_CA_BUNDLE} not found (package ca-certificates); {SETUP_HINT}")
     return HOST_CA_BUNDLE
+
+
+@pytest.fixture
+def empty_engine(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """A private Docker daemon with an empty image store and build cache (a fresh CI machine)
+    holding only the ROS 1 base image; yields its DOCKER_HOST. The shared engine's cache is never
+    pruned. The daemon gets a bridge of its own: one started with --bridge=none deletes the
+    host's docker0. It has no outbound NAT: builds in it that need the network use
+    BUILD_NETWORK=host."""
+    dockerd = shutil.which("dockerd")
+    if dockerd is None:
+        pytest.fail(f"dockerd is not installed; {SETUP_HINT}")
+    work = Path(f"/tmp/docker-ros-test-engine-{uuid.uuid4().hex[:8]}")
+    bridge = f"drt{work.name[-8:]}"[:15]
+    subnet = f"172.30.{os.getpid() % 250}.1/24"
+    ip = ["ip", "link", "add", bridge, "type", "bridge"]
+    subprocess.run(ip, check=True)
+    subprocess.run(["ip", "addr", "add", subnet, "dev", bridge], check=True)
+    subprocess.run(["ip", "link", "set", bridge, "up"], check=True)
+    work.mkdir()
+    host = f"unix://{work}/docker.sock"
+    argv = [dockerd, "--data-root", str(work / "data"), "--exec-root", str(work / "exec"),
+            "--pidfile", str(work / "pid"), "-H", host, "-b", bridge, "--iptables=false",
+            "--ip-masq=false"]
+    with (work / "dockerd.log").open("wb") as log:
+        daemon = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT)
+    env = {**os.environ, "DOCKER_HOST": host}
+    try:
+        deadline = time.monotonic() + 30
+        while subprocess.run(["docker", "info"], env=env, capture_output=True).returncode:
+            if daemon.poll() is not None or time.monotonic() > deadline:
+                pytest.fail(f"private dockerd did not start:\n{(work / 'dockerd.log').read_text()}")
+            time.sleep(0.5)
+        save = subprocess.Popen(["docker", "save", ros1_base_image], stdout=subprocess.PIPE)
+        subprocess.run(["docker", "load", "-q"], stdin=save.stdout, env=env, check=True,
+                       capture_output=True)
+        assert save.wait() == 0
+        yield host
+    finally:
+        daemon.terminate()
+        try:
+            daemon.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            daemon.kill()
+            daemon.wait()
+        subprocess.run(["ip", "link", "del", bridge], capture_output=True)
+        subprocess.run(["rm", "-rf", "--one-file-system", str(work)], capture_output=True)

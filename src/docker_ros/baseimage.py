@@ -8,7 +8,6 @@ nor `rwthika/*` images can be pulled.
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 import subprocess
 import tempfile
@@ -16,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import List, Optional, Tuple
 
-from docker_ros.build import image_exists
+from docker_ros.engine import image_exists, inspect_image, remove_image
 from docker_ros.settings import host_platform
 from docker_ros.steps.common import StepError, format_argv, privileged, run, step_log
 
@@ -114,7 +113,7 @@ def bootstrap(
                 context.mkdir()
                 run(build_argv(spec, tag, rootfs_tag, platform, ca_bundle, context), step=STEP)
         finally:
-            subprocess.run(["docker", "image", "rm", rootfs_tag], stdout=subprocess.DEVNULL)
+            remove_image(rootfs_tag)
     return tag
 
 
@@ -136,17 +135,13 @@ def stale_reason(
 
 
 def image_architecture(tag: str) -> Optional[str]:
-    inspect = ["docker", "image", "inspect", "--format", "{{.Architecture}}", tag]
-    done = subprocess.run(inspect, capture_output=True, text=True)
-    return done.stdout.strip() or None if done.returncode == 0 else None
+    attrs = inspect_image(tag)
+    return str(attrs.get("Architecture") or "") or None if attrs else None
 
 
 def image_label(tag: str, label: str) -> Optional[str]:
-    inspect = ["docker", "image", "inspect", "--format", "{{json .Config.Labels}}", tag]
-    done = subprocess.run(inspect, capture_output=True, text=True)
-    if done.returncode != 0:
-        return None
-    labels = json.loads(done.stdout.strip() or "null") or {}
+    attrs = inspect_image(tag)
+    labels = ((attrs or {}).get("Config") or {}).get("Labels") or {}
     value = labels.get(label)
     return str(value) if value is not None else None
 

@@ -15,6 +15,8 @@ from pathlib import Path
 from typing import IO, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 import docker_ros
+from docker_ros import engine
+from docker_ros.engine import image_exists, image_size
 from docker_ros.settings import FIELDS, Settings, as_env, env_name
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
@@ -245,11 +247,6 @@ def stage_dockerfile(context: Path, destination: Path) -> Path:
     return dockerfile
 
 
-def image_exists(ref: str) -> bool:
-    proc = subprocess.run(["docker", "image", "inspect", ref], capture_output=True)
-    return proc.returncode == 0
-
-
 def ensure_tools_image(platform: str) -> str:
     """A FROM-scratch image with the step modules, tagged by their content hash."""
     with tempfile.TemporaryDirectory(prefix="docker-ros-tools-") as tmp:
@@ -282,22 +279,19 @@ def ca_bundle(path: Path, destination: Path) -> Path:
 def check_engine() -> None:
     """A Docker daemon that answers and the buildx plugin, or one message saying what to do."""
     try:
-        info = subprocess.run(["docker", "info", "--format", "{{.ServerVersion}}"],
-                              capture_output=True, text=True)
+        engine.client()
+    except engine.EngineError as exc:
+        raise BuildError(str(exc)) from None
+    try:
+        buildx = subprocess.run(["docker", "buildx", "version"], capture_output=True)
     except FileNotFoundError:
         raise BuildError("no `docker` command: install Docker (scripts/setup.sh)") from None
-    if info.returncode != 0:
-        raise BuildError("no Docker daemon answers (`docker info` failed): start it, "
-                         "e.g. with scripts/setup.sh")
-    if subprocess.run(["docker", "buildx", "version"], capture_output=True).returncode != 0:
+    if buildx.returncode != 0:
         raise BuildError("the docker buildx plugin is missing: install it (scripts/setup.sh)")
 
 
 def base_image_available(ref: str) -> bool:
-    if image_exists(ref):
-        return True
-    proc = subprocess.run(["docker", "pull", ref], capture_output=True, text=True)
-    return proc.returncode == 0
+    return image_exists(ref) or engine.pull(ref)
 
 
 def build_image(
@@ -338,12 +332,6 @@ def build_image(
         where = f"in step {errors[-1]}" if errors else "(see the BuildKit error above)"
         raise BuildError(f"building target '{target}' ({platform}) failed {where}", code)
     return BuiltImage(target, tag, platform, time.monotonic() - began)
-
-
-def image_size(ref: str) -> int:
-    proc = subprocess.run(["docker", "image", "inspect", "--format", "{{.Size}}", ref],
-                          capture_output=True, text=True)
-    return int(proc.stdout.strip() or 0)
 
 
 def summary_table(images: Sequence[BuiltImage]) -> str:

@@ -1,10 +1,12 @@
-"""Pushing built images with docker-ros's tag rules: plan (pure) and run."""
+"""Pushing built images with docker-ros's tag rules: plan (pure, written as the equivalent
+docker commands that --dry-run prints) and run."""
 
 from __future__ import annotations
 
 import subprocess
-from typing import List, Sequence
+from typing import Dict, List, Optional, Sequence
 
+from docker_ros import engine
 from docker_ros.build import BuildError, image_ref, platform_ref
 from docker_ros.settings import Settings
 from docker_ros.steps.common import format_argv
@@ -50,8 +52,17 @@ def plan_push(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
     return commands
 
 
+def auth_config(settings: Settings) -> Optional[Dict[str, str]]:
+    """REGISTRY_USER/REGISTRY_PASSWORD for the Engine API (in memory, per request)."""
+    if not (settings.registry_user and settings.registry_password):
+        return None
+    auth = {"username": settings.registry_user, "password": settings.registry_password}
+    return {**auth, "serveraddress": settings.registry} if settings.registry else auth
+
+
 def login(settings: Settings) -> None:
-    """`docker login` with the password on standard input: never on a command line or log."""
+    """`docker login` with the password on standard input (never a command line or log), for
+    `docker manifest push`, which reads the CLI's credentials: only multi-platform pushes."""
     if not (settings.registry_user and settings.registry_password):
         return
     argv = ["docker", "login", "--username", settings.registry_user, "--password-stdin"]
@@ -63,6 +74,25 @@ def login(settings: Settings) -> None:
                          f"{settings.registry_user} failed: {reason}")
 
 
+def execute(argv: List[str], auth: Optional[Dict[str, str]]) -> None:
+    """One planned command: tag and push through the Engine API (credentials in the request),
+    manifest lists through the CLI (the API has none)."""
+    try:
+        if argv[:2] == ["docker", "tag"]:
+            engine.tag(argv[2], argv[3])
+            return
+        if argv[:2] == ["docker", "push"]:
+            engine.push(argv[2], auth)
+            return
+    except engine.EngineError as exc:
+        raise BuildError(str(exc)) from None
+    proc = subprocess.run(argv, capture_output=True, text=True)
+    if proc.returncode != 0:
+        reason = (proc.stderr.strip() or proc.stdout.strip()).splitlines()
+        raise BuildError(f"{format_argv(argv)} failed with exit code {proc.returncode}: "
+                         f"{reason[-1] if reason else 'no reason given'}")
+
+
 def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
     """Push; return the pushed names. Fails with the command and docker's reason."""
     commands = plan_push(settings, targets)
@@ -70,15 +100,13 @@ def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[s
         for argv in commands:
             print("[dry-run] push:", format_argv(argv))
         return []
-    login(settings)
+    if any(argv[:2] == ["docker", "manifest"] for argv in commands):
+        login(settings)
+    auth = auth_config(settings)
     pushed = []
     for argv in commands:
         print("push:", format_argv(argv), flush=True)
-        proc = subprocess.run(argv, capture_output=True, text=True)
-        if proc.returncode != 0:
-            reason = (proc.stderr.strip() or proc.stdout.strip()).splitlines()
-            raise BuildError(f"{format_argv(argv)} failed with exit code {proc.returncode}: "
-                             f"{reason[-1] if reason else 'no reason given'}")
+        execute(argv, auth)
         if argv[1] == "push" or argv[:3] == ["docker", "manifest", "push"]:
             pushed.append(argv[-1])
     return pushed

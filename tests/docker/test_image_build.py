@@ -206,7 +206,7 @@ def test_no_docker_daemon_is_one_clear_message(tmp_path: Path) -> None:
     result = docker_ros(tmp_path, "build", env={"DOCKER_HOST": "unix:///nonexistent.sock"})
     assert result.returncode != 0
     assert result.stdout.strip().splitlines()[-1] == (
-        "docker-ros build: no Docker daemon answers (`docker info` failed): start it, "
+        "docker-ros build: no Docker daemon answers at unix:///nonexistent.sock: start it, "
         "e.g. with scripts/setup.sh"
     )
 
