@@ -127,7 +127,9 @@ def plan_build(
     if not settings.buildx_attestations:
         argv += ["--provenance=false"]
     if settings.cache_from:
-        argv += ["--cache-from", settings.cache_from, "--cache-to", "type=inline"]
+        for ref in settings.cache_from:
+            argv += ["--cache-from", ref]
+        argv += ["--cache-to", "type=inline"]
     argv += ["--push" if push else "--load"]
     argv.append(str(Path(settings.build_context)))
     return argv

@@ -217,8 +217,11 @@ class Settings:
         "PEM file or directory of PEM files trusted during the build (never left in the image)",
         group="ours",
     )
-    cache_from: Optional[str] = setting(
-        None, "Registry image to reuse as build cache (`--cache-from`)", group="ours"
+    cache_from: Tuple[str, ...] = setting(
+        (),
+        "Registry images to reuse as build cache (comma-separated; each a `--cache-from`;"
+        " give the dev and the run image so that every stage finds its layers)",
+        group="ours",
     )
     build_network: Optional[str] = setting(
         None,

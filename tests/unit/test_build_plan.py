@@ -54,6 +54,10 @@ def test_secrets_are_never_build_arguments():
 def test_cache_from_and_attestations():
     argv = plan(settings(CACHE_FROM="127.0.0.1:5000/x:latest"))
     assert argv[argv.index("--cache-from") + 1] == "127.0.0.1:5000/x:latest"
+    both = plan(settings(CACHE_FROM="r/x:latest-dev, r/x:latest"))
+    froms = [both[i + 1] for i, arg in enumerate(both) if arg == "--cache-from"]
+    assert froms == ["r/x:latest-dev", "r/x:latest"]
+    assert both.count("--cache-to") == 1
     assert "--provenance=false" in argv
     assert "--provenance=false" not in plan(settings(BUILDX_ATTESTATIONS="true"))
 
