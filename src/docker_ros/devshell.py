@@ -60,8 +60,9 @@ def select_x11(mode: str, display: str, sockets: Path = X11_SOCKETS) -> bool:
     as ssh -X's needs --network host)."""
     if mode == "auto":
         parsed = parse_display(display)
-        local = parsed is not None and parsed[0] in ("", "unix")
-        return local and (sockets / f"X{parsed[1]}").exists()
+        if parsed is None or parsed[0] not in ("", "unix"):
+            return False
+        return (sockets / f"X{parsed[1]}").exists()
     if mode.lower() not in TRUE_WORDS + FALSE_WORDS:
         raise DevShellError(f"--x11 {mode!r}: use auto, true or false")
     wanted = mode.lower() in TRUE_WORDS
@@ -98,6 +99,8 @@ def xauth_entries(data: bytes) -> Iterator[Tuple[int, bytes, bytes, bytes, bytes
             if pos + 2 > len(data):
                 return
             (length,) = struct.unpack_from(">H", data, pos)
+            if pos + 2 + length > len(data):  # a truncated file: keep the whole entries
+                return
             fields.append(data[pos + 2:pos + 2 + length])
             pos += 2 + length
         yield (family, fields[0], fields[1], fields[2], fields[3])
@@ -130,7 +133,9 @@ def host_path(spec: str, cwd: Path) -> str:
     return host + sep + rest
 
 
-def dev_shell_argv(settings: Settings, ref: str, options: ShellOptions, user: HostUser) -> List[str]:
+def dev_shell_argv(
+    settings: Settings, ref: str, options: ShellOptions, user: HostUser
+) -> List[str]:
     """The `docker run` of the dev image: repository at /docker-ros/ws/src/target, the host
     user mapped by the entrypoint (root stays root), the workspace sourced."""
     repository = Path(settings.build_context).resolve()

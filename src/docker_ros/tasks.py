@@ -16,7 +16,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
+from typing import Any, Callable, Dict, Iterator, List, Mapping, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
 
@@ -61,7 +61,7 @@ class SettingsTask(Task):
     """A Task with chosen short flags (e.g. dev-shell's -c) although auto_shortflags is off:
     automatic ones would differ between tasks, as every setting is a flag of every task."""
 
-    def __init__(self, *args: Any, shortflags: Dict[str, str], **kwargs: Any) -> None:
+    def __init__(self, *args: Any, shortflags: Mapping[str, str], **kwargs: Any) -> None:
         self.shortflags = shortflags
         super().__init__(*args, **kwargs)
 
@@ -73,7 +73,7 @@ class SettingsTask(Task):
 
 
 def settings_task(
-    name: str, help: str, flags: Sequence[Flag] = (), shortflags: Dict[str, str] = {}
+    name: str, help: str, flags: Sequence[Flag] = (), shortflags: Mapping[str, str] = {}
 ) -> Callable[..., Task]:
     """Make an invoke Task whose flags are the task's own plus one per setting; a flag whose
     default is a list may be given several times."""

@@ -29,8 +29,7 @@ class Counts(NamedTuple):
     failed: int = 0
     skipped: int = 0
 
-    def __add__(self, other: object) -> "Counts":  # type: ignore[override]
-        assert isinstance(other, Counts)
+    def plus(self, other: "Counts") -> "Counts":
         return Counts(*(a + b for a, b in zip(self, other)))
 
 
@@ -68,7 +67,7 @@ def junit_files(root: Path) -> Iterator[Path]:
 def summarize(root: Path) -> Counts:
     total = Counts()
     for path in junit_files(root):
-        total = total + (parse_junit(path.read_text(errors="replace")) or Counts())
+        total = total.plus(parse_junit(path.read_text(errors="replace")) or Counts())
     return total
 
 
