@@ -24,7 +24,8 @@ def mapped(base: str, user: str, uid: int, gid: Optional[int], *docker_args: str
     env: List[str] = ["-e", f"DOCKER_USER={user}", "-e", f"DOCKER_UID={uid}"]
     env += ["-e", f"DOCKER_GID={gid}"] if gid is not None else []
     return subprocess.run(
-        ["docker", "run", "--rm", "-v", f"{ENTRYPOINT}:/docker-ros/entrypoint.sh:ro",
+        ["docker", "run", "--rm", "--network", "none",
+         "-v", f"{ENTRYPOINT}:/docker-ros/entrypoint.sh:ro",
          "--entrypoint", "/docker-ros/entrypoint.sh", *env, *docker_args, base,
          "bash", "-c", script],
         capture_output=True, text=True, timeout=120,
