@@ -18,32 +18,45 @@ source_ros() {
     source_if_exists "${WORKSPACE:-/docker-ros/ws}/install/setup.bash"
 }
 
+warn() { echo "docker-ros: $*" >&2; }
+
+# Collisions never stop the container: an existing UID or GID is reused under its own name, a
+# name taken with another ID gets an _<id> suffix, and a failed useradd/groupadd only warns.
 map_user() {
     local user="${DOCKER_USER:-dockeruser}" uid="$DOCKER_UID" gid="${DOCKER_GID:-$DOCKER_UID}"
-    if ! getent group "$gid" >/dev/null; then
-        if getent group "$user" >/dev/null; then
-            echo "docker-ros: group '$user' exists with another GID; using GID $gid unnamed" >&2
-        else
-            groupadd --gid "$gid" "$user" || echo "docker-ros: could not create group $gid" >&2
-        fi
+    local group="$user"
+    if getent group "$gid" >/dev/null; then
+        warn "GID $gid exists already ($(getent group "$gid" | cut -d: -f1)); reusing it"
     else
-        echo "docker-ros: GID $gid exists already ($(getent group "$gid" | cut -d: -f1)); reusing it" >&2
+        if getent group "$group" >/dev/null; then
+            warn "group '$group' exists with another GID; creating '${group}_$gid'"
+            group="${group}_$gid"
+        fi
+        groupadd --gid "$gid" "$group" >/dev/null 2>&1 \
+            || warn "could not create group $group ($gid); running with GID $gid unnamed"
     fi
     if getent passwd "$uid" >/dev/null; then
         user="$(getent passwd "$uid" | cut -d: -f1)"
-        echo "docker-ros: UID $uid exists already ($user); running as that user" >&2
-    elif getent passwd "$user" >/dev/null; then
-        echo "docker-ros: user '$user' exists with another UID; creating '${user}_$uid'" >&2
-        user="${user}_$uid"
-        useradd --uid "$uid" --gid "$gid" --create-home --shell /bin/bash "$user" >/dev/null 2>&1
+        warn "UID $uid exists already ($user); running as that user"
     else
-        useradd --uid "$uid" --gid "$gid" --create-home --shell /bin/bash "$user" >/dev/null 2>&1 \
-            || echo "docker-ros: could not create user $user ($uid:$gid)" >&2
+        if getent passwd "$user" >/dev/null; then
+            warn "user '$user' exists with another UID; creating '${user}_$uid'"
+            user="${user}_$uid"
+        fi
+        local primary=(--gid "$gid")
+        getent group "$gid" >/dev/null || primary=(--no-user-group)
+        useradd --uid "$uid" "${primary[@]}" --create-home --shell /bin/bash "$user" \
+            >/dev/null 2>&1 || warn "could not create user $user ($uid:$gid); running unnamed"
     fi
-    echo "$user:$user" | chpasswd 2>/dev/null || true
-    if [[ -d /etc/sudoers.d ]]; then
-        echo "$user ALL=(ALL) NOPASSWD:ALL" > "/etc/sudoers.d/docker-ros-$uid" 2>/dev/null || true
+    if getent passwd "$uid" >/dev/null; then
+        echo "$user:$user" | chpasswd 2>/dev/null || true
+        if [[ -d /etc/sudoers.d ]]; then
+            echo "$user ALL=(ALL) NOPASSWD:ALL" > "/etc/sudoers.d/docker-ros-$uid" 2>/dev/null || true
+        fi
     fi
+    # The user may build in the workspace (build/, install/, log/); its contents, and any
+    # folder mounted into it, keep their owners.
+    if [[ -d "${WORKSPACE:-}" ]]; then chown "$uid:$gid" "$WORKSPACE" 2>/dev/null || true; fi
     DOCKER_ROS_RUN_AS="$user"
 }
 
@@ -55,9 +68,17 @@ fi
 
 if [[ -n "${DOCKER_UID:-}" && "$(id -u)" == "0" ]]; then
     map_user
-    home="$(getent passwd "$DOCKER_ROS_RUN_AS" | cut -d: -f6)"
-    export HOME="${home:-/tmp}" USER="$DOCKER_ROS_RUN_AS"
+    gid="${DOCKER_GID:-$DOCKER_UID}"
+    if entry="$(getent passwd "$DOCKER_UID")"; then
+        home="$(echo "$entry" | cut -d: -f6)"
+        groups=(--init-groups)
+    else
+        home=/tmp
+        groups=(--clear-groups)  # --init-groups needs a passwd entry for the UID
+    fi
+    [[ -d "$home" && -w "$home" ]] || home=/tmp
+    export HOME="$home" USER="$DOCKER_ROS_RUN_AS"
     # setpriv ships with util-linux in every Debian/Ubuntu image; no su/sudo/gosu needed.
-    exec setpriv --reuid="$DOCKER_UID" --regid="${DOCKER_GID:-$DOCKER_UID}" --init-groups -- "$@"
+    exec setpriv --reuid="$DOCKER_UID" --regid="$gid" "${groups[@]}" -- "$@"
 fi
 exec "$@"

@@ -23,7 +23,7 @@ PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
 TOOLS_REPOSITORY = "docker-ros-tools"
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
-TOOLS_PATTERNS = ("__init__.py", "settings.py", "steps/*.py", "docker/*.sh")
+TOOLS_PATTERNS = ("__init__.py", "settings.py", "testing.py", "steps/*.py", "docker/*.sh")
 SECRETS = ("git_https_password", "git_ssh_private_key")
 # Settings that shape the build through the tool itself rather than a Dockerfile ARG.
 HANDLED_BY_TOOL = frozenset({
@@ -112,14 +112,19 @@ def plan_build(
     secrets: Mapping[str, str],
     dockerfile: Path = DOCKERFILE,
     push: bool = False,
+    output: str = "",
+    extra_build_args: Mapping[str, str] = {},
 ) -> List[str]:
-    """The `docker buildx build` argv for one target and platform."""
+    """The `docker buildx build` argv for one target and platform (`output`: an --output
+    exporter instead of loading or pushing the image)."""
     argv = ["docker", "buildx", "build", "--progress=plain", "--file", str(dockerfile)]
     argv += ["--target", target, "--platform", f"linux/{platform}", "--tag", tag]
     argv += ["--build-arg", f"BASE_IMAGE={settings.base_image}"]
     argv += ["--build-arg", f"DOCKER_ROS_TOOLS={tools_image}"]
     declared = [a for a in dockerfile_args(dockerfile) if a != "BASE_IMAGE"]
     argv += build_args(settings, declared)
+    for name, value in sorted(extra_build_args.items()):
+        argv += ["--build-arg", f"{name}={value}"]
     for secret_id, source in sorted(secrets.items()):
         argv += ["--secret", f"id={secret_id},{source}"]
     if settings.build_network:
@@ -130,7 +135,7 @@ def plan_build(
         for ref in settings.cache_from:
             argv += ["--cache-from", ref]
         argv += ["--cache-to", "type=inline"]
-    argv += ["--push" if push else "--load"]
+    argv += ["--output", output] if output else ["--push" if push else "--load"]
     argv.append(str(Path(settings.build_context)))
     return argv
 
@@ -305,6 +310,8 @@ def build_image(
     out: IO[str] = sys.stdout,
     environ: Optional[Mapping[str, str]] = None,
     push: bool = False,
+    output: str = "",
+    extra_build_args: Mapping[str, str] = {},
 ) -> BuiltImage:
     """Build one target for one platform; raise BuildError naming the failed step."""
     environ = os.environ if environ is None else environ
@@ -321,7 +328,8 @@ def build_image(
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
         argv = plan_build(settings, target=target, platform=platform, tools_image=tools,
-                          tag=tag, secrets=secrets, push=push, dockerfile=dockerfile)
+                          tag=tag, secrets=secrets, push=push, dockerfile=dockerfile,
+                          output=output, extra_build_args=extra_build_args)
         # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
         out.write(f"==> docker-ros build {target} ({platform}) -> {tag}\n")
         began = time.monotonic()

@@ -15,8 +15,9 @@ import subprocess
 import sys
 import tempfile
 import textwrap
+import time
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
+from typing import Any, Callable, Dict, Iterator, List, Mapping, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
 
@@ -83,11 +84,31 @@ PUSH_SETTINGS = ("registry", "registry_user", "enable_push_as_latest", "enable_s
 SET: Flag = ("set", None, "Any setting, as NAME=VALUE (repeatable), e.g. --set ENABLE_SLIM=false")
 
 
+class SettingsTask(Task):
+    """A Task with chosen short flags (e.g. dev-shell's -c) although auto_shortflags is off:
+    automatic ones would differ between tasks, as every setting is a flag of every task."""
+
+    def __init__(self, *args: Any, shortflags: Mapping[str, str], **kwargs: Any) -> None:
+        self.shortflags = shortflags
+        super().__init__(*args, **kwargs)
+
+    def arg_opts(self, name: str, default: str, taken_names: Any) -> Dict[str, Any]:
+        opts = super().arg_opts(name, default, taken_names)
+        if name in self.shortflags:
+            opts["names"].append(self.shortflags[name])
+        return opts
+
+
 def settings_task(
-    name: str, help: str, flags: Sequence[Flag] = (), uses: Sequence[str] = ()
+    name: str,
+    help: str,
+    flags: Sequence[Flag] = (),
+    uses: Sequence[str] = (),
+    shortflags: Mapping[str, str] = {},
 ) -> Callable[..., Task]:
     """Make an invoke Task whose flags are the task's own, one per setting it uses, and
-    --set NAME=VALUE for any other setting (the full reference: README and `inv config`)."""
+    --set NAME=VALUE for any other setting (the full reference: README and `inv config`);
+    a flag whose default is a list may be given several times."""
 
     def decorate(func: Callable[..., Any]) -> Task:
         own = [f[0] for f in flags]
@@ -131,7 +152,9 @@ def settings_task(
         help_map: Dict[str, str] = {n: h for n, _, h in [*flags, SET]}
         for n in settings_flags:
             help_map[n] = setting_help(n)
-        return Task(body, name=name, help=help_map, auto_shortflags=False, iterable=["set"])
+        repeatable = ["set"] + [n for n, d, _ in flags if isinstance(d, list)]
+        return SettingsTask(body, name=name, help=help_map, auto_shortflags=False,
+                            iterable=repeatable, shortflags=shortflags)
 
     return decorate
 
@@ -285,6 +308,69 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, until: str) -> 
         _build_until(settings, until, dry_run=dry_run)
         return
     _build(settings, settings.target, dry_run=dry_run)
+    if settings.enable_industrial_ci:
+        _test(settings, results_dir="", dry_run=dry_run)
+
+
+def default_results_dir(settings: Settings) -> Path:
+    """Outside the repository (never written into the user's sources unasked)."""
+    assert settings.workspace
+    return Path(settings.workspace).expanduser() / "test-results"
+
+
+def _test(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
+    """Build the test stage per platform, export its results; fail when a test failed."""
+    from docker_ros import testing
+
+    require(settings, required_for_build(settings))
+    root = Path(results_dir).resolve() if results_dir else default_results_dir(settings)
+    failures = []
+    for platform in settings.platform:
+        dest = root if len(settings.platform) == 1 else root / platform
+        problem = testing.check_results_dir(dest)
+        if problem:
+            raise TaskError(f"--results-dir: {problem}")
+        tag = build.platform_ref(build.image_ref(settings, "dev") + "-test", platform,
+                                 settings.platform)
+        run = {"DOCKER_ROS_TEST_RUN": str(time.time_ns())}
+        with tempfile.TemporaryDirectory(prefix="docker-ros-test-") as tmp:
+            output = f"type=local,dest={tmp}"
+            if dry_run:
+                argv = build.plan_build(settings, target="test-results", platform=platform,
+                                        tools_image=f"{build.TOOLS_REPOSITORY}:<hash>", tag=tag,
+                                        secrets={}, output=output, extra_build_args=run)
+                print("[dry-run] test:", format_argv(argv))
+                print(f"[dry-run] test: would copy the results to {dest}")
+                continue
+            try:
+                build.check_engine()
+                build.build_image(settings, target="test-results", platform=platform, tag=tag,
+                                  output=output, extra_build_args=run)
+                outcome = testing.read_outcome(Path(tmp))
+            except (build.BuildError, FileNotFoundError) as exc:
+                raise TaskError(str(exc)) from None
+            counts = testing.summarize(Path(tmp) / testing.JUNIT)
+            testing.install_results(Path(tmp), dest)
+        print(f"docker-ros test ({platform}): {testing.format_summary(counts)} "
+              f"(JUnit XML and logs in {dest})")
+        failed = testing.verdict(outcome, counts)
+        if failed:
+            failures.append(f"{failed} ({platform})")
+    if failures:
+        raise TaskError("; ".join(failures) + "; see the output above")
+
+
+@settings_task(
+    "test",
+    "colcon test in the dev image; JUnit XML and logs copied to the host\n\n"
+    "Builds the dev stage (from cache), runs colcon build, colcon test and colcon test-result "
+    "in it, copies the results to --results-dir and fails when a test fails.",
+    [DRY_RUN, ("results_dir", "", "Folder for the JUnit XML, logs and exit codes (default "
+               "<WORKSPACE>/test-results; replaced only if empty or made by an earlier run)")],
+    uses=IMAGE_SETTINGS + ("workspace",),
+)
+def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str) -> None:
+    _test(settings, results_dir=results_dir, dry_run=dry_run)
 
 
 def _build_until(settings: Settings, step: str, *, dry_run: bool) -> None:
@@ -330,26 +416,57 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 @settings_task(
     "dev-shell",
     "Shell in the dev image: repository mounted, host user mapped, ws sourced",
-    [("rebuild", False, "Build the dev image first even if it exists")],
+    [
+        ("cmd", "", "Run this command (bash -c) instead of an interactive shell; its exit "
+         "code is the task's"),
+        ("volume", [], "Extra mount HOST:CONTAINER[:ro] (repeatable)"),
+        ("env", [], "Environment variable NAME=VALUE, or NAME to pass the host's (repeatable)"),
+        ("network", "", "Container network, e.g. host (which also shares IPC, for DDS)"),
+        ("name", "", "Container name"),
+        ("privileged", False, "Run privileged (all devices)"),
+        ("device", [], "Host device to add, e.g. /dev/ttyUSB0 (repeatable)"),
+        ("x11", "auto", "X11 forwarding (DISPLAY, /tmp/.X11-unix, xauth cookie): auto = when "
+         "DISPLAY is a local display whose socket exists; true; false"),
+        ("gpus", "auto", "docker run --gpus value (all, device=0, ...): auto = all when the "
+         "nvidia runtime is in `docker info`; none"),
+        ("rebuild", False, "Build the dev image first even if it exists"),
+        DRY_RUN,
+    ],
     uses=IMAGE_SETTINGS,
+    shortflags={"cmd": "c"},
 )
-def dev_shell(c: Context, settings: Settings, *, rebuild: bool) -> None:
+def dev_shell(
+    c: Context, settings: Settings, *, cmd: str, volume: List[str], env: List[str],
+    network: str, name: str, privileged: bool, device: List[str], x11: str, gpus: str,
+    rebuild: bool, dry_run: bool,
+) -> None:
+    from docker_ros import devshell
+
     ref = build.image_ref(settings, "dev")
-    if rebuild or not build.image_exists(ref):
-        _build(settings, ("dev",), dry_run=False)
-    argv = dev_shell_argv(settings, ref, uid=os.getuid(), gid=os.getgid(),
-                          user=getpass.getuser(), tty=sys.stdin.isatty())
-    raise SystemExit(subprocess.call(argv))
-
-
-def dev_shell_argv(
-    settings: Settings, ref: str, *, uid: int, gid: int, user: str, tty: bool
-) -> List[str]:
-    repository = Path(settings.build_context).resolve()
-    argv = ["docker", "run", "--rm", "-i"] + (["-t"] if tty else [])
-    argv += ["-v", f"{repository}:/docker-ros/ws/src/target"]
-    argv += ["-e", f"DOCKER_UID={uid}", "-e", f"DOCKER_GID={gid}", "-e", f"DOCKER_USER={user}"]
-    return argv + [ref, "bash"]
+    try:
+        display = os.environ.get("DISPLAY", "") if devshell.select_x11(
+            x11, os.environ.get("DISPLAY", "")) else ""
+        runtimes = devshell.docker_runtimes() if gpus == "auto" else []
+        gpu = devshell.select_gpus(gpus, runtimes)
+    except devshell.DevShellError as exc:
+        raise TaskError(str(exc)) from None
+    user = devshell.HostUser(os.getuid(), os.getgid(), getpass.getuser(),
+                             tty=sys.stdin.isatty() and sys.stdout.isatty())
+    with tempfile.TemporaryDirectory(prefix="docker-ros-dev-shell-") as tmp:
+        cookie = devshell.write_cookie(display, os.environ, Path(tmp) / "xauth") if display else ""
+        options = devshell.ShellOptions(
+            command=cmd, volumes=volume, env=env, network=network, name=name,
+            privileged=privileged, devices=device, gpus=gpu, x11_display=display,
+            xauthority=cookie)
+        argv = devshell.dev_shell_argv(settings, ref, options, user)
+        if dry_run:
+            print(format_argv(argv))
+            return
+        if rebuild or not build.image_exists(ref):
+            _build(settings, ("dev",), dry_run=False)
+        code = subprocess.call(argv)
+    if code:
+        raise Exit(code=code)
 
 
 @settings_task(
@@ -405,8 +522,8 @@ def collection() -> Collection:
     ns = Collection()
     for step in STEPS:
         ns.add_task(make_step_task(step))
-    for task in (config, dev, run, build_task, push_task, dev_shell, bootstrap_base_image,
-                 example):
+    for task in (config, dev, run, build_task, test_task, push_task, dev_shell,
+                 bootstrap_base_image, example):
         ns.add_task(task)
     return ns
 

@@ -104,10 +104,11 @@ def test_command_exit_code_is_the_steps(project):
     assert "COMMAND" in err.value.message
 
 
-def test_command_collect_only_validates(project):
+def test_command_collect_runs_nothing_and_accepts_a_dev_only_build(project):
     command.main(project.ws, project.settings(command="false"), phase="collect")
+    command.main(project.ws, project.settings(), phase="collect")  # dev only: no COMMAND
     with pytest.raises(StepError) as err:
-        command.main(project.ws, project.settings(), phase="collect")
+        command.main(project.ws, project.settings())
     assert "COMMAND is not set" in err.value.message
 
 

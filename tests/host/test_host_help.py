@@ -48,7 +48,7 @@ def test_task_help_fits_80_columns_and_splits_no_word(task: str, tmp_path: Path)
     allowed = source_words(task)
     help_part = "\n".join(lines[lines.index("Options:") + 1:])
     for line in help_part.splitlines():
-        text = re.sub(r"^\s*(-\w, )?--[\w-]+(=\w+)?(\[=\w+\])?\s*", "", line)
+        text = re.sub(r"^\s*(-\w( \w+)?, )?--[\w-]+(=\w+)?(\[=\w+\])?\s*", "", line)
         for word in text.split():
             assert word in allowed, f"{task} --help: {word!r} is a broken word in {line!r}"
     assert len(out.stdout.splitlines()) < 60, f"{task} --help is {len(lines)} lines"

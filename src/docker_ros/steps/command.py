@@ -46,12 +46,13 @@ def main(
     do_collect, do_apply = phases(STEP, phase)
     with step_log(STEP):
         command = settings.command
-        if not command:
-            raise StepError(STEP, "COMMAND is not set: set the launch command of the run image")
         if do_collect:
-            LOG.info("%s: COMMAND=%s", STEP, command)
+            # A dev-only build needs no COMMAND (the tool requires it when run is a target).
+            LOG.info("%s: COMMAND=%s", STEP, command or "(not set: no run image)")
         if not do_apply:
             return
+        if not command:
+            raise StepError(STEP, "COMMAND is not set: set the launch command of the run image")
         files = setup_files(ws, settings)
         if dry_run:
             for path in files:

@@ -1,0 +1,76 @@
+"""The entrypoint's user mapping (DOCKER_UID/DOCKER_GID/DOCKER_USER) never stops a container:
+every collision with an existing user or group warns and goes on. The real entrypoint script
+runs in the ROS 1 base image (Debian bookworm's passwd/group), no image build needed."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import List, Optional
+
+import pytest
+
+from docker_ros.build import PACKAGE_DIR
+
+pytestmark = pytest.mark.docker
+
+ENTRYPOINT = PACKAGE_DIR / "docker" / "entrypoint.sh"
+PROBE = ('u=$(getent passwd "$(id -u)" | cut -d: -f1); g=$(getent group "$(id -g)" | cut -d: -f1);'
+         ' echo "$(id -u) $(id -g) ${u:--} ${g:--}"')
+
+
+def mapped(base: str, user: str, uid: int, gid: Optional[int], *docker_args: str,
+           script: str = PROBE) -> subprocess.CompletedProcess:
+    env: List[str] = ["-e", f"DOCKER_USER={user}", "-e", f"DOCKER_UID={uid}"]
+    env += ["-e", f"DOCKER_GID={gid}"] if gid is not None else []
+    return subprocess.run(
+        ["docker", "run", "--rm", "--network", "none",
+         "-v", f"{ENTRYPOINT}:/docker-ros/entrypoint.sh:ro",
+         "--entrypoint", "/docker-ros/entrypoint.sh", *env, *docker_args, base,
+         "bash", "-c", script],
+        capture_output=True, text=True, timeout=120,
+    )
+
+
+# (DOCKER_USER, DOCKER_UID, DOCKER_GID) -> "uid gid user group", a warning expected or None.
+# bookworm has user daemon (1:1), group users (100), group staff (50) without a user staff.
+TABLE = [
+    pytest.param("robot", 1234, 1234, "1234 1234 robot robot", None, id="all-new"),
+    pytest.param("robot", 1236, None, "1236 1236 robot robot", None, id="gid-defaults-to-uid"),
+    pytest.param("daemon", 1237, 1237, "1237 1237 daemon_1237 daemon_1237",
+                 "user 'daemon' exists with another UID", id="user-name-exists-gid-new"),
+    pytest.param("robot", 1238, 100, "1238 100 robot users",
+                 "GID 100 exists already (users)", id="gid-exists-other-name"),
+    pytest.param("robot", 1, 1, "1 1 daemon daemon", "UID 1 exists already (daemon)",
+                 id="uid-exists"),
+    pytest.param("staff", 1239, 1239, "1239 1239 staff staff_1239",
+                 "group 'staff' exists with another GID", id="group-name-exists"),
+    pytest.param("root", 0, 0, "0 0 root root", "UID 0 exists already (root)", id="root"),
+    pytest.param("bad:name", 1240, 1240, "1240 1240 - -", "could not create user",
+                 id="useradd-fails-runs-unnamed"),
+]
+
+
+@pytest.mark.parametrize("user,uid,gid,expected,warning", TABLE)
+def test_user_mapping_collisions_warn_and_go_on(
+    ros1_base_image: str, user: str, uid: int, gid: Optional[int], expected: str,
+    warning: Optional[str],
+) -> None:
+    result = mapped(ros1_base_image, user, uid, gid)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == expected, result.stderr
+    if warning:
+        assert warning in result.stderr
+    else:
+        assert result.stderr == ""
+
+
+def test_renamed_user_owns_the_files_it_writes_in_a_mount(
+    ros1_base_image: str, tmp_path: Path
+) -> None:
+    tmp_path.chmod(0o777)
+    result = mapped(ros1_base_image, "daemon", 1241, 1241, "-v", f"{tmp_path}:/data",
+                    script="touch /data/made")
+    assert result.returncode == 0, result.stderr
+    made = (tmp_path / "made").stat()
+    assert (made.st_uid, made.st_gid) == (1241, 1241)

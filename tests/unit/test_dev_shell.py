@@ -1,0 +1,145 @@
+"""`inv dev-shell`'s `docker run` argv (a pure function), X11/GPU detection and the X cookie."""
+
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from docker_ros import devshell
+from docker_ros.devshell import HostUser, ShellOptions
+from docker_ros.settings import load_settings
+
+REF = "robot:latest-dev"
+USER = HostUser(1234, 1235, "alice", tty=False, cwd=Path("/home/alice/robot"))
+
+
+def settings(tmp_path: Path):
+    return load_settings(environ={"BASE_IMAGE": "base:1", "BUILD_CONTEXT": str(tmp_path)},
+                         project_dir=tmp_path)
+
+
+def argv(tmp_path: Path, user: HostUser = USER, **options) -> list:
+    return devshell.dev_shell_argv(settings(tmp_path), REF, ShellOptions(**options), user)
+
+
+def pairs(args: list, flag: str) -> list:
+    return [args[i + 1] for i, a in enumerate(args) if a == flag]
+
+
+def test_default_is_an_interactive_shell_with_repository_and_user(tmp_path):
+    args = argv(tmp_path)
+    assert args[:4] == ["docker", "run", "--rm", "-i"] and "-t" not in args
+    assert pairs(args, "-v") == [f"{tmp_path}:/docker-ros/ws/src/target"]
+    assert pairs(args, "-e") == ["DOCKER_UID=1234", "DOCKER_GID=1235", "DOCKER_USER=alice"]
+    assert args[-2:] == [REF, "bash"]
+    assert "-t" in argv(tmp_path, HostUser(1234, 1235, "alice", tty=True))
+
+
+def test_root_is_not_mapped(tmp_path):
+    assert not [e for e in pairs(argv(tmp_path, HostUser(0, 0, "root")), "-e")
+                if e.startswith("DOCKER_")]
+
+
+def test_command_runs_non_interactively(tmp_path):
+    assert argv(tmp_path, command="colcon build && exit 3")[-4:] == [
+        REF, "bash", "-c", "colcon build && exit 3"]
+
+
+def test_mounts_env_network_devices(tmp_path):
+    args = argv(tmp_path, volumes=("./data:/data:ro", "~/.ccache:/ccache", "cache:/c",
+                                   "/abs:/abs"),
+                env=("ROS_DOMAIN_ID=7", "HOME_TOKEN"), network="host", name="dev1",
+                privileged=True, devices=("/dev/ttyUSB0",))
+    assert pairs(args, "-v")[1:] == [
+        "/home/alice/robot/data:/data:ro", f"{Path.home()}/.ccache:/ccache", "cache:/c",
+        "/abs:/abs"]
+    assert pairs(args, "-e")[3:] == ["ROS_DOMAIN_ID=7", "HOME_TOKEN"]
+    assert pairs(args, "--network") == ["host"] and pairs(args, "--ipc") == ["host"]
+    assert pairs(args, "--name") == ["dev1"] and "--privileged" in args
+    assert pairs(args, "--device") == ["/dev/ttyUSB0"]
+    assert pairs(argv(tmp_path, network="ros"), "--ipc") == []
+    assert args.index(REF) == len(args) - 2  # every option before the image
+
+
+def test_x11_and_gpus(tmp_path):
+    args = argv(tmp_path, x11_display=":1", xauthority="/tmp/x/xauth", gpus="all")
+    assert "DISPLAY=:1" in pairs(args, "-e") and "XAUTHORITY=/tmp/.docker-ros.xauth" in args
+    assert "/tmp/.X11-unix:/tmp/.X11-unix" in pairs(args, "-v")
+    assert "/tmp/x/xauth:/tmp/.docker-ros.xauth:ro" in pairs(args, "-v")
+    assert pairs(args, "--gpus") == ["all"]
+    assert "NVIDIA_DRIVER_CAPABILITIES=all" in pairs(args, "-e")
+    plain = argv(tmp_path)
+    assert "--gpus" not in plain and not [e for e in pairs(plain, "-e") if "DISPLAY" in e]
+    no_cookie = argv(tmp_path, x11_display=":1")
+    assert "DISPLAY=:1" in no_cookie and not [a for a in no_cookie if "XAUTHORITY" in a]
+
+
+def test_x11_auto_needs_a_local_display_with_its_socket(tmp_path):
+    (tmp_path / "X1").touch()
+    assert devshell.select_x11("auto", ":1", tmp_path)
+    assert devshell.select_x11("auto", "unix:1.0", tmp_path)
+    assert not devshell.select_x11("auto", ":0", tmp_path)  # no socket X0
+    assert not devshell.select_x11("auto", "", tmp_path)
+    assert not devshell.select_x11("auto", "localhost:10.0", tmp_path)  # ssh -X: TCP
+    assert devshell.select_x11("true", "localhost:10.0", tmp_path)
+    assert not devshell.select_x11("no", ":1", tmp_path)
+    with pytest.raises(devshell.DevShellError, match="DISPLAY is not set"):
+        devshell.select_x11("true", "", tmp_path)
+    with pytest.raises(devshell.DevShellError, match="auto, true or false"):
+        devshell.select_x11("maybe", ":1", tmp_path)
+
+
+def test_gpus_auto_follows_the_nvidia_runtime():
+    assert devshell.select_gpus("auto", ["io.containerd.runc.v2", "nvidia", "runc"]) == "all"
+    assert devshell.select_gpus("auto", ["io.containerd.runc.v2", "runc"]) == ""
+    assert devshell.select_gpus("none", ["nvidia"]) == ""
+    assert devshell.select_gpus("device=0", []) == "device=0"
+
+
+def xauth_entry(family: int, address: bytes, number: bytes, cookie: bytes) -> bytes:
+    out = struct.pack(">H", family)
+    for value in (address, number, b"MIT-MAGIC-COOKIE-1", cookie):
+        out += struct.pack(">H", len(value)) + value
+    return out
+
+
+def test_cookie_of_the_display_made_valid_for_any_host(tmp_path):
+    data = (xauth_entry(256, b"laptop", b"0", b"\x01" * 16)
+            + xauth_entry(256, b"laptop", b"1", b"\x02" * 16)
+            + xauth_entry(0, b"\x7f\x00\x00\x01", b"1", b"\x03" * 16))
+    entries = list(devshell.xauth_entries(devshell.wildcard_cookies(data, "1")))
+    assert [(e[0], e[2], e[4]) for e in entries] == [
+        (0xFFFF, b"1", b"\x02" * 16), (0xFFFF, b"1", b"\x03" * 16)]
+    assert list(devshell.xauth_entries(data[:-3])) == list(devshell.xauth_entries(data))[:2]
+    xauthority = tmp_path / "Xauthority"
+    xauthority.write_bytes(data)
+    cookie = devshell.write_cookie(":0", {"XAUTHORITY": str(xauthority)}, tmp_path / "out")
+    assert cookie == str(tmp_path / "out")
+    assert [e[4] for e in devshell.xauth_entries(Path(cookie).read_bytes())] == [b"\x01" * 16]
+    assert oct(Path(cookie).stat().st_mode & 0o777) == "0o600"
+    assert devshell.write_cookie(":0", {"XAUTHORITY": str(tmp_path / "none")},
+                                 tmp_path / "x") == ""
+
+
+def test_display_names():
+    assert devshell.parse_display(":0") == ("", "0")
+    assert devshell.parse_display("unix:2.0") == ("unix", "2")
+    assert devshell.parse_display("localhost:10.0") == ("localhost", "10")
+    assert devshell.parse_display("wayland-0") is None
+
+
+def test_dry_run_prints_the_docker_run_with_repeated_flags(tmp_path):
+    (tmp_path / ".env").write_text("BASE_IMAGE=base:1\nIMAGE=robot:1\n")
+    result = subprocess.run(
+        [sys.executable, "-m", "docker_ros", "dev-shell", "--dry-run", "-c", "exit 3",
+         "--volume", "/a:/a", "--volume", "/b:/b", "--env", "X=1", "--network", "host",
+         "--x11", "false", "--gpus", "none"],
+        cwd=tmp_path, capture_output=True, text=True,
+        env={k: v for k, v in os.environ.items() if k not in ("IMAGE", "TARGET", "COMMAND")})
+    assert result.returncode == 0, result.stderr
+    line = result.stdout.strip()
+    assert line.startswith("docker run --rm -i")
+    assert "-v /a:/a -v /b:/b -e X=1 --network host --ipc host robot:1-dev bash -c 'exit 3'" in line

@@ -1,0 +1,97 @@
+"""`inv test`'s pure parts: JUnit counting, the verdict, the results folder, the build plan."""
+
+from pathlib import Path
+
+from docker_ros import build, testing
+from docker_ros.settings import load_settings
+from docker_ros.testing import Counts
+
+# What pytest writes for colcon (one passed, one failed, one skipped).
+PYTEST_XML = """<?xml version="1.0" encoding="utf-8"?><testsuites><testsuite name="pytest"
+ errors="0" failures="1" skipped="1" tests="3"><testcase classname="t" name="test_passes"/>
+<testcase classname="t" name="test_fails"><failure message="boom">trace</failure></testcase>
+<testcase classname="t" name="test_skipped"><skipped type="pytest.skip" message="x"/></testcase>
+</testsuite></testsuites>"""
+# ament_cmake/gtest style: a bare testsuite, an error, a disabled case.
+GTEST_XML = """<testsuite name="gtest" tests="4"><testcase name="a" status="run"/>
+<testcase name="b" status="run"><error message="crash"/></testcase>
+<testcase name="c" status="notrun"/><testcase name="d"/></testsuite>"""
+CTEST_SITE_XML = '<Site BuildName="x"><Testing><Test Status="passed"/></Testing></Site>'
+
+
+def test_junit_counts_pass_fail_skip():
+    assert testing.parse_junit(PYTEST_XML) == Counts(1, 1, 1)
+    assert testing.parse_junit(GTEST_XML) == Counts(2, 1, 1)
+
+
+def test_what_is_not_a_junit_report_is_not_counted():
+    assert testing.parse_junit(CTEST_SITE_XML) is None
+    assert testing.parse_junit("<package><name>x</name></package>") is None
+    assert testing.parse_junit("not xml <") is None
+
+
+def test_summary_adds_every_report_below_a_folder(tmp_path: Path):
+    (tmp_path / "a" / "deep").mkdir(parents=True)
+    (tmp_path / "a" / "pytest.xml").write_text(PYTEST_XML)
+    (tmp_path / "a" / "deep" / "gtest.xml").write_text(GTEST_XML)
+    (tmp_path / "a" / "package.xml").write_text("<package/>")
+    (tmp_path / "a" / "notes.txt").write_text(PYTEST_XML)
+    assert testing.summarize(tmp_path) == Counts(3, 2, 2)
+    assert testing.format_summary(testing.summarize(tmp_path)) == "3 passed, 2 failed, 2 skipped"
+    assert testing.format_summary(testing.summarize(tmp_path / "missing")) == (
+        "0 passed, 0 failed, 0 skipped")
+
+
+def test_verdict_names_what_failed():
+    ok = {"colcon_build": 0, "colcon_test": 0, "colcon_test_result": 0}
+    assert testing.verdict(ok, Counts(3, 0, 1)) is None
+    assert testing.verdict(ok, Counts(1, 2, 0)) == "2 test(s) failed"
+    assert "colcon build failed (exit code 2)" in str(
+        testing.verdict({**ok, "colcon_build": 2}, Counts()))
+    assert "colcon test failed (exit code 1)" in str(
+        testing.verdict({**ok, "colcon_test": 1}, Counts(1, 0, 0)))
+    assert "test-result" in str(testing.verdict({**ok, "colcon_test_result": 1}, Counts(1, 0, 0)))
+
+
+def test_results_folder_is_replaced_only_when_empty_or_ours(tmp_path: Path):
+    assert testing.check_results_dir(tmp_path / "new") is None
+    assert testing.check_results_dir(tmp_path) is None  # empty
+    (tmp_path / "mine.txt").write_text("the user's")
+    assert "not empty" in str(testing.check_results_dir(tmp_path))
+    (tmp_path / "file").write_text("")
+    assert "is a file" in str(testing.check_results_dir(tmp_path / "file"))
+    ours = tmp_path / "ours"
+    exported = tmp_path / "exported"
+    (exported / "junit").mkdir(parents=True)
+    (exported / testing.MARKER).write_text("")
+    (exported / "junit" / "new.xml").write_text(PYTEST_XML)
+    ours.mkdir()
+    (ours / testing.MARKER).write_text("")
+    (ours / "stale.xml").write_text(PYTEST_XML)
+    assert testing.check_results_dir(ours) is None
+    testing.install_results(exported, ours)
+    assert sorted(p.name for p in ours.rglob("*")) == [testing.MARKER, "junit", "new.xml"]
+
+
+def test_colcon_test_ignores_blacklisted_packages():
+    assert testing.colcon_test_argv([]) == [
+        "colcon", "test", "--base-paths", "src", "--event-handlers", "console_cohesion+"]
+    assert testing.colcon_test_argv(["a", "b"])[-3:] == ["--packages-ignore", "a", "b"]
+
+
+def test_test_plan_exports_results_and_reruns_every_time():
+    settings = load_settings(environ={"BASE_IMAGE": "base:1", "COMMAND": "x"},
+                             project_dir=Path("/tmp/robot"))
+    argv = build.plan_build(settings, target="test-results", platform="amd64",
+                            tools_image="tools:x", tag="t:1", secrets={},
+                            output="type=local,dest=/tmp/out",
+                            extra_build_args={"DOCKER_ROS_TEST_RUN": "42"})
+    assert argv[argv.index("--output") + 1] == "type=local,dest=/tmp/out"
+    assert "--load" not in argv and "--push" not in argv
+    assert "DOCKER_ROS_TEST_RUN=42" in argv
+    dockerfile = build.DOCKERFILE.read_text()
+    assert "FROM dev AS test" in dockerfile and "FROM scratch AS test-results" in dockerfile
+    # the same build/ cache as the build stage, so a test after a build compiles nothing
+    build_mounts = [line for line in dockerfile.splitlines()
+                    if "target=/docker-ros/ws/build,id=" in line]
+    assert len(build_mounts) == 2 and build_mounts[0].strip() == build_mounts[1].strip()
