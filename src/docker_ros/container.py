@@ -28,6 +28,7 @@ import docker
 
 from docker_ros import build
 from docker_ros.settings import Settings, as_env, env_name
+from docker_ros.steps.common import StepError
 
 Command = Tuple[str, ...]  # the arguments after `python3 -m docker_ros.steps`
 STEP_MODULE = ("python3", "-m", "docker_ros.steps")
@@ -40,14 +41,6 @@ STATE_LABEL = "docker-ros.state"
 INSTALL_STEPS = ("scripts", "rosdep", "debs", "pip", "files", "custom")
 # Build arguments of the Dockerfile that are ids of cache mounts, not settings.
 NOT_SETTINGS = ("BASE_IMAGE", "DOCKER_ROS_TOOLS", "DOCKER_ROS_CACHE_ID", "DOCKER_ROS_APT_CACHE_ID")
-
-
-class ContainerError(Exception):
-    """A step failed in its container, or the container could not be made."""
-
-    def __init__(self, message: str, returncode: int = 1) -> None:
-        super().__init__(message)
-        self.returncode = returncode
 
 
 @dataclass(frozen=True)
@@ -99,6 +92,9 @@ class Plan:
     commands: Tuple[Command, ...]
     sources: bool
     tag: str
+    # an image of the same state may stand in for all commands (--until), not only the earlier
+    # ones (a step asked for runs again)
+    reuse_all: bool = False
 
 
 def tag_of(settings: Settings, kind: str, name: str) -> str:
@@ -127,10 +123,10 @@ def plan_until(settings: Settings, step: str) -> Plan:
     """`build --until <step>`: the exact build state right after the step (no mount)."""
     tag = build.until_ref(settings, step)
     if step in UNTIL_STAGE:
-        return Plan(UNTIL_STAGE[step], (), False, tag)
+        return Plan(UNTIL_STAGE[step], (), False, tag, reuse_all=True)
     home = STAGES[STEP_STAGE[step]]
     index = next(i for i, c in enumerate(home.commands) if c[0] == step)
-    return Plan(home.start, home.commands[: index + 1], False, tag)
+    return Plan(home.start, home.commands[: index + 1], False, tag, reuse_all=True)
 
 
 def plan_composite(settings: Settings, name: str) -> Plan:
@@ -171,13 +167,15 @@ def state_label(start_id: str, done: Sequence[Command], env: Mapping[str, str]) 
 
 def plan_resume(
     commands: Sequence[Command], start_id: str, env: Mapping[str, str],
-    candidates: Mapping[str, Optional[str]],
+    candidates: Mapping[str, Optional[str]], *, reuse_all: bool = False,
 ) -> Tuple[Optional[str], int]:
     """The image (of candidates: ref -> its state label) that has done the longest prefix of
-    commands on the same start image with the same settings; and that prefix's length."""
+    commands (all of them only with reuse_all) on the same start image with the same settings;
+    and that prefix's length."""
     best: Tuple[Optional[str], int] = (None, 0)
+    longest = len(commands) if reuse_all else len(commands) - 1
     for ref, label in candidates.items():
-        for done in range(len(commands) - 1, best[1], -1):
+        for done in range(longest, best[1], -1):
             if label == state_label(start_id, commands[:done], env):
                 best = (ref, done)
                 break
@@ -254,19 +252,22 @@ class Session:
         container = self.client.containers.create(
             image, entrypoint=["sleep"], command=["infinity"], environment=dict(env),
             working_dir=WORKDIR, volumes=volumes, tmpfs={"/run/docker-ros": ""},
-            network_mode=network, user="root", labels={"docker-ros.session": "1"},
+            network_mode=network, user="root",
         )
         container.start()
         return container
 
-    def commit(self, container: Any, label: str, tag: str = "") -> str:
+    def commit(self, container: Any, label: str, done: Sequence[Command], tag: str = "") -> str:
         """The container's state as an image with the start image's entry point and command
         (the container ran `sleep`); tagged when tag is given; returns the image id."""
         repository, _, version = tag.rpartition(":") if tag else ("", "", "")
         conf = {"Entrypoint": self.start_config.get("Entrypoint"),
                 "Cmd": self.start_config.get("Cmd"),
                 "Labels": {**(self.start_config.get("Labels") or {}), STATE_LABEL: label}}
-        image = container.commit(repository=repository or None, tag=version or None, conf=conf)
+        # the message is what `docker history` shows as the layer's comment
+        message = "docker-ros: " + "; ".join(shown(c) for c in done) if done else "docker-ros"
+        image = container.commit(repository=repository or None, tag=version or None, conf=conf,
+                                 message=message)
         return str(image.id)
 
     def execute(self, container: Any, command: Command) -> int:
@@ -315,16 +316,15 @@ class Session:
                 command = self.plan.commands[index]
                 if self.shell_on_failure:
                     label = state_label(start_id, self.plan.commands[:index], env)
-                    snapshots.append(self.commit(container, label))
+                    snapshots.append(self.commit(container, label, self.plan.commands[done:index]))
                 code = self.execute(container, command)
                 if code != 0:
                     if self.shell_on_failure and self.on_failure(snapshots[-1], command, code):
                         snapshots.pop()
-                    raise ContainerError(
-                        f"{shown(command)} failed with exit code {code} in a container of "
-                        f"{self.plan.start}", code)
+                    raise StepError(command[0], f"{shown(command)} failed with exit code "
+                                    f"{code} (in a container of stage {self.plan.start})", code)
             label = state_label(start_id, self.plan.commands, env)
-            return self.commit(container, label, self.plan.tag)
+            return self.commit(container, label, self.plan.commands[done:], self.plan.tag)
         finally:
             container.remove(force=True)
             # newest first: an older snapshot is the parent of the newer ones (and of the result,
@@ -346,47 +346,42 @@ def run_plan(
     plan: Plan,
     *,
     shell_on_failure: bool = False,
-    resume: bool = True,
     out: IO[str] = sys.stdout,
 ) -> str:
     """Build the plan's start stage, run its commands in a container (resuming from an image
     made earlier for a prefix of them), tag the result; returns the tag."""
-    client = docker.from_env()
     stage_tag = tag_of(settings, "stage", plan.start)
     try:
         build.build_image(settings, target=plan.start, platform=settings.platform[0],
                           tag=stage_tag, out=out)
     except build.BuildError as exc:
-        failed = STAGES.get(exc.stage)
-        if shell_on_failure and failed and exc.step:
+        if shell_on_failure and exc.stage in STAGES and exc.step:
             # The state before the start failed to build: open the shell where that failed.
             reproduce(settings, exc, out=out)
         raise
-    start_id = str(client.images.get(stage_tag).id)
-    declared = [a for a in build.dockerfile_args() if a not in NOT_SETTINGS]
-    env = step_environment(settings, declared)
-    image, done = start_id, 0
-    if resume:
-        steps = dict.fromkeys(c[0] for c in plan.commands[:-1])
+    client = docker.from_env()
+    try:
+        start_id = str(client.images.get(stage_tag).id)
+        declared = [a for a in build.dockerfile_args() if a not in NOT_SETTINGS]
+        env = step_environment(settings, declared)
         candidates = {ref: image_label(client, ref) for ref in
-                      (tag_of(settings, "after", s) for s in steps)}
-        found, count = plan_resume(plan.commands, start_id, env, candidates)
+                      (tag_of(settings, "after", s) for s in dict.fromkeys(
+                          c[0] for c in plan.commands))}
+        found, done = plan_resume(plan.commands, start_id, env, candidates,
+                                  reuse_all=plan.reuse_all)
         if found:
-            image, done = found, count
-            out.write(f"==> docker-ros: starting from {found} ({count} commands done)\n")
-    for command in plan.commands[:done]:
-        out.write(f"==> docker-ros: done in {image}: {shown(command)}\n")
-    with secrets_dir(settings) as secrets:
-        session = Session(client, settings, plan, Path(settings.build_context).resolve(),
-                          secrets, out, shell_on_failure,
-                          start_config=client.images.get(start_id).attrs["Config"] or {})
-        try:
-            session.run(image, done, env, start_id)
-        finally:
-            # The tag only named the stage's build; the image stays while our commits use it.
-            with contextlib.suppress(docker.errors.APIError):
-                client.images.remove(stage_tag)
-            client.close()
+            out.write(f"==> docker-ros: starting from {found}, which has run: "
+                      + "; ".join(shown(c) for c in plan.commands[:done]) + "\n")
+        with secrets_dir(settings) as secrets:
+            session = Session(client, settings, plan, Path(settings.build_context).resolve(),
+                              secrets, out, shell_on_failure,
+                              start_config=client.images.get(start_id).attrs["Config"] or {})
+            session.run(found or start_id, done, env, start_id)
+    finally:
+        # The tag only named the stage's build; the image stays while our commits use it.
+        with contextlib.suppress(docker.errors.APIError):
+            client.images.remove(stage_tag)
+        client.close()
     return plan.tag
 
 
@@ -394,12 +389,11 @@ def reproduce(settings: Settings, error: build.BuildError, *, out: IO[str]) -> N
     """An image build failed in a step: run that stage's commands in a container of the state
     before it, up to the failed step, with a shell where it fails again."""
     plan = plan_step(settings, error.step, stage=error.stage)
-    plan = dataclasses.replace(plan, tag=tag_of(settings, "after", error.step))
     out.write(f"==> docker-ros: reproducing the failure of {error.step} in a container "
               f"(stage {error.stage})\n")
     try:
-        run_plan(settings, plan, shell_on_failure=True, resume=False, out=out)
-    except ContainerError:
+        run_plan(settings, plan, shell_on_failure=True, out=out)
+    except StepError:
         return
     out.write(f"==> docker-ros: {error.step} succeeded in the container (state {plan.tag}); "
               "the build failure did not repeat\n")

@@ -194,8 +194,6 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
         tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
-    except container.ContainerError as exc:
-        raise TaskError(str(exc)) from exc
     mount = f" -v {Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
     print(f"tagged {tag}\n"
           f"  enter it: docker run --rm -it{mount if plan.sources else ''} {tag} bash")
