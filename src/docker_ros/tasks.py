@@ -205,23 +205,23 @@ def config(c: Context, settings: Settings) -> None:
     print(config_table(settings))
 
 
-COMPOSITE_FLAGS = [HOST, DRY_RUN, IN_CONTAINER, SHELL_ON_FAILURE]
+COMPOSITE_HELP = {
+    "dev": "Build the dev image, or run clone..custom here (--host) or in one container "
+           "(--in-container)",
+    "run": "Build the run image, or run all ten steps and COMMAND here (--host) or in one "
+           "container (--in-container)",
+}
 
 
-@settings_task("dev", "Build the dev image, or run clone..custom here (--host) or in one "
-               "container (--in-container)", COMPOSITE_FLAGS)
-def dev(c: Context, settings: Settings, *, host: bool, dry_run: bool, in_container: bool,
-        shell_on_failure: bool) -> None:
-    _composite(settings, "dev", host=host, dry_run=dry_run, in_container=in_container,
-               shell_on_failure=shell_on_failure)
+def make_composite_task(name: str) -> Task:
+    @settings_task(name, COMPOSITE_HELP[name], [HOST, DRY_RUN, IN_CONTAINER, SHELL_ON_FAILURE])
+    def composite(c: Context, settings: Settings, **flags: bool) -> None:
+        _composite(settings, name, **flags)
+
+    return composite
 
 
-@settings_task("run", "Build the run image, or run all ten steps and COMMAND here (--host) or "
-               "in one container (--in-container)", COMPOSITE_FLAGS)
-def run(c: Context, settings: Settings, *, host: bool, dry_run: bool, in_container: bool,
-        shell_on_failure: bool) -> None:
-    _composite(settings, "run", host=host, dry_run=dry_run, in_container=in_container,
-               shell_on_failure=shell_on_failure)
+dev, run = make_composite_task("dev"), make_composite_task("run")
 
 
 def _composite(settings: Settings, name: str, *, host: bool, dry_run: bool, in_container: bool,
