@@ -41,14 +41,18 @@ NOT_BUILD_INPUTS = frozenset({
 STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
 STEP_START = re.compile(r"Starting >>> (\w+)")
 STEP_END = re.compile(r"(Finished|Failed  ) <<< (\w+)")
+VERTEX = re.compile(r"#(\d+) \[([\w-]+) \d+/\d+\]")
 
 
 class BuildError(Exception):
     """A build failed: which target, which step, why."""
 
-    def __init__(self, message: str, returncode: int = 1) -> None:
+    def __init__(self, message: str, returncode: int = 1, *, stage: str = "",
+                 step: str = "") -> None:
         super().__init__(message)
         self.returncode = returncode
+        self.stage = stage  # the Dockerfile stage and docker-ros step that failed, when known
+        self.step = step
 
 
 @dataclass(frozen=True)
@@ -57,14 +61,6 @@ class BuiltImage:
     ref: str
     platform: str
     seconds: float
-
-
-# The first Dockerfile stage with the step done and the sources in place (scripts..custom:
-# the dev image, i.e. the state just before colcon).
-STAGE_OF_STEP = {
-    "clone": "source", "blacklist": "source", "scripts": "dev", "rosdep": "dev", "debs": "dev",
-    "pip": "dev", "files": "dev", "custom": "dev", "colcon": "build", "command": "run",
-}
 
 
 def until_ref(settings: Settings, step: str) -> str:
@@ -223,6 +219,26 @@ def stream_build(lines: Iterator[str], out: IO[str], environ: Mapping[str, str])
     return errors
 
 
+def failed_step(lines: Sequence[str]) -> Tuple[str, str]:
+    """(stage, step) of the last docker-ros step error in a BuildKit plain log, or ("", "")."""
+    stages: Dict[str, str] = {}
+    found = ("", "")
+    for line in lines:
+        vertex = VERTEX.match(line)
+        if vertex:
+            stages[vertex.group(1)] = vertex.group(2)
+        failed = STEP_ERROR.search(line)
+        number = re.match(r"#(\d+) ", line)
+        if failed and number and number.group(1) in stages:
+            found = (stages[number.group(1)], failed.group(1))
+    return found
+
+
+def _kept(lines: List[str], line: str) -> str:
+    lines.append(line)
+    return line
+
+
 def tools_tree(destination: Path) -> str:
     """Copy the in-image modules to destination/docker-ros/lib; return their content hash."""
     digest = hashlib.sha256()
@@ -336,11 +352,15 @@ def build_image(
         proc = subprocess.Popen(argv, env=child_env, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True, bufsize=1)
         assert proc.stdout is not None
-        errors = stream_build(iter(proc.stdout.readline, ""), out, environ)
+        lines: List[str] = []
+        log = (_kept(lines, line) for line in iter(proc.stdout.readline, ""))
+        errors = stream_build(log, out, environ)
         code = proc.wait()
     if code != 0:
         where = f"in step {errors[-1]}" if errors else "(see the BuildKit error above)"
-        raise BuildError(f"building target '{target}' ({platform}) failed {where}", code)
+        stage, step = failed_step(lines)
+        raise BuildError(f"building target '{target}' ({platform}) failed {where}", code,
+                         stage=stage, step=step)
     return BuiltImage(target, tag, platform, time.monotonic() - began)
 
 

@@ -40,6 +40,16 @@ from docker_ros.steps.common import StepError, Workspace, format_argv, setup_log
 Flag = Tuple[str, object, str]  # name, default, help
 DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change nothing")
 HOST: Flag = ("host", False, "Run the steps directly on this machine instead of in an image")
+IN_CONTAINER: Flag = (
+    "in_container", False,
+    "Run in a container of the image state just before the step (built up to there), the "
+    "repository mounted when the step reads sources; tag the result <IMAGE>-after-<step>",
+)
+SHELL_ON_FAILURE: Flag = (
+    "shell_on_failure", False,
+    "When a step fails, open a shell in the state just before the failed command (no "
+    "terminal: tag that state <IMAGE>-failed-<step> and print how to enter it)",
+)
 
 STEP_HELP = {
     "clone": "Run the identification hook, import .repos files with vcstool",
@@ -223,13 +233,56 @@ def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -
 
 def make_step_task(step: str) -> Task:
     number = f"{STEPS.index(step) + 1}/{len(STEPS)}"
-    summary = f"[step {number}] {STEP_HELP[step]}\n\nRuns on this machine, in WORKSPACE."
-    @settings_task(step, summary, [DRY_RUN],
-                   uses=STEP_SETTINGS[step] + HOST_SETTINGS)
-    def step_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+    summary = (f"[step {number}] {STEP_HELP[step]}\n\nRuns on this machine, in WORKSPACE; "
+               "with --in-container in a container of the image state before the step.")
+
+    @settings_task(step, summary, [DRY_RUN, IN_CONTAINER, SHELL_ON_FAILURE],
+                   uses=STEP_SETTINGS[step] + HOST_SETTINGS + ("base_image", "image"))
+    def step_task(c: Context, settings: Settings, *, dry_run: bool, in_container: bool,
+                  shell_on_failure: bool) -> None:
+        if in_container:
+            from docker_ros import container
+
+            run_in_container(settings, container.plan_step(settings, step), dry_run=dry_run,
+                             shell_on_failure=shell_on_failure)
+            return
+        if shell_on_failure:
+            raise TaskError("--shell-on-failure needs --in-container (on the host, your own "
+                            "shell is where the step failed)")
         run_host_steps(settings, [step], dry_run=dry_run)
 
     return step_task
+
+
+def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
+                     shell_on_failure: bool) -> str:
+    """Build the plan's start stage, run its commands in one container, tag the result."""
+    from docker_ros import container
+
+    runs_command = plan.start == "run" or ("command",) in plan.commands
+    require(settings, ["base_image"] + (["command"] if runs_command else []))
+    if dry_run:
+        argv = build.plan_build(settings, target=plan.start, platform=settings.platform[0],
+                                tools_image=f"{build.TOOLS_REPOSITORY}:<hash>",
+                                tag=container.tag_of(settings, "stage", plan.start),
+                                secrets=build.plan_secrets(settings, None))
+        print("[dry-run] build:", format_argv(argv))
+        mounts = [f"{Path(settings.build_context).resolve()}:{container.TARGET_DIR}"]
+        print("[dry-run] in one container of it" +
+              (f" (-v {mounts[0]})" if plan.sources else "") + ":")
+        for command in plan.commands:
+            print("[dry-run]   " + container.shown(command))
+        print(f"[dry-run] commit and tag {plan.tag}")
+        return plan.tag
+    try:
+        build.check_engine()
+        tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
+    mount = f" -v {Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
+    print(f"tagged {tag}\n"
+          f"  enter it: docker run --rm -it{mount if plan.sources else ''} {tag} bash")
+    return tag
 
 
 @settings_task("config", "Print every setting, its effective value and its source")
@@ -237,31 +290,49 @@ def config(c: Context, settings: Settings) -> None:
     print(config_table(settings))
 
 
-@settings_task("dev", "Build the dev image, or with --host run clone..custom here", [HOST, DRY_RUN],
-               uses=IMAGE_SETTINGS + HOST_SETTINGS)
-def dev(c: Context, settings: Settings, *, host: bool, dry_run: bool) -> None:
-    if host:
-        run_host_steps(settings, DEV_STEPS, dry_run=dry_run)
-        return
-    _build(settings, ("dev",), dry_run=dry_run)
+COMPOSITE_HELP = {
+    "dev": "Build the dev image (or run clone..custom --host or --in-container)\n\n"
+           "--host runs the steps on this machine, in WORKSPACE; --in-container runs them in "
+           "one container, tagged <IMAGE>-after-dev.",
+    "run": "Build the run image (or run all steps and COMMAND --host or --in-container)\n\n"
+           "--host runs the ten steps and COMMAND on this machine, in WORKSPACE; "
+           "--in-container runs them in one container, tagged <IMAGE>-after-run.",
+}
 
 
-@settings_task(
-    "run",
-    "Build the run image, or with --host run all ten steps and COMMAND here",
-    [HOST, DRY_RUN],
-    uses=IMAGE_SETTINGS + ("command",) + HOST_SETTINGS,
-)
-def run(c: Context, settings: Settings, *, host: bool, dry_run: bool) -> None:
-    if host:
-        if not settings.command:
-            raise SettingsError("missing required configuration: COMMAND")
-        run_host_steps(settings, STEPS, dry_run=dry_run)
-        return
-    _build(settings, ("run",), dry_run=dry_run)
+def make_composite_task(name: str) -> Task:
+    @settings_task(name, COMPOSITE_HELP[name], [HOST, DRY_RUN, IN_CONTAINER, SHELL_ON_FAILURE],
+                   uses=IMAGE_SETTINGS + HOST_SETTINGS + (("command",) if name == "run" else ()))
+    def composite(c: Context, settings: Settings, **flags: bool) -> None:
+        _composite(settings, name, **flags)
+
+    return composite
 
 
-def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[BuiltImage]:
+dev, run = make_composite_task("dev"), make_composite_task("run")
+
+
+def _composite(settings: Settings, name: str, *, host: bool, dry_run: bool, in_container: bool,
+               shell_on_failure: bool) -> None:
+    if host and in_container:
+        raise TaskError("--host and --in-container: choose one")
+    if name == "run" and (host or in_container) and not settings.command:
+        raise SettingsError("missing required configuration: COMMAND")
+    if in_container:
+        from docker_ros import container
+
+        run_in_container(settings, container.plan_composite(settings, name), dry_run=dry_run,
+                         shell_on_failure=shell_on_failure)
+    elif host:
+        if shell_on_failure:
+            raise TaskError("--shell-on-failure needs --in-container or an image build")
+        run_host_steps(settings, DEV_STEPS if name == "dev" else STEPS, dry_run=dry_run)
+    else:
+        _build(settings, (name,), dry_run=dry_run, shell_on_failure=shell_on_failure)
+
+
+def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
+           shell_on_failure: bool = False) -> List[BuiltImage]:
     """Build the targets for every platform; print the summary table."""
     settings = dataclasses.replace(settings, target=tuple(targets))
     require(settings, required_for_build(settings))
@@ -290,6 +361,8 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List
                 built.append(build.build_image(settings, target=target, platform=platform,
                                                tag=tag))
             except build.BuildError as exc:
+                if shell_on_failure:
+                    reproduce_failure(settings, exc)
                 raise TaskError(str(exc)) from None
     if built:
         print(build.summary_table(built))
@@ -299,15 +372,17 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List
 @settings_task(
     "build",
     "Build the TARGET images (dev, run) for every PLATFORM",
-    [DRY_RUN, ("until", "", "Build only up to (and including) this step, tag the result "
-               "<IMAGE>-until-<step> and stop: inspect it with `docker run -it <tag> bash`")],
+    [DRY_RUN, SHELL_ON_FAILURE,
+     ("until", "", "Build only up to (and including) this step, tag the result "
+      "<IMAGE>-until-<step> and stop; the README shows how to run the next step in it")],
     uses=("target",) + IMAGE_SETTINGS + ("command",),
 )
-def build_task(c: Context, settings: Settings, *, dry_run: bool, until: str) -> None:
+def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failure: bool,
+               until: str) -> None:
     if until:
-        _build_until(settings, until, dry_run=dry_run)
+        _build_until(settings, until, dry_run=dry_run, shell_on_failure=shell_on_failure)
         return
-    _build(settings, settings.target, dry_run=dry_run)
+    _build(settings, settings.target, dry_run=dry_run, shell_on_failure=shell_on_failure)
     if settings.enable_industrial_ci:
         _test(settings, results_dir="", dry_run=dry_run)
 
@@ -338,7 +413,8 @@ def _test(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
             if dry_run:
                 argv = build.plan_build(settings, target="test-results", platform=platform,
                                         tools_image=f"{build.TOOLS_REPOSITORY}:<hash>", tag=tag,
-                                        secrets={}, output=output, extra_build_args=run)
+                                        secrets=build.plan_secrets(settings, None),
+                                        output=output, extra_build_args=run)
                 print("[dry-run] test:", format_argv(argv))
                 print(f"[dry-run] test: would copy the results to {dest}")
                 continue
@@ -373,25 +449,32 @@ def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str
     _test(settings, results_dir=results_dir, dry_run=dry_run)
 
 
-def _build_until(settings: Settings, step: str, *, dry_run: bool) -> None:
-    if step not in build.STAGE_OF_STEP:
-        raise TaskError(f"--until {step!r}: use one of {', '.join(build.STAGE_OF_STEP)}")
-    require(settings, ["base_image"] + (["command"] if step == "command" else []))
-    stage, tag = build.STAGE_OF_STEP[step], build.until_ref(settings, step)
-    platform = settings.platform[0]
-    if dry_run:
-        argv = build.plan_build(settings, target=stage, platform=platform,
-                                tools_image=f"{build.TOOLS_REPOSITORY}:<hash>", tag=tag,
-                                secrets=build.plan_secrets(settings, None))
-        print("[dry-run] build:", format_argv(argv))
+def reproduce_failure(settings: Settings, error: build.BuildError) -> None:
+    """--shell-on-failure of an image build: the failed step again, in a container of the state
+    before it, with the shell where it fails."""
+    from docker_ros import container
+
+    if error.stage not in container.STAGES:
+        print(f"docker-ros build: --shell-on-failure: the failure is not in one of the ten "
+              f"steps (stage {error.stage or 'unknown'}); no shell to open")
         return
     try:
-        build.check_engine()
-        built = build.build_image(settings, target=stage, platform=platform, tag=tag)
+        container.reproduce(settings, error, out=sys.stdout)
     except build.BuildError as exc:
-        raise TaskError(str(exc)) from None
-    print(build.summary_table([built]))
-    print(f"built up to {step} (stage {stage}): docker run --rm -it {tag} bash")
+        print(f"docker-ros build: --shell-on-failure: {exc}")
+
+
+def _build_until(settings: Settings, step: str, *, dry_run: bool,
+                 shell_on_failure: bool) -> None:
+    from docker_ros import container
+
+    if step not in STEPS:
+        raise TaskError(f"--until {step!r}: use one of {', '.join(STEPS)}")
+    plan = container.plan_until(settings, step)
+    tag = run_in_container(settings, plan, dry_run=dry_run, shell_on_failure=shell_on_failure)
+    following = container.next_command(step)
+    if following and not dry_run:
+        print(f"  next step: docker run --rm {tag} {container.shown(following)}")
 
 
 @settings_task(

@@ -220,7 +220,7 @@ def test_build_until_a_step_stops_there(ros1_base_image: str, tmp_path: Path) ->
     assert result.returncode == 0, result.stdout[-3000:]
     assert "Starting >>> colcon" not in result.stdout
     tag = "docker-ros-test/until:1-until-debs"
-    state = sh(tag, "jq --version && ls src/target/pkg/package.xml && ls /docker-ros/ws")
+    state = sh(tag, "jq --version && ls .docker-ros/debs.json && ls /docker-ros/ws")
     assert state.returncode == 0, state.stderr
     assert "install" not in state.stdout.split()
     assert not image_exists("docker-ros-test/until:1")

@@ -128,10 +128,5 @@ def test_build_cache_is_per_repository_and_platform():
                 build.cache_id(b, "amd64")}) == 3
 
 
-def test_every_step_maps_to_a_dockerfile_stage():
-    from docker_ros.steps import STEPS
-
-    stages = re.findall(r"^FROM \S+ AS (\S+)$", build.DOCKERFILE.read_text(), re.MULTILINE)
-    assert list(build.STAGE_OF_STEP) == list(STEPS)
-    assert set(build.STAGE_OF_STEP.values()) <= set(stages)
+def test_until_tag():
     assert build.until_ref(settings(IMAGE="r/i:v1"), "rosdep") == "r/i:v1-until-rosdep"

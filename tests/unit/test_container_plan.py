@@ -1,0 +1,145 @@
+"""Pure planning of steps in containers: the Dockerfile's step commands stage by stage, where
+a step starts, --until, composites, resuming, the failed step of a BuildKit log."""
+
+import re
+from pathlib import Path
+
+from docker_ros import build, container
+from docker_ros.settings import load_settings
+from docker_ros.steps import STEPS
+
+
+def settings(**environ):
+    return load_settings(environ={"BASE_IMAGE": "base:1", "COMMAND": "run me", "IMAGE": "r/i:v1",
+                                  **environ}, project_dir=Path("/tmp/My_Robot"))
+
+
+def dockerfile_stages():
+    """{stage: (parent, [step commands of its RUNs, in order])} read from the Dockerfile."""
+    text = build.DOCKERFILE.read_text().replace("\\\n", " ")
+    stages = {}
+    current = None
+    for line in text.splitlines():
+        start = re.match(r"FROM (\S+) AS (\S+)$", line)
+        if start:
+            current = start.group(2)
+            stages[current] = (start.group(1), [])
+            continue
+        loop = re.search(r"for step in ([a-z ]+); do\s+python3 -m docker_ros.steps \"\$step\" "
+                         r"([-a-z ]+?) \|\|", line)
+        if current and loop:
+            for step in loop.group(1).split():
+                stages[current][1].append((step, *loop.group(2).split()))
+            continue
+        for args in re.findall(r"python3 -m docker_ros\.steps ([-a-z ]+?)\s*(?:&&|$)", line):
+            if current and not args.startswith("prepare"):
+                stages[current][1].append(tuple(args.split()))
+    return stages
+
+
+def test_stages_are_the_dockerfiles_step_commands():
+    stages = dockerfile_stages()
+    for name, stage in container.STAGES.items():
+        if name == "run":  # the default command, not a RUN
+            assert stages["run"][1] == [] and stage.commands == (("command",),)
+            continue
+        parent, commands = stages[name]
+        assert parent == stage.start, name
+        assert commands == list(stage.commands), name
+    # every stage with step commands is known
+    assert {n for n, (_, c) in stages.items() if c} == set(container.STAGES) - {"run"}
+
+
+def test_every_step_has_a_home_and_a_start_stage():
+    stages = dockerfile_stages()
+    assert list(container.STEP_STAGE) == list(STEPS)
+    for step in STEPS:
+        assert container.plan_step(settings(), step).start in stages
+        assert container.plan_until(settings(), step).start in stages
+
+
+def test_a_step_alone_starts_where_its_stage_does_and_runs_the_earlier_commands():
+    plan = container.plan_step(settings(), "rosdep")
+    assert plan.start == "resolved-dev" and not plan.sources and not plan.reuse_all
+    assert plan.commands == (("scripts", "--phase", "apply"),
+                             ("rosdep", "--phase", "apply", "--dependency-types", "all"))
+    assert plan.tag == "r/i:v1-after-rosdep"
+    clone = container.plan_step(settings(), "clone")
+    assert (clone.start, clone.commands, clone.sources) == ("checkout", (("clone",),), True)
+    # the repository is mounted: colcon must not touch the times of the user's files
+    assert container.plan_step(settings(), "colcon").commands == (("colcon",),)
+    assert container.plan_step(settings(), "command").start == "run"
+    failed = container.plan_step(settings(), "debs", stage="resolve")
+    assert failed.start == "source" and failed.commands[-1] == ("debs", "--phase", "collect")
+
+
+def test_until_is_the_build_state_right_after_the_step():
+    mid = container.plan_until(settings(), "debs")
+    assert mid.start == "resolved-dev" and mid.commands[-1] == ("debs", "--phase", "apply")
+    assert mid.tag == "r/i:v1-until-debs" and mid.reuse_all and not mid.sources
+    assert container.plan_until(settings(), "custom") == container.Plan(
+        "dev", (), False, "r/i:v1-until-custom", reuse_all=True)
+    assert container.plan_until(settings(), "colcon").start == "build"
+
+
+def test_next_step_by_hand():
+    assert container.next_command("clone") == ("blacklist",)
+    assert container.next_command("blacklist") == ("scripts",)
+    assert container.next_command("rosdep") == ("debs", "--phase", "apply")
+    assert container.next_command("custom") == ("colcon", "--stamp-changed")
+    assert container.next_command("colcon") == ("command",)
+    assert container.next_command("command") is None
+
+
+def test_composites_run_the_dev_recipe_in_one_container():
+    dev = container.plan_composite(settings(), "dev")
+    assert dev.start == "checkout" and dev.sources and dev.tag == "r/i:v1-after-dev"
+    names = [c[0] for c in dev.commands]
+    assert names[:2] == ["clone", "blacklist"] and names[-1] == "custom"
+    assert ("prepare", "--dependency-types", "all") in dev.commands
+    run = container.plan_composite(settings(), "run")
+    assert run.commands[: len(dev.commands)] == dev.commands
+    assert run.commands[len(dev.commands):] == (("colcon",), ("command",))
+
+
+def test_resume_takes_the_longest_matching_prefix():
+    commands = (("a",), ("b",), ("c",))
+    env = {"X": "1"}
+    label = container.state_label
+    candidates = {"after-a": label("s1", commands[:1], env), "after-b": label("s1", commands[:2],
+                                                                            env),
+                  "other": label("s2", commands[:2], env), "none": None}
+    assert container.plan_resume(commands, "s1", env, candidates) == ("after-b", 2)
+    assert container.plan_resume(commands, "s1", {"X": "2"}, candidates) == (None, 0)
+    assert container.plan_resume(commands, "s3", env, candidates) == (None, 0)
+    done = {"after-c": label("s1", commands, env)}
+    # a step asked for runs again; --until may take an image of exactly that state
+    assert container.plan_resume(commands, "s1", env, done) == (None, 0)
+    assert container.plan_resume(commands, "s1", env, done, reuse_all=True) == ("after-c", 3)
+
+
+def test_environment_has_the_declared_settings_and_never_a_secret():
+    s = settings(GIT_HTTPS_PASSWORD="hunter2", ROS_DISTRO="noetic")
+    env = container.step_environment(s, build.dockerfile_args())
+    assert env["ROS_DISTRO"] == "noetic" and env["PYTHONPATH"] == "/docker-ros/lib"
+    assert "hunter2" not in repr(env) and "GIT_HTTPS_PASSWORD" not in env
+    assert not set(env) & set(container.NOT_SETTINGS)
+
+
+def test_failed_step_and_stage_from_a_buildkit_log():
+    log = [
+        "#12 [resolve 1/1] RUN --mount=... python3 -m docker_ros.steps rosdep\n",
+        "#16 [dependencies-dev 1/1] RUN --mount=...\n",
+        "#12 0.5 Starting >>> rosdep\n",
+        "#16 3.1 docker-ros custom: bash -e hooks/custom/01-custom.sh failed with exit code 3\n",
+        "#16 ERROR: process did not complete successfully\n",
+    ]
+    assert build.failed_step(log) == ("dependencies-dev", "custom")
+    assert build.failed_step(log[:3]) == ("", "")
+
+
+def test_printed_docker_run_lines_quote_what_needs_it():
+    line = container.docker_run_line("r/i:v1-failed-x", ["/a b:/docker-ros/ws/src/target"],
+                                     ["python3", "-m", "docker_ros.steps", "x"], tty=True)
+    assert line == ("docker run --rm -it -v '/a b:/docker-ros/ws/src/target' r/i:v1-failed-x "
+                    "python3 -m docker_ros.steps x")
