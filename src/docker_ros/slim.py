@@ -142,8 +142,8 @@ def parse_slim_args(text: str) -> SlimOptions:
         try:
             continue_after = float(raw)
         except ValueError:
-            raise SlimError(f"SLIM_BUILD_ARGS: --continue-after={raw!r}: give a number of "
-                            "seconds (docker-slim's enter/signal/probe modes do not apply)") from None
+            raise SlimError(f"SLIM_BUILD_ARGS: --continue-after={raw!r}: give a number of seconds"
+                            " (docker-slim's enter/signal/probe modes do not apply)") from None
     for pair in values["--env"]:
         if "=" not in pair:
             raise SlimError(f"SLIM_BUILD_ARGS: --env {pair!r}: use NAME=VALUE")

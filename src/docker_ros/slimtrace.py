@@ -16,7 +16,7 @@ the host side (docker_ros.slim) together with an exchange folder:
 """
 
 import ctypes
-import fnmatch
+import glob
 import json
 import os
 import re
@@ -26,6 +26,7 @@ import struct
 import subprocess
 import sys
 import time
+from typing import Any, Dict, Iterator, List, Optional, Set, Tuple
 
 FAN_CLOEXEC, FAN_NONBLOCK, FAN_CLASS_NOTIF, FAN_UNLIMITED_QUEUE = 0x1, 0x2, 0x0, 0x10
 FAN_MARK_ADD, FAN_MARK_MOUNT = 0x1, 0x10
@@ -33,6 +34,8 @@ FAN_OPEN, FAN_OPEN_EXEC, FAN_ONDIR, FAN_Q_OVERFLOW = 0x20, 0x1000, 0x40000000, 0
 O_LARGEFILE = 0o100000
 AT_FDCWD = -100
 EVENT = struct.Struct("IBBHQii")
+# ELF class (1: 32-bit, 2: 64-bit), machine, interpreter, DT_NEEDED, DT_RPATH, DT_RUNPATH
+Elf = Tuple[int, int, Optional[str], List[str], List[str], List[str]]
 
 DT_NULL, DT_NEEDED, DT_STRTAB, DT_RPATH, DT_RUNPATH = 0, 1, 5, 15, 29
 PT_LOAD, PT_DYNAMIC, PT_INTERP = 1, 2, 3
@@ -42,8 +45,8 @@ SKIP_DIRS = ("/proc", "/sys", "/dev", "/docker-ros-slim")
 EXITED = "command exited with status "
 
 
-def log(message):
-    sys.stderr.write("docker-ros slimtrace: %s\n" % message)
+def log(message: str) -> None:
+    sys.stderr.write(f"docker-ros slimtrace: {message}\n")
     sys.stderr.flush()
 
 
@@ -51,7 +54,7 @@ def log(message):
 class Fanotify:
     """Open/exec events of one mount, as paths."""
 
-    def __init__(self, mount="/"):
+    def __init__(self, mount: str = "/") -> None:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.fanotify_mark.argtypes = [ctypes.c_int, ctypes.c_uint, ctypes.c_uint64,
                                        ctypes.c_int, ctypes.c_char_p]
@@ -65,12 +68,12 @@ class Fanotify:
                               mount.encode()) != 0:
             raise OSError(ctypes.get_errno(), "fanotify_mark failed: "
                           + os.strerror(ctypes.get_errno()))
-        self.paths = set()
-        self.pids = set()
-        self.library_path = []
+        self.paths: Set[str] = set()
+        self.pids: Set[int] = set()
+        self.library_path: List[str] = []
         self.overflow = False
 
-    def read(self, timeout):
+    def read(self, timeout: float) -> None:
         ready, _, _ = select.select([self.fd], [], [], timeout)
         if not ready:
             return
@@ -87,7 +90,7 @@ class Fanotify:
             if fd < 0:
                 continue
             try:
-                self.paths.add(os.readlink("/proc/self/fd/%d" % fd))
+                self.paths.add(os.readlink(f"/proc/self/fd/{fd}"))
             except OSError:
                 pass
             finally:
@@ -96,10 +99,10 @@ class Fanotify:
                 self.pids.add(pid)
                 self.note_environment(pid)
 
-    def note_environment(self, pid):
+    def note_environment(self, pid: int) -> None:
         """LD_LIBRARY_PATH of the traced processes (set by sourced setup files) for ld.so."""
         try:
-            with open("/proc/%d/environ" % pid, "rb") as handle:
+            with open(f"/proc/{pid}/environ", "rb") as handle:
                 entries = handle.read().split(b"\0")
         except OSError:
             return
@@ -109,11 +112,11 @@ class Fanotify:
                     if folder and folder not in self.library_path:
                         self.library_path.append(folder)
 
-    def close(self):
+    def close(self) -> None:
         os.close(self.fd)
 
 
-def reap(child, status):
+def reap(child: subprocess.Popen, status: Optional[int]) -> Optional[int]:
     """Reap every exited process (we are PID 1); note the command's exit status."""
     while True:
         try:
@@ -129,9 +132,9 @@ def reap(child, status):
                 status = 128 - status
 
 
-def trace(command, max_seconds):
+def trace(command: List[str], max_seconds: float) -> Tuple[Set[str], List[str], bool]:
     """Trace until SIGTERM (or max_seconds); return (paths, library_path, overflow)."""
-    stop = []
+    stop: List[bool] = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
     notify = Fanotify("/")
     child = subprocess.Popen(command, start_new_session=True)
@@ -152,7 +155,7 @@ def trace(command, max_seconds):
     return notify.paths, notify.library_path, notify.overflow
 
 
-def stop_command(child, notify):
+def stop_command(child: subprocess.Popen, notify: Fanotify) -> None:
     """SIGTERM to the command's process group, SIGKILL after 10 s; trace its shutdown too."""
     for sig, wait in ((signal.SIGTERM, 10.0), (signal.SIGKILL, 5.0)):
         try:
@@ -171,7 +174,7 @@ def stop_command(child, notify):
 
 
 # ------------------------------------------------------------------------------ ELF parsing
-def parse_elf(data):
+def parse_elf(data: bytes) -> Optional[Elf]:
     """(class 1|2, machine, interpreter, needed, rpath, runpath) of an ELF file's bytes, or None
     for anything that is not a dynamically linked ELF file."""
     if len(data) < 64 or data[:4] != b"\x7fELF" or data[4] not in (1, 2) or data[5] not in (1, 2):
@@ -187,7 +190,9 @@ def parse_elf(data):
         phoff, = struct.unpack_from(end + "I", data, 28)
         phentsize, phnum = struct.unpack_from(end + "HH", data, 42)
         ph = struct.Struct(end + "IIIIIIII")  # type offset vaddr paddr filesz memsz flags align
-    loads, dynamic, interp = [], None, None
+    loads: List[Tuple[int, int, int]] = []
+    dynamic: Optional[Tuple[int, int]] = None
+    interp: Optional[str] = None
     for index in range(phnum):
         at = phoff + index * phentsize
         if at + ph.size > len(data):
@@ -206,7 +211,7 @@ def parse_elf(data):
     if dynamic is None:
         return (data[4], machine, interp, [], [], []) if interp else None
     entry = struct.Struct(end + ("qQ" if wide else "iI"))
-    tags = []
+    tags: List[Tuple[int, int]] = []
     for at in range(dynamic[0], dynamic[0] + dynamic[1], entry.size):
         if at + entry.size > len(data):
             break
@@ -222,10 +227,10 @@ def parse_elf(data):
     if base is None:
         return None
 
-    def string(offset):
+    def string(offset: int) -> str:
         return data[base + offset:data.index(b"\0", base + offset)].decode(errors="replace")
 
-    def strings(wanted):
+    def strings(wanted: int) -> List[str]:
         return [string(value) for tag, value in tags if tag == wanted]
 
     rpath = [d for s in strings(DT_RPATH) for d in s.split(":") if d]
@@ -233,7 +238,7 @@ def parse_elf(data):
     return (data[4], machine, interp, strings(DT_NEEDED), rpath, runpath)
 
 
-def read_elf(path):
+def read_elf(path: str) -> Optional[Elf]:
     try:
         with open(path, "rb") as handle:
             head = handle.read(4)
@@ -244,15 +249,13 @@ def read_elf(path):
         return None
 
 
-def ld_so_conf_dirs(path="/etc/ld.so.conf", seen=None):
+def ld_so_conf_dirs(path: str = "/etc/ld.so.conf", seen: Optional[Set[str]] = None) -> List[str]:
     """The library folders of ld.so.conf, following `include` globs."""
-    import glob
-
     seen = set() if seen is None else seen
     if path in seen or not os.path.isfile(path):
         return []
     seen.add(path)
-    folders = []
+    folders: List[str] = []
     with open(path, errors="replace") as handle:
         for line in handle:
             line = line.split("#", 1)[0].strip()
@@ -267,12 +270,13 @@ def ld_so_conf_dirs(path="/etc/ld.so.conf", seen=None):
     return folders
 
 
-def expand_origin(folder, origin):
+def expand_origin(folder: str, origin: str) -> str:
     return folder.replace("$ORIGIN", origin).replace("${ORIGIN}", origin) \
         .replace("$LIB", "lib").replace("${LIB}", "lib")
 
 
-def find_library(name, elf, path, library_path, system_dirs):
+def find_library(name: str, elf: Elf, path: str, library_path: List[str],
+                 system_dirs: List[str]) -> Optional[str]:
     """Where ld.so would find DT_NEEDED `name` of the object at path (class must match)."""
     if "/" in name:
         return name if os.path.exists(name) else None
@@ -289,7 +293,7 @@ def find_library(name, elf, path, library_path, system_dirs):
 
 
 # ----------------------------------------------------------------------------- keep set
-def glob_regex(pattern):
+def glob_regex(pattern: str) -> "re.Pattern[str]":
     """Glob as in docker-slim's --exclude-pattern: `**` crosses `/`, `*` and `?` do not."""
     out, index = [], 0
     while index < len(pattern):
@@ -308,7 +312,7 @@ def glob_regex(pattern):
     return re.compile("".join(out) + r"\Z")
 
 
-def matches_any(path, regexes):
+def matches_any(path: str, regexes: List["re.Pattern[str]"]) -> bool:
     """True if the path or one of its parent folders matches."""
     if not regexes:
         return False
@@ -319,9 +323,10 @@ def matches_any(path, regexes):
     return False
 
 
-def link_chain(path):
+def link_chain(path: str) -> List[str]:
     """The symlinks met while resolving path (any component) and the real path at the end."""
-    out, pending, seen = [], [os.path.normpath(path)], set()
+    out: List[str] = []
+    pending, seen = [os.path.normpath(path)], set()  # type: Tuple[List[str], Set[str]]
     while pending:
         current = pending.pop()
         if current in seen or len(seen) > 64:
@@ -342,13 +347,13 @@ def link_chain(path):
     return out
 
 
-def canonical(path):
+def canonical(path: str) -> str:
     """path with its folder resolved (the name itself may be a symlink)."""
     folder, name = os.path.split(path)
     return os.path.join(os.path.realpath(folder), name)
 
 
-def which(name, path_env):
+def which(name: str, path_env: str) -> Optional[str]:
     if "/" in name:
         return name if os.path.exists(name) else None
     for folder in path_env.split(":"):
@@ -358,7 +363,7 @@ def which(name, path_env):
     return None
 
 
-def python_companions(path):
+def python_companions(path: str) -> List[str]:
     """A module's source beside its bytecode and back: imports need the `.py` to find
     `__pycache__/x.*.pyc`, tracebacks read it; the bytecode spares recompiling."""
     folder, name = os.path.split(path)
@@ -374,7 +379,7 @@ def python_companions(path):
     return []
 
 
-def walk(root, skip):
+def walk(root: str, skip: Set[str]) -> Iterator[str]:
     """Every path below root (not following symlinks), pruning the skipped folders."""
     for folder, dirs, files in os.walk(root):
         dirs[:] = [d for d in dirs if os.path.join(folder, d) not in skip]
@@ -382,7 +387,7 @@ def walk(root, skip):
             yield os.path.join(folder, name)
 
 
-def mount_points():
+def mount_points() -> Set[str]:
     try:
         with open("/proc/self/mountinfo") as handle:
             return {line.split()[4] for line in handle} - {"/"}
@@ -390,7 +395,7 @@ def mount_points():
         return set()
 
 
-def keep_set(spec, traced, library_path):
+def keep_set(spec: Dict[str, Any], traced: Set[str], library_path: List[str]) -> Set[str]:
     """Absolute paths to keep (files, symlinks, folders); see the module docstring."""
     skip = set(SKIP_DIRS) | {m for m in mount_points() if os.path.isdir(m)}
     includes = [glob_regex(q.rstrip("/") or "/") for p in spec["include"]
@@ -456,13 +461,13 @@ def keep_set(spec, traced, library_path):
     return {p for p in keep if p != "/" and os.path.lexists(p)}
 
 
-def write(path, text):
+def write(path: str, text: str) -> None:
     with open(path + ".tmp", "w") as handle:
         handle.write(text)
     os.rename(path + ".tmp", path)
 
 
-def main(argv):
+def main(argv: List[str]) -> int:
     if len(argv) < 3 or argv[0] != "--out" or argv[2] != "--":
         log("usage: slimtrace.py --out DIR -- COMMAND...")
         return 2
@@ -480,8 +485,8 @@ def main(argv):
             "library_path": library_path, "trace_seconds": round(traced_seconds, 1),
         }))
     except Exception as exc:  # reported to the host, which names it in one line
-        write(out + "/error", "%s: %s\n" % (type(exc).__name__, exc))
-        log("%s: %s" % (type(exc).__name__, exc))
+        write(out + "/error", f"{type(exc).__name__}: {exc}\n")
+        log(f"{type(exc).__name__}: {exc}")
         return 1
     return 0
 

@@ -174,8 +174,10 @@ def run(c: Context, settings: Settings, *, host: bool, dry_run: bool) -> None:
     _build(settings, ("run",), dry_run=dry_run)
 
 
-def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[BuiltImage]:
-    """Build the targets for every platform; print the summary table."""
+def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
+           slim: bool = False) -> List[BuiltImage]:
+    """Build the targets for every platform (and with slim, the slim image after run); print
+    the summary table."""
     settings = dataclasses.replace(settings, target=tuple(targets))
     require(settings, required_for_build(settings))
     assert settings.base_image
@@ -204,6 +206,8 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List
                                                tag=tag))
             except build.BuildError as exc:
                 raise TaskError(str(exc)) from None
+        if slim and "run" in targets:
+            built.append(_slim(settings, platform, dry_run=dry_run))
     if built:
         print(build.summary_table(built))
     return built
@@ -219,7 +223,37 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, until: str) -> 
     if until:
         _build_until(settings, until, dry_run=dry_run)
         return
-    _build(settings, settings.target, dry_run=dry_run)
+    _build(settings, settings.target, dry_run=dry_run, slim=settings.enable_slim)
+
+
+def _slim(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
+    from docker_ros import slim
+
+    try:
+        result = slim.slim_image(settings, platform, dry_run=dry_run)
+    except slim.SlimError as exc:
+        raise TaskError(str(exc)) from None
+    return BuiltImage("slim", result.ref, platform, result.seconds)
+
+
+@settings_task(
+    "slim",
+    "Slim the run image into SLIM_IMAGE_NAME:SLIM_IMAGE_TAG: trace COMMAND, keep what it uses, "
+    "check the result runs alike (SLIM_BUILD_ARGS); pulls or builds the run image if missing",
+    [DRY_RUN],
+)
+def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+    settings = dataclasses.replace(settings, target=("run",))
+    refs = [build.platform_ref(build.image_ref(settings, "run"), p, settings.platform)
+            for p in settings.platform]
+    # base_image_available: a local image, else one pulled now
+    if not dry_run and not all(build.base_image_available(ref) for ref in refs):
+        print(f"slim: run image {', '.join(refs)} neither local nor pullable: building it")
+        _build(settings, ("run",), dry_run=dry_run, slim=True)
+        return
+    slimmed = [_slim(settings, p, dry_run=dry_run) for p in settings.platform]
+    if not dry_run:
+        print(build.summary_table(slimmed))
 
 
 def _build_until(settings: Settings, step: str, *, dry_run: bool) -> None:
@@ -250,11 +284,11 @@ def _build_until(settings: Settings, step: str, *, dry_run: bool) -> None:
     [DRY_RUN],
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
-    from docker_ros.push import push
+    from docker_ros.push import push, push_targets
 
-    _build(settings, settings.target, dry_run=dry_run)
+    _build(settings, settings.target, dry_run=dry_run, slim=settings.enable_slim)
     try:
-        for name in push(settings, settings.target, dry_run=dry_run):
+        for name in push(settings, push_targets(settings), dry_run=dry_run):
             print(f"pushed {name}")
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
@@ -336,8 +370,8 @@ def collection() -> Collection:
     ns = Collection()
     for step in STEPS:
         ns.add_task(make_step_task(step))
-    for task in (config, dev, run, build_task, push_task, dev_shell, bootstrap_base_image,
-                 example):
+    for task in (config, dev, run, build_task, slim_task, push_task, dev_shell,
+                 bootstrap_base_image, example):
         ns.add_task(task)
     return ns
 

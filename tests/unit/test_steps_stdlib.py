@@ -11,11 +11,12 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 STEP_FILES = sorted((SRC / "docker_ros" / "steps").glob("*.py"))
-CHECKED = STEP_FILES + [SRC / "docker_ros" / "settings.py"]
+# slimtrace runs inside the run image being slimmed
+CHECKED = STEP_FILES + [SRC / "docker_ros" / "settings.py", SRC / "docker_ros" / "slimtrace.py"]
 
 IMPORT_ALL = """
 import importlib, json, pkgutil, sys
-import docker_ros.settings, docker_ros.steps
+import docker_ros.settings, docker_ros.slimtrace, docker_ros.steps
 for info in pkgutil.iter_modules(docker_ros.steps.__path__):
     importlib.import_module("docker_ros.steps." + info.name)
 print(json.dumps(sorted(sys.modules)))
