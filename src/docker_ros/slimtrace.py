@@ -421,7 +421,7 @@ def keep_set(spec: Dict[str, Any], traced: Set[str], library_path: List[str]) ->
         pending += [p for p in link_chain(path) if p not in keep]
         if not os.path.isfile(path) or os.path.islink(path):
             continue
-        pending += python_companions(path)
+        pending += python_companions(path) + interpreter(path)
         elf = read_elf(path)
         if elf is None:
             continue
@@ -431,6 +431,7 @@ def keep_set(spec: Dict[str, Any], traced: Set[str], library_path: List[str]) ->
             found = find_library(name, elf, path, library_path, system_dirs)
             if found:
                 pending.append(found)
+    keep |= ancestors(keep)
     kept_real = {os.path.realpath(p) for p in keep}
     inodes = set()
     for path in keep:
@@ -453,12 +454,32 @@ def keep_set(spec: Dict[str, Any], traced: Set[str], library_path: List[str]) ->
             keep.add(path)  # the other names of a kept hard-linked file
         elif path.count("/") <= 2 and os.path.isdir(path) and not os.path.islink(path):
             keep.add(path)  # the folder skeleton: /var/tmp, /etc/skel, /usr/share...
-    for path in list(keep):
-        parent = os.path.dirname(path)
-        while parent != "/" and parent not in keep:
-            keep.add(parent)
-            parent = os.path.dirname(parent)
+    keep |= ancestors(keep)
     return {p for p in keep if p != "/" and os.path.lexists(p)}
+
+
+def ancestors(paths: Set[str]) -> Set[str]:
+    out: Set[str] = set()
+    for path in paths:
+        parent = os.path.dirname(path)
+        while parent != "/" and parent not in out:
+            out.add(parent)
+            parent = os.path.dirname(parent)
+    return out
+
+
+def interpreter(path: str) -> List[str]:
+    """The `#!` interpreter of a script (the kernel opens it for exec; its path may go through
+    symlinks such as /bin -> usr/bin that the trace does not see)."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(256)
+    except OSError:
+        return []
+    if not head.startswith(b"#!"):
+        return []
+    words = head[2:].split(b"\n", 1)[0].split()
+    return [words[0].decode(errors="replace")] if words else []
 
 
 def write(path: str, text: str) -> None:

@@ -115,7 +115,7 @@ def test_trace_container_plan() -> None:
     argv = plan_trace_container("sha256:abc", CONFIG, options, "docker-ros-slim-trace-1")
     assert argv[:6] == ["docker", "create", "--name", "docker-ros-slim-trace-1", "--cap-add",
                         "SYS_ADMIN"]
-    assert ["-e", "A=1"] == argv[argv.index("-e"):argv.index("-e") + 2]
+    assert argv[argv.index("-e"):argv.index("-e") + 2] == ["-e", "A=1"]
     tail = argv[argv.index("sha256:abc"):]
     assert tail == ["sha256:abc", "/docker-ros-slim/slimtrace.py", "--out", "/docker-ros-slim",
                     "--", *CONFIG["Entrypoint"], *CONFIG["Cmd"]]
