@@ -207,7 +207,8 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             except build.BuildError as exc:
                 raise TaskError(str(exc)) from None
         if slim and "run" in targets:
-            built.append(_slim(settings, platform, dry_run=dry_run))
+            slimmed = _slim(settings, platform, dry_run=dry_run)
+            built += [] if dry_run else [slimmed]
     if built:
         print(build.summary_table(built))
     return built
