@@ -305,6 +305,8 @@ def write_workspace(
         "IMAGE": IMAGE,
         "TARGET": "dev,run",
         "CMAKE_ARGS": cmake_args,
+        # the figures are dev/run rebuilds; slimming (ENABLE_SLIM's default) would add a trace
+        "ENABLE_SLIM": "false",
     }
     # python-dotenv reads a double-quoted value literally (no shell involved).
     (root / ".env").write_text("".join(f'{k}="{v}"\n' for k, v in env.items()))

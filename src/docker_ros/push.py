@@ -15,9 +15,15 @@ LOCAL_REGISTRIES = ("localhost", "127.0.0.1")
 
 
 def latest_ref(ref: str, target: str) -> str:
-    """ENABLE_PUSH_AS_LATEST: `latest` for run, `latest-dev` for dev."""
+    """ENABLE_PUSH_AS_LATEST: `latest` for run, `latest-dev` for dev, `latest-slim` for slim."""
     name = ref.rsplit(":", 1)[0] if ":" in ref.rsplit("/", 1)[-1] else ref
-    return f"{name}:latest-dev" if target == "dev" else f"{name}:latest"
+    return f"{name}:latest" if target == "run" else f"{name}:latest-{target}"
+
+
+def push_targets(settings: Settings) -> List[str]:
+    """TARGET, plus slim after run when ENABLE_SLIM (as docker-ros's CI pushes it)."""
+    targets = list(settings.target)
+    return targets + ["slim"] if settings.enable_slim and "run" in targets else targets
 
 
 def insecure(ref: str) -> List[str]:

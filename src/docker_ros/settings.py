@@ -143,7 +143,9 @@ class Settings:
         True, "Enable recursive discovery of files named `*.repos`"
     )
     enable_slim: bool = setting(
-        True, "Enable an extra slimmed run image (only if `run` stage is targeted)"
+        True,
+        "Enable an extra slimmed run image (only if `run` stage is targeted): traced, minified,"
+        " checked to run alike (see Slim images)",
     )
     git_https_password: Optional[str] = setting(
         None, "Password for cloning private Git repositories via HTTPS", secret=True
@@ -187,10 +189,12 @@ class Settings:
         None, "ROS Distro", default_doc="*required if ROS is not installed in `base-image`*"
     )
     slim_build_args: str = setting(
-        SLIM_BUILD_ARGS_DEFAULT, "Arguments to the slimming step (except target and tag)"
+        SLIM_BUILD_ARGS_DEFAULT,
+        "Arguments to the slimming step (except target and tag; docker-slim syntax, options"
+        " in Slim images)",
     )
     additional_slim_build_args: str = setting(
-        "", "Arguments appended to SLIM_BUILD_ARGS"
+        "", "Arguments appended to SLIM_BUILD_ARGS (e.g. `--exec 'rosnode list' --expect TEXT`)"
     )
     slim_image_name: Optional[str] = setting(
         None, "Image name of slim run image", default_doc="`<IMAGE_NAME>`"

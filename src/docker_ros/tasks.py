@@ -90,7 +90,9 @@ STEP_SETTINGS: Dict[str, Tuple[str, ...]] = {
     "colcon": ("cmake_args", "ros_distro"),
     "command": ("command",),
 }
-PUSH_SETTINGS = ("registry", "registry_user", "enable_push_as_latest", "enable_singlearch_push")
+PUSH_SETTINGS = (
+    "registry", "registry_user", "enable_push_as_latest", "enable_singlearch_push", "enable_slim",
+)
 SET: Flag = ("set", None, "Any setting, as NAME=VALUE (repeatable), e.g. --set ENABLE_SLIM=false")
 
 
@@ -332,8 +334,9 @@ def _composite(settings: Settings, name: str, *, host: bool, dry_run: bool, in_c
 
 
 def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
-           shell_on_failure: bool = False) -> List[BuiltImage]:
-    """Build the targets for every platform; print the summary table."""
+           shell_on_failure: bool = False, slim: bool = False) -> List[BuiltImage]:
+    """Build the targets for every platform (and with slim, the slim image after run); print
+    the summary table."""
     settings = dataclasses.replace(settings, target=tuple(targets))
     require(settings, required_for_build(settings))
     assert settings.base_image
@@ -364,6 +367,9 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
                 if shell_on_failure:
                     reproduce_failure(settings, exc)
                 raise TaskError(str(exc)) from None
+        if slim and "run" in targets:
+            slimmed = _slim(settings, platform, dry_run=dry_run)
+            built += [] if dry_run else [slimmed]
     if built:
         print(build.summary_table(built))
     return built
@@ -382,9 +388,43 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failur
     if until:
         _build_until(settings, until, dry_run=dry_run, shell_on_failure=shell_on_failure)
         return
-    _build(settings, settings.target, dry_run=dry_run, shell_on_failure=shell_on_failure)
+    _build(settings, settings.target, dry_run=dry_run, shell_on_failure=shell_on_failure,
+           slim=settings.enable_slim)
     if settings.enable_industrial_ci:
         _test(settings, results_dir="", dry_run=dry_run)
+
+
+def _slim(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
+    from docker_ros import slim
+
+    try:
+        result = slim.slim_image(settings, platform, dry_run=dry_run)
+    except slim.SlimError as exc:
+        raise TaskError(str(exc)) from None
+    return BuiltImage("slim", result.ref, platform, result.seconds)
+
+
+@settings_task(
+    "slim",
+    "Slim the run image: keep what COMMAND uses, check it runs alike\n\n"
+    "Traces COMMAND in the run image (pulled or built if missing), keeps what it opens plus "
+    "the library closure and the include paths of SLIM_BUILD_ARGS, and tags "
+    "SLIM_IMAGE_NAME:SLIM_IMAGE_TAG only when the result behaves like the run image.",
+    [DRY_RUN],
+    uses=IMAGE_SETTINGS + ("command", "slim_build_args", "additional_slim_build_args"),
+)
+def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+    settings = dataclasses.replace(settings, target=("run",))
+    refs = [build.platform_ref(build.image_ref(settings, "run"), p, settings.platform)
+            for p in settings.platform]
+    # base_image_available: a local image, else one pulled now
+    if not dry_run and not all(build.base_image_available(ref) for ref in refs):
+        print(f"slim: run image {', '.join(refs)} neither local nor pullable: building it")
+        _build(settings, ("run",), dry_run=dry_run, slim=True)
+        return
+    slimmed = [_slim(settings, p, dry_run=dry_run) for p in settings.platform]
+    if not dry_run:
+        print(build.summary_table(slimmed))
 
 
 def default_results_dir(settings: Settings) -> Path:
@@ -486,11 +526,11 @@ def _build_until(settings: Settings, step: str, *, dry_run: bool,
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
-    from docker_ros.push import push
+    from docker_ros.push import push, push_targets
 
-    _build(settings, settings.target, dry_run=dry_run)
+    _build(settings, settings.target, dry_run=dry_run, slim=settings.enable_slim)
     try:
-        for name in push(settings, settings.target, dry_run=dry_run):
+        for name in push(settings, push_targets(settings), dry_run=dry_run):
             print(f"pushed {name}")
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
@@ -605,7 +645,7 @@ def collection() -> Collection:
     ns = Collection()
     for step in STEPS:
         ns.add_task(make_step_task(step))
-    for task in (config, dev, run, build_task, test_task, push_task, dev_shell,
+    for task in (config, dev, run, build_task, test_task, slim_task, push_task, dev_shell,
                  bootstrap_base_image, example):
         ns.add_task(task)
     return ns

@@ -21,8 +21,10 @@ EXAMPLE = REPO / "example"
 
 def docker_ros(project: Path, *args: str, env: Optional[Dict[str, str]] = None,
                timeout: int = 1800) -> subprocess.CompletedProcess:
-    """`docker-ros ARGS` in project; output (stdout+stderr) in .stdout."""
+    """`docker-ros ARGS` in project; output (stdout+stderr) in .stdout. ENABLE_SLIM is false
+    unless env sets it (slimming costs a traced run; only the slim tests pay for it)."""
     full_env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    full_env["ENABLE_SLIM"] = "false"
     full_env.update(env or {})
     return subprocess.run([sys.executable, "-m", "docker_ros", *args], cwd=project,
                           env=full_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,

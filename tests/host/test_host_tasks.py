@@ -47,7 +47,8 @@ def test_inv_and_docker_ros_list_the_same_tasks(project: Path) -> None:
     assert via_inv.returncode == 0 and via_cli.returncode == 0, via_inv.stderr + via_cli.stderr
     names = task_names(via_inv.stdout)
     for expected in ("clone", "blacklist", "scripts", "rosdep", "debs", "pip", "files",
-                     "custom", "colcon", "command", "build", "dev", "run", "config", "dev-shell"):
+                     "custom", "colcon", "command", "build", "dev", "run", "config", "dev-shell",
+                     "slim"):
         assert expected in names
     assert names == task_names(via_cli.stdout.split("Subcommands:")[-1])
 

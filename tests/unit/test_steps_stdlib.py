@@ -11,12 +11,13 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 STEP_FILES = sorted((SRC / "docker_ros" / "steps").glob("*.py"))
-# testing.py runs in the image's test stage
-CHECKED = STEP_FILES + [SRC / "docker_ros" / "settings.py", SRC / "docker_ros" / "testing.py"]
+# testing.py runs in the image's test stage, slimtrace.py in the run image being slimmed
+IN_IMAGE = [SRC / "docker_ros" / name for name in ("settings.py", "testing.py", "slimtrace.py")]
+CHECKED = STEP_FILES + IN_IMAGE
 
 IMPORT_ALL = """
 import importlib, json, pkgutil, sys
-import docker_ros.settings, docker_ros.steps, docker_ros.testing
+import docker_ros.settings, docker_ros.slimtrace, docker_ros.steps, docker_ros.testing
 for info in pkgutil.iter_modules(docker_ros.steps.__path__):
     importlib.import_module("docker_ros.steps." + info.name)
 print(json.dumps(sorted(sys.modules)))

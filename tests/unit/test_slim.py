@@ -1,0 +1,257 @@
+"""Slim images: option parsing, plans, the functional comparison, ELF parsing, keep rules."""
+
+from __future__ import annotations
+
+import io
+import json
+import tarfile
+from pathlib import Path
+
+import pytest
+
+from docker_ros import slimtrace
+from docker_ros.push import plan_push, push_targets
+from docker_ros.settings import SLIM_BUILD_ARGS_DEFAULT, load_settings
+from docker_ros.slim import (
+    Probe,
+    SlimError,
+    SlimOptions,
+    compare_probes,
+    exec_prefix,
+    filter_tar,
+    member_path,
+    parse_slim_args,
+    plan_changes,
+    plan_trace_container,
+    tracer_spec,
+)
+
+# docker-ros's current GitLab default (its action/older default is SLIM_BUILD_ARGS_DEFAULT)
+DOCKER_ROS_GITLAB_DEFAULT = (
+    "--sensor-ipc-mode proxy --continue-after=30 --show-clogs --http-probe=false "
+    "--env DOCKER_UID=23456 --env DOCKER_GID=23456 --env DOCKER_USER=dockerslimprobe "
+    "--include-path /opt/ros --include-path /docker-ros/ws/install "
+    "--include-path /etc/ld.so.cache --preserve-path /etc/passwd "
+    "--exclude-pattern /home/dockerslimprobe --exclude-pattern /home/dockerslimprobe/**"
+)
+
+
+def test_default_args_parse_and_report_ignored_options_once() -> None:
+    options = parse_slim_args(SLIM_BUILD_ARGS_DEFAULT + " --show-clogs")
+    assert options.continue_after == 10
+    assert options.include == ("/opt/ros", "/docker-ros/ws/install")
+    assert options.ignored == ("--sensor-ipc-mode", "--show-clogs", "--http-probe")
+
+
+def test_docker_ros_gitlab_default_parses() -> None:
+    options = parse_slim_args(DOCKER_ROS_GITLAB_DEFAULT)
+    assert options.continue_after == 30
+    assert options.env == ("DOCKER_UID=23456", "DOCKER_GID=23456", "DOCKER_USER=dockerslimprobe")
+    assert "/etc/passwd" in options.include and "/etc/ld.so.cache" in options.include
+    assert options.exclude == ("/home/dockerslimprobe", "/home/dockerslimprobe/**")
+
+
+def test_ours_exec_expect_and_include_exe() -> None:
+    options = parse_slim_args("--exec 'rosnode list' --expect='I heard' --include-exe ls "
+                              "--continue-after 2.5")
+    assert options.execs == ("rosnode list",)
+    assert options.expect == ("I heard",)
+    assert options.executables == ("ls",)
+    assert options.continue_after == 2.5
+
+
+@pytest.mark.parametrize("text, message", [
+    ("--frobnicate --include-path /x --bogus=1", "unknown option(s) --frobnicate, --bogus=1"),
+    ("--continue-after=probe", "give a number of seconds"),
+    ("--env FOO", "use NAME=VALUE"),
+    ("--include-path", "--include-path needs a value"),
+    ("--tag x:y", "--tag is set by docker-ros"),
+    ("--exec 'unterminated", "No closing quotation"),
+])
+def test_bad_args_are_errors_naming_them(text: str, message: str) -> None:
+    with pytest.raises(SlimError, match=None) as raised:
+        parse_slim_args(text)
+    assert message in str(raised.value)
+
+
+def test_exec_prefix_drops_the_init() -> None:
+    assert exec_prefix(["/usr/bin/tini", "--", "/docker-ros/entrypoint.sh"]) == [
+        "/docker-ros/entrypoint.sh"]
+    assert exec_prefix(["tini", "/e.sh"]) == ["/e.sh"]
+    assert exec_prefix(["/e.sh", "x"]) == ["/e.sh", "x"]
+    assert exec_prefix([]) == []
+
+
+CONFIG = {
+    "Env": ["PATH=/usr/bin:/bin", 'DOCKER_ROS_COMMAND=roslaunch a "b" $HOME'],
+    "Entrypoint": ["/usr/bin/tini", "--", "/docker-ros/entrypoint.sh"],
+    "Cmd": ["bash", "-c", 'eval "$DOCKER_ROS_COMMAND"'],
+    "WorkingDir": "/docker-ros/ws",
+    "Labels": {"org.example": "a b"},
+}
+
+
+def test_changes_carry_the_config_quoted() -> None:
+    changes = plan_changes(CONFIG, {"io.docker-ros.slim.source": "sha256:1"})
+    assert changes[::2] == ["--change"] * (len(changes) // 2)
+    assert changes[1::2] == [
+        'ENV PATH="/usr/bin:/bin"',
+        'ENV DOCKER_ROS_COMMAND="roslaunch a \\"b\\" \\$HOME"',
+        'ENTRYPOINT ["/usr/bin/tini", "--", "/docker-ros/entrypoint.sh"]',
+        'CMD ["bash", "-c", "eval \\"$DOCKER_ROS_COMMAND\\""]',
+        "WORKDIR /docker-ros/ws",
+        'LABEL "io.docker-ros.slim.source"="sha256:1"',
+        'LABEL "org.example"="a b"',
+    ]
+
+
+def test_changes_refuse_a_multiline_env() -> None:
+    with pytest.raises(SlimError, match="COMMAND_X"):
+        plan_changes({"Env": ["COMMAND_X=a\nb"]}, {})
+
+
+def test_trace_container_plan() -> None:
+    options = SlimOptions(env=("A=1",))
+    argv = plan_trace_container("sha256:abc", CONFIG, options, "docker-ros-slim-trace-1")
+    assert argv[:6] == ["docker", "create", "--name", "docker-ros-slim-trace-1", "--cap-add",
+                        "SYS_ADMIN"]
+    assert argv[argv.index("-e"):argv.index("-e") + 2] == ["-e", "A=1"]
+    tail = argv[argv.index("sha256:abc"):]
+    assert tail == ["sha256:abc", "/docker-ros-slim/slimtrace.py", "--out", "/docker-ros-slim",
+                    "--", *CONFIG["Entrypoint"], *CONFIG["Cmd"]]
+    with pytest.raises(SlimError, match="neither ENTRYPOINT nor CMD"):
+        plan_trace_container("x", {}, options, "n")
+    spec = tracer_spec(CONFIG, SlimOptions(include=("/opt/ros",), exclude=("/x/**",)))
+    assert spec["path"] == "/usr/bin:/bin" and "/opt/ros" in spec["include"]
+    assert "/etc/passwd" in spec["include"] and "setpriv" in spec["executables"]
+    assert spec["exclude"] == ["/x/**"]
+
+
+def test_compare_same_behaviour_passes() -> None:
+    run = Probe(None, [("rosnode list", 0, "/talker\n")], (0, "23456"), "I heard: 1\n")
+    slim = Probe(None, [("rosnode list", 0, "/talker\n")], (0, "23456"), "I heard: 2\n")
+    assert compare_probes(run, slim, SlimOptions(expect=("I heard",))) == []
+
+
+def test_compare_names_every_difference() -> None:
+    run = Probe(0, [("rosnode list", 0, "/talker\n")], (0, "23456"), "ok\n")
+    slim = Probe(127, [("rosnode list", 1, "ImportError: rosnode\n")], (1, "useradd: not found"),
+                 "talker: error while loading shared libraries: libroscpp.so\n")
+    diffs = compare_probes(run, slim, SlimOptions(continue_after=5, expect=("ok", "never")))
+    text = "\n".join(diffs)
+    assert "COMMAND exited with 0 in the run image but exited with 127 in the slim image" in text
+    assert "--exec 'rosnode list' exited with 0 in the run image but 1" in text
+    assert "DOCKER_UID=23456 user mapping" in text
+    assert "--expect 'ok' is in the run image's output, not the slim one's" in text
+    assert "--expect 'never' is not in the run image's output either" in text
+    assert "error while loading shared libraries: libroscpp.so" in text
+
+
+def test_compare_ignores_errors_the_run_image_printed_too() -> None:
+    run = Probe(None, output="[ERROR] [1700000000.1]: cannot reach 0x7f12\n")
+    slim = Probe(None, output="[ERROR] [1700000099.9]: cannot reach 0x7f99\n")
+    assert compare_probes(run, slim, SlimOptions()) == []
+    died = Probe(None, output="[talker-2] process has died [pid 51, exit code 127]\n")
+    assert "process has died" in compare_probes(run, died, SlimOptions())[0]
+
+
+def test_push_includes_slim_when_enabled() -> None:
+    settings = load_settings(environ={"IMAGE": "reg/x:v1", "TARGET": "dev,run",
+                                      "ENABLE_PUSH_AS_LATEST": "true", "PLATFORM": "amd64"})
+    assert push_targets(settings) == ["dev", "run", "slim"]
+    pushed = [argv[-1] for argv in plan_push(settings, push_targets(settings))
+              if argv[1] == "push"]
+    assert pushed == ["reg/x:v1-dev", "reg/x:latest-dev", "reg/x:v1", "reg/x:latest",
+                      "reg/x:v1-slim", "reg/x:latest-slim"]
+    off = load_settings(environ={"IMAGE": "reg/x:v1", "ENABLE_SLIM": "false"})
+    assert push_targets(off) == ["run"]
+    dev_only = load_settings(environ={"IMAGE": "reg/x:v1", "TARGET": "dev"})
+    assert push_targets(dev_only) == ["dev"]
+
+
+def test_member_path() -> None:
+    assert member_path("usr/bin/bash") == "/usr/bin/bash"
+    assert member_path("./etc/") == "/etc"
+    assert member_path(".dockerenv") == "/.dockerenv"
+
+
+def test_filter_tar_keeps_listed_members_and_their_hard_links() -> None:
+    source = io.BytesIO()
+    with tarfile.open(fileobj=source, mode="w") as tar:
+        for name, data in (("etc/passwd", b"root\n"), ("usr/bin/ls", b"ELF")):
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+        for name, target in (("usr/bin/dir", "usr/bin/ls"), ("etc/passwd-", "etc/passwd")):
+            link = tarfile.TarInfo(name)
+            link.type, link.linkname = tarfile.LNKTYPE, target
+            tar.addfile(link)
+    source.seek(0)
+    out = io.BytesIO()
+    kept, total = filter_tar(source, out, {"/etc/passwd", "/usr/bin/dir", "/etc/passwd-"})
+    assert (kept, total) == (2, 4)  # usr/bin/dir links to a dropped member
+    out.seek(0)
+    with tarfile.open(fileobj=out) as tar:
+        assert tar.getnames() == ["etc/passwd", "etc/passwd-"]
+        assert tar.extractfile("etc/passwd").read() == b"root\n"  # type: ignore[union-attr]
+
+
+# --------------------------------------------------------------------------- in-image code
+def test_parse_elf_of_a_real_executable() -> None:
+    python = Path("/proc/self/exe").resolve()
+    elf = slimtrace.read_elf(str(Path("/bin/ls").resolve()))
+    assert elf is not None, python
+    cls, _, interp, needed, _, _ = elf
+    assert cls == 2 and interp and interp.startswith("/lib")
+    assert "libc.so.6" in needed
+    assert slimtrace.read_elf(__file__) is None
+    assert slimtrace.parse_elf(b"\x7fELF" + b"\0" * 10) is None
+
+
+def test_find_library_follows_ld_so_rules(tmp_path: Path) -> None:
+    elf = slimtrace.read_elf(str(Path("/bin/ls").resolve()))
+    assert elf is not None
+    system = slimtrace.ld_so_conf_dirs() + list(slimtrace.DEFAULT_LIB_DIRS)
+    found = slimtrace.find_library("libc.so.6", elf, "/bin/ls", [], system)
+    assert found and Path(found).resolve().name.startswith("libc")
+    assert slimtrace.find_library("libnothere.so.9", elf, "/bin/ls", [str(tmp_path)],
+                                  system) is None
+    assert slimtrace.expand_origin("$ORIGIN/../lib", "/opt/x/bin") == "/opt/x/bin/../lib"
+
+
+def test_glob_regex_like_docker_slim() -> None:
+    assert slimtrace.glob_regex("/home/x/**").match("/home/x/a/b")
+    assert not slimtrace.glob_regex("/usr/lib/*.so").match("/usr/lib/sub/a.so")
+    assert slimtrace.glob_regex("/usr/lib/libfoo.so*").match("/usr/lib/libfoo.so.1.2")
+    regexes = [slimtrace.glob_regex("/usr/share/doc")]
+    assert slimtrace.matches_any("/usr/share/doc/bash/README", regexes)
+    assert not slimtrace.matches_any("/usr/share/docs", regexes)
+
+
+def test_link_chain_and_python_companions(tmp_path: Path) -> None:
+    real = tmp_path / "usr" / "lib"
+    (real / "__pycache__").mkdir(parents=True)
+    (real / "libx.so.1.2").write_text("x")
+    (real / "libx.so.1").symlink_to("libx.so.1.2")
+    (tmp_path / "lib").symlink_to("usr/lib")
+    chain = slimtrace.link_chain(str(tmp_path / "lib" / "libx.so.1"))
+    assert str(tmp_path / "lib") in chain
+    assert str(real / "libx.so.1") in chain and str(real / "libx.so.1.2") in chain
+    (real / "mod.py").write_text("")
+    (real / "__pycache__" / "mod.cpython-311.pyc").write_text("")
+    assert slimtrace.python_companions(str(real / "__pycache__" / "mod.cpython-311.pyc")) == [
+        str(real / "mod.py")]
+    assert slimtrace.python_companions(str(real / "mod.py")) == [
+        str(real / "__pycache__" / "mod.cpython-311.pyc")]
+
+
+def test_ld_so_conf_includes(tmp_path: Path) -> None:
+    (tmp_path / "conf.d").mkdir()
+    (tmp_path / "conf.d" / "a.conf").write_text("# comment\n/opt/a/lib\n")
+    (tmp_path / "ld.so.conf").write_text("include conf.d/*.conf\n/opt/b/lib # b\n")
+    assert slimtrace.ld_so_conf_dirs(str(tmp_path / "ld.so.conf")) == ["/opt/a/lib", "/opt/b/lib"]
+
+
+def test_tracer_usage_error() -> None:
+    assert slimtrace.main(["--bad"]) == 2
+    assert json.dumps(tracer_spec({}, SlimOptions()))  # serializable for the container
