@@ -11,7 +11,7 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 STEP_FILES = sorted((SRC / "docker_ros" / "steps").glob("*.py"))
-CHECKED = STEP_FILES + [SRC / "docker_ros" / "settings.py"]
+CHECKED = STEP_FILES + [SRC / "docker_ros" / "settings.py", SRC / "docker_ros" / "ci.py"]
 
 IMPORT_ALL = """
 import importlib, json, pkgutil, sys
