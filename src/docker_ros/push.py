@@ -33,7 +33,8 @@ def insecure(ref: str) -> List[str]:
 def pushed_names(settings: Settings, target: str) -> List[str]:
     """The configured name of a target and its extra tags (Settings.push_also_as)."""
     ref = image_ref(settings, target)
-    return [ref] + [also_ref(ref, tag, target) for tag in settings.push_also_as]
+    names = [ref] + [also_ref(ref, tag, target) for tag in settings.push_also_as]
+    return list(dict.fromkeys(names))  # IMAGE_TAG latest and ENABLE_PUSH_AS_LATEST: once
 
 
 def manifest_commands(names: Sequence[str], arch_refs: Sequence[str]) -> List[List[str]]:
