@@ -10,7 +10,7 @@ import urllib.request
 from pathlib import Path
 from typing import List
 
-from tests.docker.buildhelp import EXAMPLE, write_env
+from tests.docker.buildhelp import EXAMPLE, remove_image, run_until, write_env
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE_COMMAND = "roslaunch docker_ros_example talker_listener.launch"
@@ -54,3 +54,14 @@ def manifest_architectures(ref: str) -> List[str]:
                          capture_output=True, text=True, check=True).stdout
     data = json.loads(out)
     return sorted(m["platform"]["architecture"] for m in data.get("manifests", []))
+
+
+def assert_pulled_image_runs(ref: str) -> None:
+    """Pull ref afresh from the registry and run it until the example's listener hears."""
+    remove_image(ref)
+    subprocess.run(["docker", "pull", "-q", ref], check=True, capture_output=True)
+    try:
+        out = run_until(ref, HEARD, 90)
+        assert HEARD in out, out[-3000:]
+    finally:
+        remove_image(ref)

@@ -9,9 +9,14 @@ import subprocess
 
 import pytest
 
-from tests.ci.cihelp import HEARD, REPO, example_repository, git, registry_tags
+from tests.ci.cihelp import (
+    REPO,
+    assert_pulled_image_runs,
+    example_repository,
+    git,
+    registry_tags,
+)
 from tests.ci.github_harness import Event, run_action
-from tests.docker.buildhelp import remove_image, run_until
 
 pytestmark = pytest.mark.docker
 
@@ -86,10 +91,4 @@ def test_token_never_reaches_the_log(runs: dict) -> None:
 
 def test_pushed_run_image_runs(runs: dict) -> None:
     ref = f"{runs['registry']}/{IMAGE}:latest_feature-github-test_ci"
-    remove_image(ref)
-    subprocess.run(["docker", "pull", "-q", ref], check=True, capture_output=True)
-    try:
-        out = run_until(ref, HEARD, 90)
-        assert HEARD in out, out[-3000:]
-    finally:
-        remove_image(ref)
+    assert_pulled_image_runs(ref)

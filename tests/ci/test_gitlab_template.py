@@ -12,14 +12,13 @@ from typing import Dict
 import pytest
 
 from tests.ci.cihelp import (
-    HEARD,
     REPO,
+    assert_pulled_image_runs,
     example_repository,
     git,
     manifest_architectures,
     registry_tags,
 )
-from tests.docker.buildhelp import remove_image, run_until
 
 pytestmark = pytest.mark.docker
 
@@ -53,7 +52,7 @@ def pipelines(ros1_base_image: str, local_registry: str,
         "include:\n  - local: .gitlab-ci/docker-ros.yml\n\n"
         # A shell runner ignores services; gitlab-ci-local would try to pull docker:dind.
         "default:\n  services: []\n\n"
-        "variables:\n  ENABLE_SLIM: 'false'\n  ENABLE_INDUSTRIAL_CI: 'false'\n"
+        "variables:\n  TARGET: dev,run\n  ENABLE_SLIM: 'false'\n  ENABLE_INDUSTRIAL_CI: 'false'\n"
     )
     git(repo, "add", "-A")
     git(repo, "commit", "-qm", "ci")
@@ -95,10 +94,4 @@ def test_secrets_and_setup_stay_out_of_the_log(pipelines: dict) -> None:
 
 def test_pushed_run_image_runs(pipelines: dict) -> None:
     ref = f"{pipelines['registry']}/{IMAGE}:latest_feature-gitlab-test_ci"
-    remove_image(ref)
-    subprocess.run(["docker", "pull", "-q", ref], check=True, capture_output=True)
-    try:
-        out = run_until(ref, HEARD, 90)
-        assert HEARD in out, out[-3000:]
-    finally:
-        remove_image(ref)
+    assert_pulled_image_runs(ref)
