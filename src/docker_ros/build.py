@@ -23,13 +23,15 @@ PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
 TOOLS_REPOSITORY = "docker-ros-tools"
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
-TOOLS_PATTERNS = ("__init__.py", "settings.py", "testing.py", "steps/*.py", "docker/*.sh")
+TOOLS_PATTERNS = (
+    "__init__.py", "settings.py", "ci.py", "testing.py", "steps/*.py", "docker/*.sh",
+)
 SECRETS = ("git_https_password", "git_ssh_private_key")
 # Settings that shape the build through the tool itself rather than a Dockerfile ARG.
 HANDLED_BY_TOOL = frozenset({
     "base_image", "build_context", "build_network", "buildx_attestations", "cache_from",
     "extra_ca_certs", "image", "image_name", "image_tag", "dev_image_name", "dev_image_tag",
-    "platform", "target", "git_https_password", "git_ssh_private_key",
+    "platform", "target", "git_https_password", "git_ssh_private_key", "image_postfix",
 })
 # Settings that do not affect building an image (push, slim, CI checkout, host workspace).
 NOT_BUILD_INPUTS = frozenset({

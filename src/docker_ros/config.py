@@ -8,6 +8,7 @@ from typing import Mapping, Optional
 
 from dotenv import dotenv_values
 
+from docker_ros.ci import github_default_branch
 from docker_ros.settings import (
     FIELDS,
     Settings,
@@ -28,10 +29,14 @@ def read_settings(
     project = project_dir or Path.cwd()
     env_file = project / ".env"
     dotenv = dotenv_values(env_file) if env_file.is_file() else {}
+    environ = os.environ if environ is None else environ
+    if environ.get("GITHUB_ACTIONS") == "true" and not environ.get("GITHUB_DEFAULT_BRANCH"):
+        # GitHub has no variable for it; the event payload names it (CI tag postfix rules).
+        environ = {**environ, "GITHUB_DEFAULT_BRANCH": github_default_branch(environ)}
     return load_settings(
         invoke_config=invoke_config,
         dotenv=dotenv,
-        environ=os.environ if environ is None else environ,
+        environ=environ,
         flags=flags,
         project_dir=project,
     )

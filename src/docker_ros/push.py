@@ -4,7 +4,7 @@ docker commands that --dry-run prints) and run."""
 from __future__ import annotations
 
 import subprocess
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Mapping, Optional, Sequence
 
 from docker_ros import engine
 from docker_ros.build import BuildError, image_ref, platform_ref
@@ -14,10 +14,16 @@ from docker_ros.steps.common import format_argv
 LOCAL_REGISTRIES = ("localhost", "127.0.0.1")
 
 
+def also_ref(ref: str, tag: str, target: str) -> str:
+    """The name pushed for an extra tag (`latest`, a git tag): `<tag>` for run, `<tag>-dev`,
+    `<tag>-slim` (docker-ros's ENABLE_PUSH_AS_LATEST and tag-pipeline names)."""
+    name = ref.rsplit(":", 1)[0] if ":" in ref.rsplit("/", 1)[-1] else ref
+    return f"{name}:{tag}-{target}" if target in ("dev", "slim") else f"{name}:{tag}"
+
+
 def latest_ref(ref: str, target: str) -> str:
     """ENABLE_PUSH_AS_LATEST: `latest` for run, `latest-dev` for dev, `latest-slim` for slim."""
-    name = ref.rsplit(":", 1)[0] if ":" in ref.rsplit("/", 1)[-1] else ref
-    return f"{name}:latest" if target == "run" else f"{name}:latest-{target}"
+    return also_ref(ref, "latest", target)
 
 
 def push_targets(settings: Settings) -> List[str]:
@@ -32,16 +38,35 @@ def insecure(ref: str) -> List[str]:
     return ["--insecure"] if "/" in ref and host in LOCAL_REGISTRIES else []
 
 
+def pushed_names(settings: Settings, target: str) -> List[str]:
+    """The configured name of a target and its extra tags (Settings.push_also_as)."""
+    ref = image_ref(settings, target)
+    names = [ref] + [also_ref(ref, tag, target) for tag in settings.push_also_as]
+    return list(dict.fromkeys(names))  # IMAGE_TAG latest and ENABLE_PUSH_AS_LATEST: once
+
+
+def manifest_commands(names: Sequence[str], arch_refs: Sequence[str]) -> List[List[str]]:
+    """One manifest list per name over the per-architecture images (already in the registry)."""
+    commands: List[List[str]] = []
+    for name in names:
+        commands.append(["docker", "manifest", "create", *insecure(name), "--amend", name,
+                         *arch_refs])
+        commands.append(["docker", "manifest", "push", *insecure(name), name])
+    return commands
+
+
 def plan_push(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
     """docker commands that push the built TARGET images for every PLATFORM."""
     platforms = settings.platform
     commands: List[List[str]] = []
     for target in targets:
         ref = image_ref(settings, target)
-        names = [ref] + ([latest_ref(ref, target)] if settings.enable_push_as_latest else [])
+        names = pushed_names(settings, target)
         if len(platforms) == 1:
-            if settings.enable_singlearch_push:  # for a manifest made later from arch runners
-                names.append(f"{ref}-{platforms[0]}")
+            if settings.enable_singlearch_push:
+                # Only `<name>-<arch>`, as docker-ros: the runner of one architecture must not
+                # overwrite the multi-arch name; `docker-ros manifest` writes that later.
+                names = [f"{name}-{platforms[0]}" for name in names]
             for name in names:
                 if name != ref:
                     commands.append(["docker", "tag", ref, name])
@@ -51,11 +76,43 @@ def plan_push(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
         # manifest list refers to them; then one manifest list per name.
         arch_refs = [platform_ref(ref, p, platforms) for p in platforms]
         commands += [["docker", "push", arch] for arch in arch_refs]
-        for name in names:
-            commands.append(["docker", "manifest", "create", *insecure(name), "--amend", name,
-                             *arch_refs])
-            commands.append(["docker", "manifest", "push", *insecure(name), name])
+        commands += manifest_commands(names, arch_refs)
     return commands
+
+
+def plan_manifest(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
+    """Manifest lists over the `<name>-<arch>` images that per-architecture jobs pushed with
+    ENABLE_SINGLEARCH_PUSH (one job per PLATFORM entry)."""
+    commands: List[List[str]] = []
+    for target in targets:
+        ref = image_ref(settings, target)
+        arch_refs = [f"{ref}-{platform}" for platform in settings.platform]
+        commands += manifest_commands(pushed_names(settings, target), arch_refs)
+    return commands
+
+
+def plan_outputs(
+    settings: Settings, targets: Sequence[str], pushed: Sequence[str]
+) -> Dict[str, str]:
+    """CI outputs naming the pushed images: `images` (all, comma-separated) and per target
+    `image`/`dev-image`/`slim-image` (its configured name, or `<name>-<arch>` if only that)."""
+    outputs = {"images": ",".join(pushed)}
+    for target in targets:
+        ref = image_ref(settings, target)
+        mine = [n for n in [ref] + [f"{ref}-{p}" for p in settings.platform] if n in pushed]
+        if mine:
+            outputs["image" if target == "run" else f"{target}-image"] = mine[0]
+    return outputs
+
+
+def write_outputs(outputs: Mapping[str, str], environ: Mapping[str, str]) -> None:
+    """As GitHub step outputs (the action's outputs), when GITHUB_OUTPUT names the file."""
+    path = environ.get("GITHUB_OUTPUT")
+    if not path:
+        return
+    with open(path, "a", encoding="utf-8") as out:
+        for key, value in outputs.items():
+            out.write(f"{key}={value}\n")
 
 
 def auth_config(settings: Settings) -> Optional[Dict[str, str]]:
@@ -68,7 +125,7 @@ def auth_config(settings: Settings) -> Optional[Dict[str, str]]:
 
 def login(settings: Settings) -> None:
     """`docker login` with the password on standard input (never a command line or log), for
-    `docker manifest push`, which reads the CLI's credentials: only multi-platform pushes."""
+    `docker manifest push`, which reads the CLI's credentials: only when writing manifests."""
     if not (settings.registry_user and settings.registry_password):
         return
     argv = ["docker", "login", "--username", settings.registry_user, "--password-stdin"]
@@ -78,6 +135,17 @@ def login(settings: Settings) -> None:
         reason = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no reason given"
         raise BuildError(f"docker login to {settings.registry or 'Docker Hub'} as "
                          f"{settings.registry_user} failed: {reason}")
+
+
+def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
+    """Push; return the pushed names. Fails with the command and docker's reason."""
+    return run_commands(settings, plan_push(settings, targets), dry_run=dry_run, label="push")
+
+
+def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
+    """Write the manifest lists (plan_manifest); return their names."""
+    commands = plan_manifest(settings, targets)
+    return run_commands(settings, commands, dry_run=dry_run, label="manifest")
 
 
 def execute(argv: List[str], auth: Optional[Dict[str, str]]) -> None:
@@ -99,19 +167,20 @@ def execute(argv: List[str], auth: Optional[Dict[str, str]]) -> None:
                          f"{reason[-1] if reason else 'no reason given'}")
 
 
-def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
-    """Push; return the pushed names. Fails with the command and docker's reason."""
-    commands = plan_push(settings, targets)
+def run_commands(
+    settings: Settings, commands: Sequence[List[str]], *, dry_run: bool, label: str
+) -> List[str]:
+    """Run the docker commands in order; return the names pushed to the registry."""
     if dry_run:
         for argv in commands:
-            print("[dry-run] push:", format_argv(argv))
+            print(f"[dry-run] {label}:", format_argv(argv))
         return []
     if any(argv[:2] == ["docker", "manifest"] for argv in commands):
         login(settings)
     auth = auth_config(settings)
     pushed = []
     for argv in commands:
-        print("push:", format_argv(argv), flush=True)
+        print(f"{label}:", format_argv(argv), flush=True)
         execute(argv, auth)
         if argv[1] == "push" or argv[:3] == ["docker", "manifest", "push"]:
             pushed.append(argv[-1])

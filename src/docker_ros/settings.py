@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple, Union
 
+from docker_ros.ci import NO_POSTFIX, detect_pipeline, push_also_as, tag_postfix
+
 SLIM_BUILD_ARGS_DEFAULT = (
     "--sensor-ipc-mode proxy --continue-after=10 --show-clogs --http-probe=false"
     " --include-path /opt/ros --include-path /docker-ros/ws/install"
@@ -236,14 +238,23 @@ class Settings:
     ros_apt_source_version: str = setting(
         "1.1.0", "Pinned version of the ros-apt-source package used to install ROS", group="ours"
     )
+    image_postfix: Optional[str] = setting(
+        None,
+        "Appended to every image tag (docker-ros's CI branch postfix); `none` for no postfix",
+        default_doc="`_<branch-slug>_ci` in CI off the default branch, `-<git tag>` in tag"
+        " pipelines, else none",
+        group="ours",
+    )
     sources: Mapping[str, str] = field(default_factory=dict, compare=False, repr=False)
+    # Derived, not a setting: tags pushed besides the configured ones (`latest`, a git tag).
+    push_also_as: Tuple[str, ...] = field(default=(), compare=False)
 
     def source_of(self, name: str) -> str:
         return self.sources.get(name, "default")
 
 
 def declarations() -> List[dataclasses.Field]:
-    return [f for f in dataclasses.fields(Settings) if f.name != "sources"]
+    return [f for f in dataclasses.fields(Settings) if "help" in f.metadata]
 
 
 FIELDS = {f.name: f for f in declarations()}
@@ -443,6 +454,7 @@ def derived_defaults(
                                       else (image_name, origin("image_name")))
         if not values.get(f"{image}_image_tag"):
             out[f"{image}_image_tag"] = (f"{tag}-{image}", origin("image_tag"))
+    out.update(with_ci_tags(values, sources, out, environ))
     if not values.get("platform"):
         out["platform"] = ((host_platform(),), "")
     if not values.get("workspace"):
@@ -453,6 +465,46 @@ def derived_defaults(
             out["registry"] = ("ghcr.io", "derived from GITHUB_ACTIONS (environment)")
         elif environ.get("CI_REGISTRY"):
             out["registry"] = (environ["CI_REGISTRY"], "derived from CI_REGISTRY (environment)")
+    return out
+
+
+def ci_tags(values: Mapping[str, object], environ: Mapping[str, str]) -> Dict[str, object]:
+    """IMAGE_POSTFIX (given, or from the CI pipeline in environ) appended to the three image
+    tags, and the extra tags to push (ENABLE_PUSH_AS_LATEST, tag pipelines)."""
+    pipeline = detect_pipeline(environ)
+    given = values.get("image_postfix")
+    postfix = tag_postfix(pipeline) if given is None else str(given)
+    postfix = "" if postfix == NO_POSTFIX else postfix
+    tag = str(values.get("image_tag", "latest"))
+    latest = bool(values.get("enable_push_as_latest"))
+    out: Dict[str, object] = {
+        "image_postfix": postfix or None,
+        "push_also_as": push_also_as(pipeline, image_tag=tag, enable_push_as_latest=latest),
+    }
+    if postfix:
+        for name in ("image_tag", "dev_image_tag", "slim_image_tag"):
+            out[name] = f"{values.get(name) or tag}{postfix}"
+    return out
+
+
+def with_ci_tags(
+    values: Mapping[str, object],
+    sources: Mapping[str, str],
+    derived: Mapping[str, Tuple[object, str]],
+    environ: Mapping[str, str],
+) -> Dict[str, Tuple[object, str]]:
+    """ci_tags with provenance: the tags that got IMAGE_POSTFIX say so."""
+    merged = {**values, **{name: value for name, (value, _) in derived.items()}}
+    tags = ci_tags(merged, environ)
+    out: Dict[str, Tuple[object, str]] = {"push_also_as": (tags["push_also_as"], "")}
+    if tags["image_postfix"] is None or "image_postfix" in values:
+        out["image_postfix"] = (tags["image_postfix"], "")
+    else:
+        out["image_postfix"] = (tags["image_postfix"], "derived from the CI pipeline (environment)")
+    for name in ("image_tag", "dev_image_tag", "slim_image_tag"):
+        if name in tags:
+            before = derived[name][1] if name in derived else sources.get(name, "default")
+            out[name] = (tags[name], f"{before} + IMAGE_POSTFIX")
     return out
 
 

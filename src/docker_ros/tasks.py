@@ -29,6 +29,8 @@ from docker_ros.settings import (
     Settings,
     SettingsError,
     default_doc,
+    display_value,
+    env_name,
     is_secret,
     parse_set,
     require,
@@ -529,11 +531,76 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     from docker_ros.push import push, push_targets
 
     _build(settings, settings.target, dry_run=dry_run, slim=settings.enable_slim)
+    _push_and_report(settings, push_targets(settings), push, dry_run=dry_run)
+
+
+def _push_and_report(
+    settings: Settings, targets: Sequence[str], action: Callable[..., List[str]], *, dry_run: bool
+) -> None:
+    """Run push or manifest; print the pushed names and hand them to the CI as outputs."""
+    from docker_ros.push import plan_outputs, write_outputs
+
     try:
-        for name in push(settings, push_targets(settings), dry_run=dry_run):
-            print(f"pushed {name}")
+        pushed = action(settings, targets, dry_run=dry_run)
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
+    for name in pushed:
+        print(f"pushed {name}")
+    if pushed:
+        write_outputs(plan_outputs(settings, targets, pushed), os.environ)
+
+
+@settings_task(
+    "manifest",
+    "Write multi-arch manifest lists over the pushed `-<arch>` images\n\n"
+    "IMAGE_NAME:IMAGE_TAG (and dev, slim) over the `-<arch>` images that one CI job per "
+    "PLATFORM pushed with ENABLE_SINGLEARCH_PUSH.",
+    [DRY_RUN],
+    uses=("target", "image", "image_tag", "platform") + PUSH_SETTINGS,
+)
+def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+    from docker_ros.push import manifest
+
+    slim = settings.enable_slim and "run" in settings.target
+    if slim:
+        _require_tasks([["slim"]])
+    _push_and_report(settings, (*settings.target, *(["slim"] if slim else [])), manifest,
+                     dry_run=dry_run)
+
+
+@settings_task(
+    "ci",
+    "One CI job: build, test, slim, push (GitHub Action, GitLab template)\n\n"
+    "Each a `docker-ros` task: build, test (ENABLE_INDUSTRIAL_CI), slim (ENABLE_SLIM), push.",
+    [DRY_RUN],
+    uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
+)
+def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+    from docker_ros.ci import plan_ci_job
+
+    plan = plan_ci_job(target=settings.target, enable_industrial_ci=settings.enable_industrial_ci,
+                       enable_slim=settings.enable_slim)
+    _require_tasks(plan)
+    # The tasks re-read .env, invoke.yaml and the environment; flags given to `ci` go along.
+    given = [arg for n in FIELDS if settings.source_of(n) == "flag"
+             for arg in ("--set", f"{env_name(n)}={display_value(settings, n)}")]
+    for argv in plan:
+        command = [sys.executable, "-m", "docker_ros", *argv, *given]
+        print(f"docker-ros ci: docker-ros {format_argv(argv + given)}", flush=True)
+        if dry_run:
+            continue
+        code = subprocess.call(command)
+        if code != 0:
+            raise TaskError(f"`docker-ros {argv[0]}` failed with exit code {code}; "
+                            "nothing after it ran")
+
+
+def _require_tasks(plan: Sequence[Sequence[str]]) -> None:
+    from docker_ros.ci import missing_tasks
+
+    problems = missing_tasks(plan, ns.task_names)
+    if problems:
+        raise TaskError("; ".join(problems))
 
 
 @settings_task(
@@ -645,7 +712,8 @@ def collection() -> Collection:
     ns = Collection()
     for step in STEPS:
         ns.add_task(make_step_task(step))
-    for task in (config, dev, run, build_task, test_task, slim_task, push_task, dev_shell,
+    for task in (config, dev, run, build_task, test_task, slim_task, push_task, manifest_task,
+                 ci_task, dev_shell,
                  bootstrap_base_image, example):
         ns.add_task(task)
     return ns

@@ -2,7 +2,14 @@
 
 from pathlib import Path
 
-from docker_ros.push import insecure, latest_ref, plan_push
+from docker_ros.push import (
+    insecure,
+    latest_ref,
+    plan_manifest,
+    plan_outputs,
+    plan_push,
+    write_outputs,
+)
 from docker_ros.settings import load_settings
 
 
@@ -46,10 +53,44 @@ def test_only_loopback_registries_are_insecure():
     assert insecure("img:latest") == []
 
 
-def test_singlearch_push_adds_the_arch_postfix_on_arch_specific_runners():
+def test_singlearch_push_pushes_only_the_arch_name_on_arch_specific_runners():
+    """docker-ros: the runner of one architecture pushes `-<arch>`, never the shared name."""
     s = settings(IMAGE="reg.example/img:v1", PLATFORM="arm64", ENABLE_SINGLEARCH_PUSH="true")
     assert plan_push(s, s.target) == [
-        ["docker", "push", "reg.example/img:v1"],
         ["docker", "tag", "reg.example/img:v1", "reg.example/img:v1-arm64"],
         ["docker", "push", "reg.example/img:v1-arm64"],
     ]
+
+
+def test_manifest_joins_the_arch_images_of_every_platform_under_every_name():
+    s = settings(IMAGE="127.0.0.1:5000/img:v1", TARGET="dev,run", PLATFORM="amd64,arm64",
+                 ENABLE_PUSH_AS_LATEST="true")
+    commands = plan_manifest(s, s.target)
+    arch = ["127.0.0.1:5000/img:v1-dev-amd64", "127.0.0.1:5000/img:v1-dev-arm64"]
+    assert commands[:2] == [
+        ["docker", "manifest", "create", "--insecure", "--amend", "127.0.0.1:5000/img:v1-dev",
+         *arch],
+        ["docker", "manifest", "push", "--insecure", "127.0.0.1:5000/img:v1-dev"],
+    ]
+    created = [c[5] for c in commands if c[2] == "create"]
+    assert created == ["127.0.0.1:5000/img:v1-dev", "127.0.0.1:5000/img:latest-dev",
+                       "127.0.0.1:5000/img:v1", "127.0.0.1:5000/img:latest"]
+
+
+def test_outputs_name_the_pushed_images_per_target():
+    s = settings(IMAGE="reg.example/img:v1", TARGET="dev,run", PLATFORM="amd64",
+                 ENABLE_SINGLEARCH_PUSH="true")
+    pushed = ["reg.example/img:v1-dev-amd64", "reg.example/img:v1-amd64"]
+    assert plan_outputs(s, s.target, pushed) == {
+        "images": "reg.example/img:v1-dev-amd64,reg.example/img:v1-amd64",
+        "dev-image": "reg.example/img:v1-dev-amd64",
+        "image": "reg.example/img:v1-amd64",
+    }
+
+
+def test_outputs_are_appended_to_the_github_output_file(tmp_path):
+    out = tmp_path / "output"
+    out.write_text("earlier=1\n")
+    write_outputs({"images": "a:1,b:2", "image": "a:1"}, {"GITHUB_OUTPUT": str(out)})
+    write_outputs({"images": "ignored"}, {})
+    assert out.read_text() == "earlier=1\nimages=a:1,b:2\nimage=a:1\n"

@@ -11,8 +11,10 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 STEP_FILES = sorted((SRC / "docker_ros" / "steps").glob("*.py"))
-# testing.py runs in the image's test stage, slimtrace.py in the run image being slimmed
-IN_IMAGE = [SRC / "docker_ros" / name for name in ("settings.py", "testing.py", "slimtrace.py")]
+# testing.py runs in the image's test stage, slimtrace.py in the run image being slimmed,
+# ci.py with settings.py
+IN_IMAGE = [SRC / "docker_ros" / name
+            for name in ("settings.py", "ci.py", "testing.py", "slimtrace.py")]
 CHECKED = STEP_FILES + IN_IMAGE
 
 IMPORT_ALL = """

@@ -1,0 +1,136 @@
+"""docker-ros's CI tag rules: which pipeline we run in, and what that does to image tags.
+
+Standard library only: settings.py derives its defaults from here, and both ship into images.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Collection, List, Mapping, Optional, Sequence, Tuple
+
+# IMAGE_POSTFIX value that switches the derived postfix off ("" would count as unset).
+NO_POSTFIX = "none"
+SLUG_MAX = 63  # GitLab's CI_COMMIT_REF_SLUG length
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """Where a CI pipeline runs: which ref, of which kind, and the repository's default branch."""
+
+    ci: str  # "github" or "gitlab"
+    kind: str  # "branch", "tag" or "merge_request" (GitHub: pull request)
+    ref: str  # branch or tag name; the source branch of a merge/pull request
+    default_branch: str  # "" when the CI does not tell
+
+    @property
+    def on_default_branch(self) -> bool:
+        return self.kind == "branch" and bool(self.default_branch) and (
+            self.ref == self.default_branch
+        )
+
+
+def slugify(name: str) -> str:
+    """GitLab's CI_COMMIT_REF_SLUG: lower case, 63 bytes, all but [0-9a-z] as `-`, no `-` at
+    the ends (gacts/github-slug, which docker-ros's action uses, gives the same for branches)."""
+    slug = re.sub(r"[^0-9a-z]", "-", name.lower())[:SLUG_MAX]
+    return slug.strip("-")
+
+
+def docker_tag_part(name: str) -> str:
+    """A git tag as part of a Docker tag (allowed: [A-Za-z0-9_.-]; `v1.2` stays `v1.2`)."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "-", name)
+
+
+def detect_pipeline(environ: Mapping[str, str]) -> Optional[Pipeline]:
+    """The GitHub Actions or GitLab CI pipeline described by environ; None outside CI."""
+    if environ.get("GITHUB_ACTIONS") == "true":
+        default = environ.get("GITHUB_DEFAULT_BRANCH", "")
+        if environ.get("GITHUB_HEAD_REF"):  # pull_request events: the source branch
+            return Pipeline("github", "merge_request", environ["GITHUB_HEAD_REF"], default)
+        kind = "tag" if environ.get("GITHUB_REF_TYPE") == "tag" else "branch"
+        return Pipeline("github", kind, environ.get("GITHUB_REF_NAME", ""), default)
+    if environ.get("GITLAB_CI") == "true":
+        default = environ.get("CI_DEFAULT_BRANCH", "")
+        if environ.get("CI_COMMIT_TAG"):
+            return Pipeline("gitlab", "tag", environ["CI_COMMIT_TAG"], default)
+        if environ.get("CI_MERGE_REQUEST_SOURCE_BRANCH_NAME"):
+            source = environ["CI_MERGE_REQUEST_SOURCE_BRANCH_NAME"]
+            return Pipeline("gitlab", "merge_request", source, default)
+        branch = environ.get("CI_COMMIT_BRANCH") or environ.get("CI_COMMIT_REF_NAME", "")
+        return Pipeline("gitlab", "branch", branch, default)
+    return None
+
+
+def tag_postfix(pipeline: Optional[Pipeline]) -> str:
+    """Appended to every image tag: `_<slug>_ci` off the default branch (docker-ros), the git
+    tag as `-<tag>` in tag pipelines (docker-ros's GitLab "target tag"), else nothing. An
+    unknown default branch counts as another branch: a CI image never overwrites a release."""
+    if pipeline is None or pipeline.on_default_branch:
+        return ""
+    if pipeline.kind == "tag":
+        return "-" + docker_tag_part(pipeline.ref)
+    return f"_{slugify(pipeline.ref)}_ci"
+
+
+def push_also_as(
+    pipeline: Optional[Pipeline], *, image_tag: str, enable_push_as_latest: bool
+) -> Tuple[str, ...]:
+    """Tags pushed besides the configured ones (run: `<t>`, dev: `<t>-dev`, slim: `<t>-slim`).
+
+    ENABLE_PUSH_AS_LATEST pushes `latest` outside CI and on the default branch only; a tag
+    pipeline pushes the git tag itself when IMAGE_TAG is `latest` or ENABLE_PUSH_AS_LATEST is
+    set (docker-ros's GitLab "Push latest" and "Push tag" jobs)."""
+    if pipeline is not None and pipeline.kind == "tag":
+        if enable_push_as_latest or image_tag == "latest":
+            return (docker_tag_part(pipeline.ref),)
+        return ()
+    if enable_push_as_latest and (pipeline is None or pipeline.on_default_branch):
+        return ("latest",)
+    return ()
+
+
+def github_default_branch(environ: Mapping[str, str]) -> str:
+    """The default branch from the GitHub event payload (GITHUB_EVENT_PATH), "" if unknown."""
+    path = environ.get("GITHUB_EVENT_PATH")
+    if environ.get("GITHUB_ACTIONS") != "true" or not path:
+        return ""
+    try:
+        event = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return ""
+    repository = event.get("repository") if isinstance(event, dict) else None
+    branch = repository.get("default_branch") if isinstance(repository, dict) else None
+    return branch if isinstance(branch, str) else ""
+
+
+# Tasks a CI job may need that not every docker-ros has, and the setting that asks for them.
+OPTIONAL_TASKS = {"test": "ENABLE_INDUSTRIAL_CI", "slim": "ENABLE_SLIM"}
+# The build before test/slim leaves both to the explicit calls that follow it.
+SEPARATE = ("--set", "ENABLE_SLIM=false", "--set", "ENABLE_INDUSTRIAL_CI=false")
+
+
+def plan_ci_job(
+    *, target: Tuple[str, ...], enable_industrial_ci: bool, enable_slim: bool
+) -> List[List[str]]:
+    """The docker-ros tasks (argv after `docker-ros`) of one CI job: build, test, slim, push.
+    Tests run before anything is pushed, so a failing test pushes nothing."""
+    plan = [["build", *SEPARATE]]
+    if enable_industrial_ci:
+        plan.append(["test"])
+    if enable_slim and "run" in target:
+        plan.append(["slim"])
+    plan.append(["push", "--set", "ENABLE_INDUSTRIAL_CI=false"])
+    return plan
+
+
+def missing_tasks(plan: Sequence[Sequence[str]], available: Collection[str]) -> List[str]:
+    """One line per task of the plan that this docker-ros does not have, with what to do."""
+    return [
+        f"{OPTIONAL_TASKS.get(argv[0], argv[0])}=true needs the `{argv[0]}` task, which this "
+        f"docker-ros does not have yet: set {OPTIONAL_TASKS.get(argv[0], argv[0])}=false"
+        for argv in plan
+        if argv[0] not in available
+    ]

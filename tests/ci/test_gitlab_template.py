@@ -1,0 +1,97 @@
+"""The GitLab CI template run for real: gitlab-ci-local executes its jobs with the shell executor
+on a copy of example/ (a git repository with an origin), pushing to a local registry."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Dict
+
+import pytest
+
+from tests.ci.cihelp import (
+    REPO,
+    assert_pulled_image_runs,
+    example_repository,
+    git,
+    manifest_architectures,
+    registry_tags,
+)
+
+pytestmark = pytest.mark.docker
+
+IMAGE = "docker-ros-test/ci-gitlab"
+FEATURE = "Feature/GitLab_Test"
+
+
+def gitlab_ci_local(repo: Path, variables: Dict[str, str]) -> subprocess.CompletedProcess:
+    """The whole pipeline, every job through the shell executor (the template's docker:dind
+    image cannot be pulled here; a shell runner is a supported way to run it)."""
+    executable = shutil.which("gitlab-ci-local")
+    if executable is None:
+        pytest.fail("gitlab-ci-local (npm) is not installed; run `bash scripts/setup.sh` first")
+    argv = [executable, "--force-shell-executor", "--no-color",
+            "--ignore-predefined-vars", "GITLAB_CI"]
+    for key, value in variables.items():
+        argv += ["--variable", f"{key}={value}"]
+    env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    return subprocess.run(argv, cwd=repo, env=env, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, text=True, timeout=1800)
+
+
+@pytest.fixture(scope="module")
+def pipelines(ros1_base_image: str, local_registry: str,
+              tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The template included by a repository; one pipeline on a feature branch, one on main."""
+    repo = example_repository(tmp_path_factory.mktemp("gitlab"), ros1_base_image)
+    (repo / ".gitlab-ci").mkdir()
+    shutil.copy(REPO / ".gitlab-ci" / "docker-ros.yml", repo / ".gitlab-ci" / "docker-ros.yml")
+    (repo / ".gitlab-ci.yml").write_text(
+        "include:\n  - local: .gitlab-ci/docker-ros.yml\n\n"
+        # A shell runner ignores services; gitlab-ci-local would try to pull docker:dind.
+        "default:\n  services: []\n\n"
+        "variables:\n  TARGET: dev,run\n  ENABLE_SLIM: 'false'\n  ENABLE_INDUSTRIAL_CI: 'false'\n"
+    )
+    git(repo, "add", "-A")
+    git(repo, "commit", "-qm", "ci")
+    variables = {
+        "GITLAB_CI": "true",  # gitlab-ci-local says false; GitLab says true
+        "IMAGE_NAME": f"{local_registry}/{IMAGE}",
+        "DOCKER_ROS_PIP_SPEC": str(REPO),
+    }
+    results = {}
+    git(repo, "checkout", "-q", "-b", FEATURE)
+    results["feature"] = gitlab_ci_local(repo, variables)
+    git(repo, "checkout", "-q", "main")
+    results["main"] = gitlab_ci_local(repo, variables)
+    return {"registry": local_registry, **results}
+
+
+def test_pipelines_pass(pipelines: dict) -> None:
+    for branch in ("feature", "main"):
+        result = pipelines[branch]
+        assert result.returncode == 0, result.stdout[-6000:]
+        assert "PASS  build-amd64" in result.stdout and "PASS  manifest" in result.stdout
+        assert "build-arm64" not in result.stdout  # PLATFORM=amd64: no arm64 job
+
+
+def test_feature_branch_and_main_push_docker_ros_tags(pipelines: dict) -> None:
+    assert registry_tags(pipelines["registry"], IMAGE) == [
+        "latest", "latest-amd64", "latest-dev", "latest-dev-amd64",
+        "latest-dev_feature-gitlab-test_ci", "latest-dev_feature-gitlab-test_ci-amd64",
+        "latest_feature-gitlab-test_ci", "latest_feature-gitlab-test_ci-amd64",
+    ]
+    assert manifest_architectures(f"{pipelines['registry']}/{IMAGE}:latest") == ["amd64"]
+
+
+def test_secrets_and_setup_stay_out_of_the_log(pipelines: dict) -> None:
+    log = pipelines["main"].stdout
+    assert "docker-ros ci: docker-ros build" in log and "docker-ros ci: docker-ros push" in log
+    assert "--password" not in log.replace("--password-stdin", "")
+
+
+def test_pushed_run_image_runs(pipelines: dict) -> None:
+    ref = f"{pipelines['registry']}/{IMAGE}:latest_feature-gitlab-test_ci"
+    assert_pulled_image_runs(ref)

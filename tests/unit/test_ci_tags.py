@@ -1,0 +1,144 @@
+"""docker-ros's CI tag rules, from the variables GitHub Actions and GitLab CI set."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from docker_ros.ci import (
+    Pipeline,
+    detect_pipeline,
+    github_default_branch,
+    missing_tasks,
+    plan_ci_job,
+    slugify,
+)
+from docker_ros.config import read_settings
+from docker_ros.push import plan_push
+from docker_ros.settings import load_settings
+
+GITHUB = {"GITHUB_ACTIONS": "true", "GITHUB_DEFAULT_BRANCH": "main"}
+GITLAB = {"GITLAB_CI": "true", "CI_DEFAULT_BRANCH": "main"}
+# What the CIs set for a push to the default branch, a feature branch, a tag, a MR/PR.
+CASES = {
+    "github-default": {**GITHUB, "GITHUB_REF_TYPE": "branch", "GITHUB_REF_NAME": "main"},
+    "github-feature": {**GITHUB, "GITHUB_REF_TYPE": "branch",
+                       "GITHUB_REF_NAME": "Feature/My_Thing"},
+    "github-tag": {**GITHUB, "GITHUB_REF_TYPE": "tag", "GITHUB_REF_NAME": "v1.2.0"},
+    "github-pr": {**GITHUB, "GITHUB_EVENT_NAME": "pull_request", "GITHUB_REF_TYPE": "branch",
+                  "GITHUB_REF_NAME": "42/merge", "GITHUB_HEAD_REF": "Feature/My_Thing"},
+    "gitlab-default": {**GITLAB, "CI_COMMIT_BRANCH": "main", "CI_COMMIT_REF_NAME": "main"},
+    "gitlab-feature": {**GITLAB, "CI_COMMIT_BRANCH": "Feature/My_Thing",
+                       "CI_COMMIT_REF_NAME": "Feature/My_Thing"},
+    "gitlab-tag": {**GITLAB, "CI_COMMIT_TAG": "v1.2.0", "CI_COMMIT_REF_NAME": "v1.2.0"},
+    "gitlab-mr": {**GITLAB, "CI_PIPELINE_SOURCE": "merge_request_event",
+                  "CI_MERGE_REQUEST_SOURCE_BRANCH_NAME": "Feature/My_Thing",
+                  "CI_COMMIT_REF_NAME": "Feature/My_Thing"},
+}
+
+
+def settings(case, **environ):
+    return load_settings(environ={"BASE_IMAGE": "b:1", "COMMAND": "c", "IMAGE_NAME": "reg/img",
+                                  "TARGET": "dev,run", "PLATFORM": "amd64",
+                                  **CASES.get(case, {}), **environ},
+                         project_dir=Path("/tmp/repo"))
+
+
+def refs(s):
+    return (s.image_tag, s.dev_image_tag, s.slim_image_tag)
+
+
+@pytest.mark.parametrize("case", ["github-default", "gitlab-default", "none"])
+def test_default_branch_and_outside_ci_get_no_postfix(case):
+    s = settings(case)
+    assert refs(s) == ("latest", "latest-dev", "latest-slim")
+    assert s.image_postfix is None and s.push_also_as == ()
+
+
+@pytest.mark.parametrize("case", ["github-feature", "gitlab-feature", "github-pr", "gitlab-mr"])
+def test_feature_branches_and_merge_requests_get_the_slug_ci_postfix(case):
+    s = settings(case)
+    assert refs(s) == ("latest_feature-my-thing_ci", "latest-dev_feature-my-thing_ci",
+                       "latest-slim_feature-my-thing_ci")
+
+
+def test_slug_is_gitlabs_ci_commit_ref_slug():
+    assert slugify("Feature/My_Thing") == "feature-my-thing"
+    assert slugify("-fix--Ü-") == "fix"
+    assert slugify("x" * 70 + "/y") == "x" * 63
+    assert slugify("a" * 62 + "/b") == "a" * 62  # cut at 63, then no trailing -
+
+
+@pytest.mark.parametrize("case", ["github-tag", "gitlab-tag"])
+def test_tag_pipelines_push_target_tag_and_the_git_tag(case):
+    """docker-ros's GitLab "Push target tag" (<tag>-<git tag>) and "Push tag" (<git tag>, as
+    IMAGE_TAG is latest); no _ci postfix."""
+    s = settings(case)
+    assert refs(s) == ("latest-v1.2.0", "latest-dev-v1.2.0", "latest-slim-v1.2.0")
+    assert plan_push(s, s.target) == [
+        ["docker", "push", "reg/img:latest-dev-v1.2.0"],
+        ["docker", "tag", "reg/img:latest-dev-v1.2.0", "reg/img:v1.2.0-dev"],
+        ["docker", "push", "reg/img:v1.2.0-dev"],
+        ["docker", "push", "reg/img:latest-v1.2.0"],
+        ["docker", "tag", "reg/img:latest-v1.2.0", "reg/img:v1.2.0"],
+        ["docker", "push", "reg/img:v1.2.0"],
+    ]
+
+
+def test_tag_pipeline_with_own_image_tag_pushes_the_git_tag_only_as_latest():
+    assert settings("gitlab-tag", IMAGE_TAG="humble").push_also_as == ()
+    assert settings("gitlab-tag", IMAGE_TAG="humble",
+                    ENABLE_PUSH_AS_LATEST="true").push_also_as == ("v1.2.0",)
+
+
+@pytest.mark.parametrize("case,expected", [
+    ("none", ("latest",)), ("github-default", ("latest",)), ("gitlab-default", ("latest",)),
+    ("github-feature", ()), ("gitlab-feature", ()), ("github-pr", ()), ("gitlab-mr", ()),
+])
+def test_push_as_latest_only_from_the_default_branch(case, expected):
+    s = settings(case, IMAGE_TAG="v1", ENABLE_PUSH_AS_LATEST="true")
+    assert s.push_also_as == expected
+    pushed = [c[-1] for c in plan_push(s, s.target) if c[1] == "push"]
+    assert ("reg/img:latest" in pushed) == bool(expected)
+
+
+def test_singlearch_push_on_a_feature_branch_pushes_postfix_then_arch():
+    s = settings("gitlab-feature", ENABLE_SINGLEARCH_PUSH="true", PLATFORM="arm64")
+    pushed = [c[-1] for c in plan_push(s, s.target) if c[1] == "push"]
+    assert pushed == ["reg/img:latest-dev_feature-my-thing_ci-arm64",
+                      "reg/img:latest_feature-my-thing_ci-arm64"]
+
+
+def test_image_postfix_overrides_the_rules():
+    assert settings("gitlab-feature", IMAGE_POSTFIX="none").image_tag == "latest"
+    assert settings("none", IMAGE_POSTFIX="_nightly").dev_image_tag == "latest-dev_nightly"
+    assert settings("gitlab-default", IMAGE_TAG="v2", DEV_IMAGE_TAG="d",
+                    IMAGE_POSTFIX="-x").dev_image_tag == "d-x"
+
+
+def test_unknown_default_branch_counts_as_another_branch():
+    p = detect_pipeline({"GITHUB_ACTIONS": "true", "GITHUB_REF_NAME": "main"})
+    assert p == Pipeline("github", "branch", "main", "")
+    assert settings("none", GITHUB_ACTIONS="true", GITHUB_REF_NAME="main").image_tag == (
+        "latest_main_ci")
+
+
+def test_github_default_branch_comes_from_the_event_payload(tmp_path):
+    event = tmp_path / "event.json"
+    event.write_text(json.dumps({"repository": {"default_branch": "develop"}}))
+    environ = {"GITHUB_ACTIONS": "true", "GITHUB_EVENT_PATH": str(event),
+               "GITHUB_REF_TYPE": "branch", "GITHUB_REF_NAME": "develop", "BASE_IMAGE": "b:1"}
+    assert github_default_branch(environ) == "develop"
+    assert read_settings({}, {}, project_dir=tmp_path, environ=environ).image_tag == "latest"
+    assert github_default_branch({**environ, "GITHUB_EVENT_PATH": str(tmp_path / "no")}) == ""
+
+
+def test_ci_job_plan_tests_before_pushing_and_names_missing_tasks():
+    plan = plan_ci_job(target=("dev", "run"), enable_industrial_ci=True, enable_slim=True)
+    assert [argv[0] for argv in plan] == ["build", "test", "slim", "push"]
+    assert [argv[0] for argv in plan_ci_job(target=("dev",), enable_industrial_ci=False,
+                                             enable_slim=True)] == ["build", "push"]
+    assert missing_tasks(plan, {"build", "push", "slim"}) == [
+        "ENABLE_INDUSTRIAL_CI=true needs the `test` task, which this docker-ros does not have "
+        "yet: set ENABLE_INDUSTRIAL_CI=false"
+    ]
