@@ -26,7 +26,7 @@ from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, T
 
 import docker
 
-from docker_ros import build
+from docker_ros import build, engine
 from docker_ros.settings import Settings, as_env, env_name
 from docker_ros.steps.common import StepError
 
@@ -359,7 +359,7 @@ def run_plan(
             # The state before the start failed to build: open the shell where that failed.
             reproduce(settings, exc, out=out)
         raise
-    client = docker.from_env()
+    client = engine.client()
     try:
         start_id = str(client.images.get(stage_tag).id)
         declared = [a for a in build.dockerfile_args() if a not in NOT_SETTINGS]

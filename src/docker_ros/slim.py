@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import IO, Callable, Dict, List, Mapping, Optional, Sequence, Set, Tuple
 
 from docker_ros.build import PACKAGE_DIR, image_ref, image_size, platform_ref
+from docker_ros.engine import inspect_image
 from docker_ros.settings import Settings, host_platform
 from docker_ros.steps.common import format_argv
 
@@ -314,11 +315,6 @@ def docker(*args: str, check: bool = True, timeout: float = 600,
         raise SlimError(f"`{format_argv(['docker', *args])[:200]}` failed with exit code "
                         f"{proc.returncode}: {reason[-1] if reason else 'no reason given'}")
     return proc
-
-
-def inspect_image(ref: str) -> Optional[dict]:
-    proc = docker("image", "inspect", ref, check=False)
-    return json.loads(proc.stdout)[0] if proc.returncode == 0 else None
 
 
 def container_state(name: str) -> Tuple[bool, int]:
