@@ -320,8 +320,14 @@ def build_image(
         proc = subprocess.Popen(argv, env=child_env, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True, bufsize=1)
         assert proc.stdout is not None
-        errors = stream_build(iter(proc.stdout.readline, ""), out, environ)
-        code = proc.wait()
+        try:
+            errors = stream_build(iter(proc.stdout.readline, ""), out, environ)
+            code = proc.wait()
+        except KeyboardInterrupt:
+            # buildx got the same Ctrl-C: let it cancel the build (nothing is tagged) and end.
+            proc.terminate()
+            proc.wait()
+            raise
     if code != 0:
         where = f"in step {errors[-1]}" if errors else "(see the BuildKit error above)"
         raise BuildError(f"building target '{target}' ({platform}) failed {where}", code)

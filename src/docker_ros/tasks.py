@@ -21,7 +21,7 @@ from invoke import Collection, Context, Exit, Task
 
 from docker_ros import build
 from docker_ros.build import BuiltImage
-from docker_ros.config import config_table, read_settings
+from docker_ros.config import config_table, image_problems, path_problems, read_settings
 from docker_ros.settings import (
     FIELDS,
     Settings,
@@ -56,8 +56,11 @@ class TaskError(Exception):
     """An expected failure outside the steps (bad repository layout, failed build...)."""
 
 
-def settings_task(name: str, help: str, flags: Sequence[Flag] = ()) -> Callable[..., Task]:
-    """Make an invoke Task whose flags are the task's own plus one per setting."""
+def settings_task(
+    name: str, help: str, flags: Sequence[Flag] = (), *, lenient: bool = False
+) -> Callable[..., Task]:
+    """Make an invoke Task whose flags are the task's own plus one per setting (`lenient`:
+    invalid values reach the task in Settings.problems instead of stopping it)."""
 
     def decorate(func: Callable[..., Any]) -> Task:
         own = [f[0] for f in flags]
@@ -67,8 +70,10 @@ def settings_task(name: str, help: str, flags: Sequence[Flag] = ()) -> Callable[
             overrides = {n: kwargs.pop(n) for n in list(kwargs) if n in FIELDS}
             try:
                 cfg = c.config.get("docker_ros", None) or {}
-                settings = read_settings(dict(cfg), overrides)
+                settings = read_settings(dict(cfg), overrides, lenient=lenient)
                 return func(c, settings, **kwargs)
+            except KeyboardInterrupt:
+                raise Exit(f"docker-ros {name}: interrupted", code=130) from None
             except (SettingsError, StepError, TaskError) as exc:
                 code = getattr(exc, "returncode", 1) or 1
                 where = exc.step if isinstance(exc, StepError) else name
@@ -133,9 +138,17 @@ def host_options(step: str, ws: Workspace) -> Dict[str, str]:
     return {"destination": str(ws.root / "additional-files")} if step == "files" else {}
 
 
+def check_inputs(settings: Settings, targets: Sequence[str] = ()) -> None:
+    """Bad paths and image names, all at once, before anything runs."""
+    problems = {**path_problems(settings), **(image_problems(settings, targets) if targets else {})}
+    if problems:
+        raise SettingsError("invalid configuration:\n  " + "\n  ".join(problems.values()))
+
+
 def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -> None:
     from docker_ros.steps import run_step
 
+    check_inputs(settings)
     with host_workspace(settings, dry_run=dry_run) as ws:
         for step in steps:
             run_step(step, ws, settings, phase="all", dry_run=dry_run, **host_options(step, ws))
@@ -149,9 +162,16 @@ def make_step_task(step: str) -> Task:
     return step_task
 
 
-@settings_task("config", "Print every setting, its effective value and its source")
+@settings_task(
+    "config", "Print every setting, its effective value and its source; mark invalid ones",
+    lenient=True,
+)
 def config(c: Context, settings: Settings) -> None:
-    print(config_table(settings))
+    problems = {**path_problems(settings), **image_problems(settings, settings.target)}
+    print(config_table(settings, problems))
+    messages = [*(why for _, why in settings.problems.values()), *problems.values()]
+    if messages:
+        raise TaskError("invalid configuration:\n  " + "\n  ".join(messages))
 
 
 @settings_task("dev", "Build the dev image, or with --host run clone..custom here", [HOST, DRY_RUN])
@@ -178,6 +198,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List
     """Build the targets for every platform; print the summary table."""
     settings = dataclasses.replace(settings, target=tuple(targets))
     require(settings, required_for_build(settings))
+    check_inputs(settings, targets)
     assert settings.base_image
     if not dry_run:
         try:
@@ -226,6 +247,7 @@ def _build_until(settings: Settings, step: str, *, dry_run: bool) -> None:
     if step not in build.STAGE_OF_STEP:
         raise TaskError(f"--until {step!r}: use one of {', '.join(build.STAGE_OF_STEP)}")
     require(settings, ["base_image"] + (["command"] if step == "command" else []))
+    check_inputs(settings, ("run",))
     stage, tag = build.STAGE_OF_STEP[step], build.until_ref(settings, step)
     platform = settings.platform[0]
     if dry_run:

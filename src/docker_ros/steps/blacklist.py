@@ -37,12 +37,7 @@ def plan_blacklist(
 
 
 def compute(ws: Workspace, settings: Settings) -> Dict[str, Any]:
-    entries, _ = collect_list_entries(
-        ws,
-        STEP,
-        settings.blacklisted_packages_file,
-        recursive=settings.enable_recursive_blacklisted_packages,
-    )
+    entries, _ = collect_list_entries(ws, STEP, settings, "blacklisted_packages_file")
     # A line may hold several names (docker-ros passed lines to a shell command).
     names = unique([word for entry in entries for word in entry.split()])
     return plan_blacklist(names, find_packages(ws, settings, step=STEP), ws)

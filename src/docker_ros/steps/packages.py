@@ -233,7 +233,23 @@ def find_packages(
             packages.append(parse_package_xml(path.read_text(), context, directory))
         except (ValueError, OSError) as exc:
             raise StepError(step, f"{path}: {exc}") from None
+    duplicates = duplicate_packages(packages)
+    if duplicates:
+        listed = "; ".join(
+            f"{name} in {' and '.join(ws.relative(p) for p in paths)}"
+            for name, paths in duplicates.items()
+        )
+        raise StepError(step, f"two packages with the same name: {listed} (colcon cannot build "
+                        "both: remove one, or put a COLCON_IGNORE file in its folder)")
     return packages
+
+
+def duplicate_packages(packages: Sequence[Package]) -> Dict[str, List[Path]]:
+    """Package names found more than once, with every folder holding one."""
+    paths: Dict[str, List[Path]] = {}
+    for package in packages:
+        paths.setdefault(package.name, []).append(package.path)
+    return {name: found for name, found in sorted(paths.items()) if len(found) > 1}
 
 
 # --- keys ---
