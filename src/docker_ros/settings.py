@@ -220,6 +220,12 @@ class Settings:
         path="file", recursive="enable_recursive_vcs_import",
     )
     # --- beyond docker-ros ---
+    rosdep_rules_file: str = setting(
+        "docker/rosdep.yaml",
+        "Relative filepath to a rosdep rules file (YAML) whose keys come before the public "
+        "rules (on the host in the workspace's own rosdep database, never /etc)",
+        group="ours", path="file",
+    )
     workspace: Optional[str] = setting(
         None,
         "Host workspace of the step tasks and `--host` composites (repository at src/target)",

@@ -290,8 +290,9 @@ def import_argv(repos_file: Path, dest: Path, *, skip_existing: bool) -> List[st
     return argv + (["--skip-existing"] if skip_existing else [])
 
 
-def candidates(ws: Workspace, settings: Settings) -> List[Path]:
-    return find_special_files(ws, settings, "vcs_import_file", pattern="*.repos", step=STEP)
+def candidates(ws: Workspace, settings: Settings, *, required: bool = True) -> List[Path]:
+    return find_special_files(ws, settings, "vcs_import_file", pattern="*.repos", step=STEP,
+                              required=required)
 
 
 def import_file(
@@ -342,11 +343,15 @@ def main(
     dry_run: bool = False,
     **options: str,
 ) -> None:
-    """Single phase: the hook, then every .repos file, each imported once."""
+    """Single phase: the hook, then every .repos file, each imported once. Option
+    imports_only (the image's upstream stage, which holds the .repos files alone): no hook, and
+    an explicitly set VCS_IMPORT_FILE may be missing (the full run after it checks)."""
     phases(STEP, phase)
+    imports_only = bool(options.get("imports_only"))
     with step_log(STEP):
         ws.require_sources(STEP)
-        run_hook(ws, settings, dry_run=dry_run)
+        if not imports_only:
+            run_hook(ws, settings, dry_run=dry_run)
         state = ws.read_state(STATE_FILE) or {}
         imported: Dict[str, Any] = (
             dict(state.get("imported") or {}) if isinstance(state, dict) else {}
@@ -360,7 +365,7 @@ def main(
         with git_credentials(settings) as env:
             for _round in range(MAX_ROUNDS):
                 new = []
-                for repos_file in candidates(ws, settings):
+                for repos_file in candidates(ws, settings, required=not imports_only):
                     real = os.path.realpath(str(repos_file))
                     if real in seen_paths:
                         continue
@@ -378,6 +383,8 @@ def main(
                 )
         if not seen_paths:
             LOG.info("%s: no .repos files, nothing to import", STEP)
+        if not dry_run:  # the record of what is imported, also when nothing is
+            ws.write_state(STATE_FILE, {"imported": imported})
 
 
 def _import_once(

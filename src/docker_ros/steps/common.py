@@ -323,6 +323,7 @@ def find_special_files(
     *,
     pattern: Optional[str] = None,
     step: str = "docker-ros",
+    required: bool = True,
 ) -> List[Path]:
     """docker-ros's file discovery for path setting `name`: the configured file in the
     repository, and when its recursive setting is on, every file of the same name (or matching
@@ -345,7 +346,7 @@ def find_special_files(
                            else entry.name == file_name)
                 if matches and entry.is_file() and entry not in found:
                     found.append(entry)
-    if not found and explicitly_set(settings, name):  # type: ignore[arg-type]
+    if not found and required and explicitly_set(settings, name):  # type: ignore[arg-type]
         where = f" (nor any {pattern or file_name!r} in {ws.src})" if recursive else ""
         raise StepError(step, f"{name.upper()} '{relative_path}' not found in the repository"
                         f"{where}, but set explicitly: fix the path or unset it")
