@@ -242,15 +242,20 @@ def ensure_tools_image(platform: str) -> str:
     """A FROM-scratch image with the step modules, tagged by their content hash."""
     with tempfile.TemporaryDirectory(prefix="docker-ros-tools-") as tmp:
         digest = tools_tree(Path(tmp))
-        ref = f"{TOOLS_REPOSITORY}:{digest}-{platform}"
-        if image_exists(ref):
-            return ref
-        (Path(tmp) / "Dockerfile").write_text("FROM scratch\nCOPY docker-ros /docker-ros\n")
-        argv = ["docker", "buildx", "build", "--quiet", "--load", "--platform",
-                f"linux/{platform}", "--tag", ref, tmp]
-        proc = subprocess.run(argv, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise BuildError(f"building the tools image failed: {proc.stderr.strip()}")
+        return scratch_image(Path(tmp), "docker-ros", f"{TOOLS_REPOSITORY}:{digest}-{platform}",
+                             platform)
+
+
+def scratch_image(context: Path, folder: str, ref: str, platform: str) -> str:
+    """ref: FROM scratch with context/folder at /folder, built unless it exists already."""
+    if image_exists(ref):
+        return ref
+    (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} /{folder}\n")
+    argv = ["docker", "buildx", "build", "--quiet", "--load", "--platform",
+            f"linux/{platform}", "--tag", ref, str(context)]
+    proc = subprocess.run(argv, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise BuildError(f"building {ref} failed: {proc.stderr.strip()}")
     return ref
 
 
@@ -287,15 +292,7 @@ def ensure_imports_image(settings: Settings, platform: str) -> str:
             (root / rel).parent.mkdir(parents=True, exist_ok=True)
             (root / rel).write_bytes(content)
         ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{platform}"
-        if image_exists(ref):
-            return ref
-        (Path(tmp) / "Dockerfile").write_text("FROM scratch\nCOPY repository /repository\n")
-        argv = ["docker", "buildx", "build", "--quiet", "--load", "--platform",
-                f"linux/{platform}", "--tag", ref, tmp]
-        proc = subprocess.run(argv, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise BuildError(f"building the imports image failed: {proc.stderr.strip()}")
-    return ref
+        return scratch_image(Path(tmp), "repository", ref, platform)
 
 
 def ca_bundle(path: Path, destination: Path) -> Path:

@@ -12,7 +12,13 @@ import pytest
 
 from tests.docker.buildhelp import cached_vertices, docker_ros, remove_image, sh, write_env
 from tests.docker.test_fast_rebuilds import compiled_objects
-from tests.rosfixtures import git_http_server, make_git_repo, make_package, write_repos
+from tests.rosfixtures import (
+    git_http_server,
+    make_blacklist_repo,
+    make_git_repo,
+    make_package,
+    write_repos,
+)
 
 pytestmark = pytest.mark.docker
 IMAGE = "docker-ros-test/repos-ws:1"
@@ -36,13 +42,7 @@ def workspace(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) ->
     server = git_http_server(remotes, USER, PASSWORD)
     host = f"127.0.0.1:{server.server_address[1]}"
 
-    repo = base / "repo"
-    make_package(repo / "app", "app", depends=["my_tool"])
-    make_package(repo / "unwanted", "unwanted")
-    make_package(repo / "meta", "meta", exec_depends=["unwanted"])
-    (repo / "docker").mkdir()
-    (repo / "docker" / "blacklisted-packages.txt").write_text("unwanted\n")
-    (repo / "docker" / "rosdep.yaml").write_text("my_tool:\n  debian: [jq]\n")
+    repo = make_blacklist_repo(base / "repo", "my_tool:\n  debian: [jq]\n")
     (repo / "docker" / "before_dependency_installation.sh").write_text(
         'echo "$DOCKER_ROS_CONTEXT" > /docker-ros-context\n')
     write_repos(repo / ".repos", {"upstream_libs": {"url": f"http://{host}/upstream_libs.git",

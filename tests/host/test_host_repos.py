@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.rosfixtures import make_package, tree_snapshot
+from tests.rosfixtures import make_blacklist_repo, make_package, tree_snapshot
 
 pytestmark = pytest.mark.host
 SRC = Path(__file__).resolve().parents[2] / "src"
@@ -28,13 +28,7 @@ def run(args: list, cwd: Path, env: dict | None = None) -> subprocess.CompletedP
 
 @pytest.fixture
 def repo(tmp_path: Path) -> Path:
-    repo = tmp_path / "repo"
-    make_package(repo / "app", "app", depends=["my_tool"])
-    make_package(repo / "unwanted", "unwanted")
-    make_package(repo / "meta", "meta", exec_depends=["unwanted"])
-    (repo / "docker").mkdir()
-    (repo / "docker" / "blacklisted-packages.txt").write_text("unwanted\n")
-    (repo / "docker" / "rosdep.yaml").write_text(RULES)
+    repo = make_blacklist_repo(tmp_path / "repo", RULES)
     (repo / ".env").write_text(f"WORKSPACE={tmp_path / 'ws'}\n")
     return repo
 
