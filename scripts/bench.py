@@ -6,8 +6,8 @@ libraries, one rosdep key), then in ONE run and strictly one after the other bui
 real CLI (`python -m docker_ros build`, TARGET=dev,run from the workspace's .env) and times:
 
   1   cold build (bench images removed; the workspace is new to the engine: a run id in its
-      sources and new cache mount ids. Nothing is pruned: the engine is shared, so the base
-      image's prepared layer and the apt download cache may be warm)
+      additional files and new cache mount ids. Nothing is pruned: the engine is shared, so
+      the base image's prepared layer and the apt download cache may be warm)
   2   no-change rebuild
   3   one-file change in the LAST package (nothing depends on it)
   B   baseline: what the original docker-ros does after that change, a full `colcon build` of
@@ -309,12 +309,14 @@ def write_workspace(
     cmake_args: str, run_id: str, first: int = 0, image: str = IMAGE,
     extra_env: Optional[Dict[str, str]] = None,
 ) -> None:
-    """Packages first..count-1 in root, with a .env (and a run id, so no earlier run's cache
-    serves the cold build)."""
+    """Packages first..count-1 in root, with a .env, and a run id among the additional files:
+    it changes what the resolve stage hands on, so no earlier run's dependency layers serve
+    the cold build (the apt download cache may)."""
     root.mkdir(parents=True)
     for index in range(first, count):
         write_package(root, index, chain=chain, depth=depth, keys=[key] if index == 0 else [])
-    (root / "bench-run-id.txt").write_text(run_id + "\n")
+    (root / "docker" / "additional-files").mkdir(parents=True)
+    (root / "docker" / "additional-files" / "bench-run-id.txt").write_text(run_id + "\n")
     env = {
         "BASE_IMAGE": base_image,
         "COMMAND": f"{package_name(count - 1)}_node",
