@@ -51,8 +51,8 @@ def bench(session: nox.Session) -> None:
     """Build times and image sizes (scripts/bench.py); only on request: `nox -s bench -- ARGS`.
 
     Not a test and not a default session. Arguments after `--` go to the script, e.g.
-    `nox -s bench -- -n 5 --json bench.json`. Without --no-prune the script runs
-    `docker builder prune -af`, which empties the BuildKit cache of every project on the engine.
+    `nox -s bench -- -n 5 --json bench.json`. It prunes nothing (the engine may be shared) and
+    removes only its own images.
     """
     session.install("-e", ".")
     session.run("python", "scripts/bench.py", *session.posargs)

@@ -5,7 +5,9 @@ Generates a workspace of N C++ packages (cmake build type, chains of dependent s
 libraries, one rosdep key), then in ONE run and strictly one after the other builds it with the
 real CLI (`python -m docker_ros build`, TARGET=dev,run from the workspace's .env) and times:
 
-  1   cold build (bench images removed, BuildKit cache pruned unless --no-prune)
+  1   cold build (bench images removed; the workspace is new to the engine: a run id in its
+      additional files and new cache mount ids. Nothing is pruned: the engine is shared, so
+      the base image's prepared layer and the apt download cache may be warm)
   2   no-change rebuild
   3   one-file change in the LAST package (nothing depends on it)
   B   baseline: what the original docker-ros does after that change, a full `colcon build` of
@@ -13,6 +15,10 @@ real CLI (`python -m docker_ros build`, TARGET=dev,run from the workspace's .env
   3b  one-file change in the FIRST package (others depend on it)
   4   one added apt dependency (a <depend> on another rosdep key)
   5   dev and run image sizes
+  6   imports: a second workspace whose N packages come through .repos from a local git
+      server (git daemon on the loopback, BUILD_NETWORK=host) plus one package of its own:
+      cold build, then one .cpp changed in its own package (to set against 3: the same edit
+      with every package in the repository), then the .repos file touched (re-import)
 
 and checks while measuring that the run image runs the changed code. Prints one table;
 --json writes the figures to a file. Timings are wall-clock and as noisy as the machine.
@@ -26,6 +32,7 @@ import os
 import re
 import shlex
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -44,6 +51,9 @@ from docker_ros.settings import FIELDS, env_name  # noqa: E402
 
 IMAGE = "docker-ros-bench/ws:latest"
 DEV_IMAGE = "docker-ros-bench/ws:latest-dev"
+IMPORTS_IMAGE = "docker-ros-bench/imports:latest"
+IMPORTS_REPO = "bench_upstream"
+UPSTREAM_VERTEX = re.compile(r"^#(\d+) \[upstream .*clone --imports-only")
 DEFAULT_BASE_IMAGE = "docker-ros/ros1:bookworm"
 WS = "/docker-ros/ws"
 COMPILE_MARK = "docker-ros-bench compiles"
@@ -185,6 +195,8 @@ class Scenario:
     seconds: float
     compiled: List[str] = field(default_factory=list)
     deps_layers: str = "-"  # reused | rebuilt | - (not an image build)
+    imports: str = "-"  # the image's vcs import: cached | ran | - (not an image build)
+    units: int = 0  # translation units of the workspace (0: the main workspace's)
     changed_sources: str = "-"  # what the colcon step took for changed ("3/140"), - if not run
     check: str = "-"  # OK | FAIL | -
     detail: str = ""
@@ -294,22 +306,72 @@ def write_package(root: Path, index: int, *, chain: int, depth: int, keys: Seque
 
 def write_workspace(
     root: Path, *, count: int, chain: int, depth: int, key: str, base_image: str,
-    cmake_args: str,
+    cmake_args: str, run_id: str, first: int = 0, image: str = IMAGE,
+    extra_env: Optional[Dict[str, str]] = None,
 ) -> None:
+    """Packages first..count-1 in root, with a .env, and a run id among the additional files:
+    it changes what the resolve stage hands on, so no earlier run's dependency layers serve
+    the cold build (the apt download cache may)."""
     root.mkdir(parents=True)
-    for index in range(count):
+    for index in range(first, count):
         write_package(root, index, chain=chain, depth=depth, keys=[key] if index == 0 else [])
+    (root / "docker" / "additional-files").mkdir(parents=True)
+    (root / "docker" / "additional-files" / "bench-run-id.txt").write_text(run_id + "\n")
     env = {
         "BASE_IMAGE": base_image,
         "COMMAND": f"{package_name(count - 1)}_node",
-        "IMAGE": IMAGE,
+        "IMAGE": image,
         "TARGET": "dev,run",
         "CMAKE_ARGS": cmake_args,
         # the figures are dev/run rebuilds; slimming (ENABLE_SLIM's default) would add a trace
         "ENABLE_SLIM": "false",
+        **(extra_env or {}),
     }
     # python-dotenv reads a double-quoted value literally (no shell involved).
     (root / ".env").write_text("".join(f'{k}="{v}"\n' for k, v in env.items()))
+
+
+def git(args: Sequence[str], cwd: Path) -> None:
+    env = {**os.environ, "GIT_AUTHOR_NAME": "bench", "GIT_AUTHOR_EMAIL": "bench@invalid",
+           "GIT_COMMITTER_NAME": "bench", "GIT_COMMITTER_EMAIL": "bench@invalid"}
+    proc = subprocess.run(["git", *args], cwd=cwd, env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise BenchError(f"git {' '.join(args)} failed: {proc.stderr.strip()}")
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def git_server(base: Path, upstream_count: int, *, chain: int, depth: int, key: str,
+               run_id: str) -> Tuple[subprocess.Popen, str]:
+    """A bare repository of packages 0..upstream_count-1 served by `git daemon` on a free
+    loopback port; returns (the daemon, the repository's git:// URL)."""
+    work = base / "upstream-work"
+    for index in range(upstream_count):
+        write_package(work, index, chain=chain, depth=depth, keys=[key] if index == 0 else [])
+    (work / "bench-run-id.txt").write_text(run_id + "\n")
+    git(["init", "-q", "-b", "main"], work)
+    git(["add", "-A"], work)
+    git(["commit", "-q", "-m", "bench upstream"], work)
+    served = base / "git"
+    served.mkdir()
+    git(["clone", "-q", "--bare", str(work), str(served / f"{IMPORTS_REPO}.git")], base)
+    port = free_port()
+    daemon = subprocess.Popen(
+        ["git", "daemon", "--export-all", "--reuseaddr", "--listen=127.0.0.1", f"--port={port}",
+         f"--base-path={served}", str(served)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        with socket.socket() as probe:
+            if probe.connect_ex(("127.0.0.1", port)) == 0:
+                return daemon, f"git://127.0.0.1:{port}/{IMPORTS_REPO}.git"
+        time.sleep(0.1)
+    daemon.terminate()
+    raise BenchError("git daemon did not start")
 
 
 def set_mark(root: Path, index: int, mark: str) -> None:
@@ -429,6 +491,26 @@ def dependency_layers(output: str) -> str:
     return "rebuilt" if ran else "reused"
 
 
+def imports_state(output: str) -> str:
+    """'ran' when the image's vcs import (upstream stage) ran in any buildx invocation of the
+    build (dev and run share it: the second finds the first's), else 'cached'."""
+    seen: Dict[str, bool] = {}  # vertex -> cached, per invocation
+    ran = False
+    for line in output.splitlines():
+        if INVOCATION.match(line):
+            ran = ran or any(not cached for cached in seen.values())
+            seen = {}
+            continue
+        match = UPSTREAM_VERTEX.match(line)
+        if match:
+            seen.setdefault(match.group(1), False)
+        state = VERTEX_STATE.match(line)
+        if state and state.group(1) in seen and state.group(2) == "CACHED":
+            seen[state.group(1)] = True
+    ran = ran or any(not cached for cached in seen.values())
+    return "ran" if ran else "cached"
+
+
 def changed_sources(output: str) -> str:
     """The colcon step's own count of changed source files (it re-stamps those)."""
     found = STAMPED.findall(output)
@@ -480,13 +562,14 @@ class Bench:
     def say(self, text: str) -> None:
         print(f"[bench] {text}", flush=True)
 
-    def build(self, name: str) -> Scenario:
+    def build(self, name: str, root: Optional[Path] = None) -> Scenario:
         self.say(f"{name} ...")
         load = load1()
-        seconds, output = run_cli(self.root, self.log, verbose=self.args.verbose)
+        seconds, output = run_cli(root or self.root, self.log, verbose=self.args.verbose)
         row = Scenario(name, seconds, compiled_units(output), dependency_layers(output),
                        changed_sources=changed_sources(output),
                        image_seconds=image_seconds(output), load1=load)
+        row.imports = imports_state(output)
         self.say(f"{name}: {seconds:.1f} s, {len(row.compiled)} TUs compiled, "
                  f"dependency layers {row.deps_layers}, sources taken as changed "
                  f"{row.changed_sources}")
@@ -499,20 +582,17 @@ class Bench:
         if not ok:
             self.say(f"{row.name}: CHECK FAILED: {detail}")
 
-    def check_run(self, row: Scenario, expected: str, *command: str) -> None:
-        output = run_output(IMAGE, *command)
+    def check_run(self, row: Scenario, expected: str, *command: str, ref: str = IMAGE) -> None:
+        output = run_output(ref, *command)
         ok = expected in output
         self.check(row, ok, f"run image, `{shlex.join(command) or 'default command'}` printed "
                    f"{output[-300:]!r}" + ("" if ok else f", expected {expected!r}"))
 
     def cold(self) -> None:
+        # Never `docker builder prune`: the engine is shared, and the new workspace (run id,
+        # cache mount ids from its path) finds no cache of an earlier run anyway.
         for ref in (IMAGE, DEV_IMAGE):
             docker("image", "rm", "-f", ref)
-        if self.args.prune:
-            self.say("pruning the BuildKit cache (docker builder prune -af; --no-prune skips)")
-            proc = docker("builder", "prune", "-af", timeout=1800)
-            if proc.returncode != 0:
-                raise BenchError(f"docker builder prune failed: {proc.stderr.strip()}")
         row = self.build("1  cold build")
         last = package_name(self.count - 1)
         self.check_run(row, f"{last}[original]")
@@ -570,6 +650,29 @@ class Bench:
         self.check(row, ok, f"{', '.join(packages)} installed in dev and run" if ok else
                    f"not installed: {missing}")
 
+    def imports(self, root: Path) -> None:
+        """The workspace importing packages 0..N-1 through .repos; its own package is N."""
+        own = self.count
+        for ref in (IMPORTS_IMAGE, IMPORTS_IMAGE + "-dev"):
+            docker("image", "rm", "-f", ref)
+        row = self.build("6  imports: cold build", root)
+        row.units = 3 * (own + 1)
+        self.check_run(row, f"{package_name(own)}[original]", ref=IMPORTS_IMAGE)
+        set_mark(root, own, "changed-own")
+        row = self.build("6b imports: one .cpp changed, own pkg", root)
+        row.units = 3 * (own + 1)
+        self.check(row, row.imports == "cached" and len(row.compiled) == 1,
+                   f"vcs import {row.imports}, {len(row.compiled)} TUs compiled (expected the "
+                   "import cached and the changed .cpp alone compiled)")
+        with (root / ".repos").open("a") as repos:
+            repos.write("# touched by the bench\n")
+        row = self.build("6c imports: .repos touched, re-import", root)
+        row.units = 3 * (own + 1)
+        self.check(row, row.imports == "ran" and not row.compiled,
+                   f"vcs import {row.imports}, {len(row.compiled)} TUs compiled (expected a "
+                   "fresh import and nothing compiled: same content)")
+        docker("image", "rm", "-f", IMPORTS_IMAGE, IMPORTS_IMAGE + "-dev")
+
 
 def ratio(value: float, reference: Optional[float]) -> Optional[float]:
     return value / reference if reference else None
@@ -577,7 +680,7 @@ def ratio(value: float, reference: Optional[float]) -> Optional[float]:
 
 def table(rows: Sequence[Scenario], sizes: Dict[str, float], total_units: int) -> str:
     head = ("scenario", "seconds", "x cold", "x baseline", "TUs compiled", "src changed",
-            "dep layers", "dev/run s", "load1", "check")
+            "dep layers", "import", "dev/run s", "load1", "check")
     lines: List[Tuple[str, ...]] = [head]
     for row in rows:
         per_image = "/".join(f"{row.image_seconds[t]:.0f}" for t in ("dev", "run")
@@ -587,9 +690,10 @@ def table(rows: Sequence[Scenario], sizes: Dict[str, float], total_units: int) -
             f"{row.seconds:.1f}",
             f"{row.ratio_cold:.2f}" if row.ratio_cold is not None else "-",
             f"{row.ratio_baseline:.2f}" if row.ratio_baseline is not None else "-",
-            f"{len(row.compiled)}/{total_units}",
+            f"{len(row.compiled)}/{row.units or total_units}",
             row.changed_sources,
             row.deps_layers,
+            row.imports,
             per_image,
             f"{row.load1:.1f}",
             row.check,
@@ -605,9 +709,8 @@ def table(rows: Sequence[Scenario], sizes: Dict[str, float], total_units: int) -
 def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0] if __doc__ else None,
-        epilog="WARNING: the cold build starts with `docker builder prune -af`, which removes "
-               "the BuildKit cache of EVERY project on this Docker engine, not only the bench's. "
-               "Use --no-prune to keep it (the 'cold' figure is then warmer than cold). "
+        epilog="Nothing is pruned (the Docker engine is shared): the cold builds are cold for "
+               "the workspace, not for the base image's prepared layer or the apt downloads. "
                "Timings are wall-clock; other builds on the engine make them noisy.",
     )
     parser.add_argument("-n", "--packages", type=int, default=10,
@@ -628,10 +731,8 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                         help="rosdep key added to the last package in scenario 4 (default angles)")
     parser.add_argument("--cmake-args", default="-DCMAKE_BUILD_TYPE=Release",
                         help="CMAKE_ARGS of the workspace (default -DCMAKE_BUILD_TYPE=Release)")
-    parser.add_argument("--no-prune", dest="prune", action="store_false",
-                        help="do not run `docker builder prune -af` before the cold build (by "
-                             "default it runs and removes ALL BuildKit cache of this engine, "
-                             "other projects' included)")
+    parser.add_argument("--no-imports", dest="imports", action="store_false",
+                        help="skip scenario 6 (the workspace importing its packages via .repos)")
     parser.add_argument("--json", type=Path, metavar="FILE", help="also write the figures here")
     parser.add_argument("--keep", action="store_true",
                         help="keep the generated workspace and the build log (path printed)")
@@ -655,8 +756,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         baseimage.bootstrap("ros1", tag=args.base_image)
         resolved = resolve_keys(args.base_image, [args.key, args.add_key])
         print(f"[bench] rosdep keys (offline, in {args.base_image}): {resolved}", flush=True)
+        run_id = f"{os.getpid()}-{time.time_ns()}"
         write_workspace(root, count=args.packages, chain=args.chain, depth=args.depth,
-                        key=args.key, base_image=args.base_image, cmake_args=args.cmake_args)
+                        key=args.key, base_image=args.base_image, cmake_args=args.cmake_args,
+                        run_id=run_id)
         print(f"[bench] workspace of {args.packages} packages in {root}; log {log}", flush=True)
         bench = Bench(args, root, log)
         bench.cold()
@@ -666,6 +769,23 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         bench.change_first()
         bench.add_dependency(resolved[args.add_key])
         sizes = {"dev": image_mb(DEV_IMAGE), "run": image_mb(IMAGE)}
+        if args.imports:
+            daemon, url = git_server(tmp, args.packages, chain=args.chain, depth=args.depth,
+                                     key=args.key, run_id=run_id)
+            try:
+                imports_root = tmp / "ws-imports"
+                write_workspace(imports_root, count=args.packages + 1, first=args.packages,
+                                chain=args.chain, depth=args.depth, key=args.key,
+                                base_image=args.base_image, cmake_args=args.cmake_args,
+                                run_id=run_id, image=IMPORTS_IMAGE,
+                                extra_env={"BUILD_NETWORK": "host"})
+                (imports_root / ".repos").write_text(
+                    f"repositories:\n  {IMPORTS_REPO}:\n    type: git\n    url: {url}\n"
+                    "    version: main\n")
+                bench.imports(imports_root)
+            finally:
+                daemon.terminate()
+                daemon.wait()
     except BenchError as exc:
         print(f"bench: {exc}", file=sys.stderr)
         print(f"bench: workspace and log kept in {tmp}", file=sys.stderr)
@@ -675,7 +795,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     baseline = next(r.seconds for r in rows if r.name.startswith("B "))
     for row in rows:
         row.ratio_cold = ratio(row.seconds, cold)
-        if row.name.startswith("3"):
+        if row.name.startswith(("3", "6b")):
             row.ratio_baseline = ratio(row.seconds, baseline)
     total_units = 3 * args.packages
     print()
@@ -692,7 +812,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.json:
         args.json.write_text(json.dumps({
             "packages": args.packages, "chain": args.chain, "depth": args.depth,
-            "base_image": args.base_image, "pruned": args.prune, "cpus": os.cpu_count(),
+            "base_image": args.base_image, "cpus": os.cpu_count(),
             "scenarios": [asdict(r) for r in rows],
             "sizes_mb": sizes,
         }, indent=2) + "\n")

@@ -79,6 +79,19 @@ def make_package(
     return path
 
 
+def make_blacklist_repo(repo: Union[str, Path], rules: str) -> Path:
+    """A repository with `app` (needing rosdep key my_tool), `unwanted` (blacklisted), `meta`
+    (depending on unwanted) and the rosdep rules file docker/rosdep.yaml with `rules`."""
+    repo = Path(repo)
+    make_package(repo / "app", "app", depends=["my_tool"])
+    make_package(repo / "unwanted", "unwanted")
+    make_package(repo / "meta", "meta", exec_depends=["unwanted"])
+    (repo / "docker").mkdir()
+    (repo / "docker" / "blacklisted-packages.txt").write_text("unwanted\n")
+    (repo / "docker" / "rosdep.yaml").write_text(rules)
+    return repo
+
+
 def git(args: Sequence[str], cwd: Union[str, Path]) -> str:
     env = {**os.environ, **GIT_ENV}
     return subprocess.run(

@@ -18,10 +18,12 @@ import docker_ros
 from docker_ros import engine
 from docker_ros.engine import image_exists, image_size
 from docker_ros.settings import FIELDS, Settings, as_env, env_name
+from docker_ros.steps.common import walk
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
 TOOLS_REPOSITORY = "docker-ros-tools"
+IMPORTS_REPOSITORY = "docker-ros-imports"
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
 TOOLS_PATTERNS = (
     "__init__.py", "settings.py", "ci.py", "testing.py", "steps/*.py", "docker/*.sh",
@@ -112,6 +114,7 @@ def plan_build(
     push: bool = False,
     output: str = "",
     extra_build_args: Mapping[str, str] = {},
+    imports_image: str = f"{IMPORTS_REPOSITORY}:<hash>",
 ) -> List[str]:
     """The `docker buildx build` argv for one target and platform (`output`: an --output
     exporter instead of loading or pushing the image)."""
@@ -119,6 +122,7 @@ def plan_build(
     argv += ["--target", target, "--platform", f"linux/{platform}", "--tag", tag]
     argv += ["--build-arg", f"BASE_IMAGE={settings.base_image}"]
     argv += ["--build-arg", f"DOCKER_ROS_TOOLS={tools_image}"]
+    argv += ["--build-arg", f"DOCKER_ROS_IMPORTS={imports_image}"]
     declared = [a for a in dockerfile_args(dockerfile) if a != "BASE_IMAGE"]
     argv += build_args(settings, declared)
     for name, value in sorted(extra_build_args.items()):
@@ -276,16 +280,57 @@ def ensure_tools_image(platform: str) -> str:
     """A FROM-scratch image with the step modules, tagged by their content hash."""
     with tempfile.TemporaryDirectory(prefix="docker-ros-tools-") as tmp:
         digest = tools_tree(Path(tmp))
-        ref = f"{TOOLS_REPOSITORY}:{digest}-{platform}"
-        if image_exists(ref):
-            return ref
-        (Path(tmp) / "Dockerfile").write_text("FROM scratch\nCOPY docker-ros /docker-ros\n")
-        argv = ["docker", "buildx", "build", "--quiet", "--load", "--platform",
-                f"linux/{platform}", "--tag", ref, tmp]
-        proc = subprocess.run(argv, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise BuildError(f"building the tools image failed: {proc.stderr.strip()}")
+        return scratch_image(Path(tmp), "docker-ros", f"{TOOLS_REPOSITORY}:{digest}-{platform}",
+                             platform)
+
+
+def scratch_image(context: Path, folder: str, ref: str, platform: str) -> str:
+    """ref: FROM scratch with context/folder at /folder, built unless it exists already."""
+    if image_exists(ref):
+        return ref
+    (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} /{folder}\n")
+    argv = ["docker", "buildx", "build", "--quiet", "--load", "--platform",
+            f"linux/{platform}", "--tag", ref, str(context)]
+    proc = subprocess.run(argv, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise BuildError(f"building {ref} failed: {proc.stderr.strip()}")
     return ref
+
+
+def import_inputs(settings: Settings, repository: Path) -> List[str]:
+    """What the image's upstream stage imports from: the repository's .repos files (relative
+    paths), as the clone step finds them there. None when a before-dependency-identification
+    hook exists: it runs first and may change them, so the source stage imports instead."""
+    if (repository / settings.before_dependency_identification_script).is_file():
+        return []
+    found = []
+    top = repository / settings.vcs_import_file
+    if top.is_file():
+        found.append(settings.vcs_import_file)
+    if settings.enable_recursive_vcs_import:
+        for directory in walk(repository):
+            for entry in sorted(directory.glob("*.repos")):
+                rel = entry.relative_to(repository).as_posix()
+                if entry.is_file() and rel not in found:
+                    found.append(rel)
+    return found
+
+
+def ensure_imports_image(settings: Settings, platform: str) -> str:
+    """A FROM-scratch image with the repository's .repos files at /repository, tagged by their
+    content: its layer (and the import on it) stays the same while they do."""
+    repository = Path(settings.build_context)
+    with tempfile.TemporaryDirectory(prefix="docker-ros-imports-") as tmp:
+        digest = hashlib.sha256()
+        root = Path(tmp) / "repository"
+        root.mkdir()
+        for rel in import_inputs(settings, repository):
+            content = (repository / rel).read_bytes()
+            digest.update(rel.encode() + b"\0" + content + b"\0")
+            (root / rel).parent.mkdir(parents=True, exist_ok=True)
+            (root / rel).write_bytes(content)
+        ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{platform}"
+        return scratch_image(Path(tmp), "repository", ref, platform)
 
 
 def ca_bundle(path: Path, destination: Path) -> Path:
@@ -334,6 +379,7 @@ def build_image(
     """Build one target for one platform; raise BuildError naming the failed step."""
     environ = os.environ if environ is None else environ
     tools = ensure_tools_image(platform)
+    imports = ensure_imports_image(settings, platform)
     child_env = dict(environ)
     child_env.setdefault("DOCKER_BUILDKIT", "1")
     with tempfile.TemporaryDirectory(prefix="docker-ros-build-") as tmp:
@@ -347,7 +393,8 @@ def build_image(
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
         argv = plan_build(settings, target=target, platform=platform, tools_image=tools,
                           tag=tag, secrets=secrets, push=push, dockerfile=dockerfile,
-                          output=output, extra_build_args=extra_build_args)
+                          output=output, extra_build_args=extra_build_args,
+                          imports_image=imports)
         # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
         out.write(f"==> docker-ros build {target} ({platform}) -> {tag}\n")
         began = time.monotonic()
@@ -356,8 +403,14 @@ def build_image(
         assert proc.stdout is not None
         lines: List[str] = []
         log = (_kept(lines, line) for line in iter(proc.stdout.readline, ""))
-        errors = stream_build(log, out, environ)
-        code = proc.wait()
+        try:
+            errors = stream_build(log, out, environ)
+            code = proc.wait()
+        except KeyboardInterrupt:
+            # buildx got the same Ctrl-C: let it cancel the build (nothing is tagged) and end.
+            proc.terminate()
+            proc.wait()
+            raise
     if code != 0:
         where = f"in step {errors[-1]}" if errors else "(see the BuildKit error above)"
         stage, step = failed_step(lines)

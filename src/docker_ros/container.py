@@ -63,7 +63,7 @@ def _installs(dependency_types: str) -> Tuple[Command, ...]:
 
 # The step commands of the Dockerfile, stage by stage (a unit test compares them).
 STAGES = {
-    "source": Stage("source", "checkout", (("clone",), ("blacklist",)), True),
+    "source": Stage("source", "checkout", (("clone",), ("blacklist", "--mark-ignored")), True),
     "resolve": Stage(
         "resolve", "source",
         tuple((step, "--phase", "collect") for step in INSTALL_STEPS + ("command",)), True,
@@ -146,7 +146,7 @@ def next_command(step: str) -> Optional[Command]:
     index = next(i for i, c in enumerate(order) if c[0] == step) + 1
     if index == len(order):
         return None
-    return (order[index][0],) if step == "blacklist" else order[index]
+    return order[index][:1] if step == "blacklist" else order[index]
 
 
 def step_environment(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:

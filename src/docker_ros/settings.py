@@ -38,14 +38,20 @@ def setting(
     choices: Tuple[str, ...] = (),
     default_doc: str = "",
     group: str = "docker-ros",
+    path: str = "",
+    recursive: str = "",
 ) -> Any:
-    """Declare one configuration variable: its env name is the field name upper-cased."""
+    """Declare one configuration variable: its env name is the field name upper-cased.
+    `path` ("file" or "dir"): a path relative to the repository, which must stay inside it;
+    `recursive`: the setting that switches on recursive discovery of files of that name."""
     meta = {
         "help": help,
         "secret": secret,
         "choices": choices,
         "default_doc": default_doc,
         "group": group,
+        "path": path,
+        "recursive": recursive,
     }
     return field(default=default, metadata=meta)
 
@@ -57,18 +63,22 @@ class Settings:
     additional_debs_file: str = setting(
         "docker/additional-debs.txt",
         "Relative filepath to file containing additional apt deb packages to install",
+        path="file", recursive="enable_recursive_additional_debs",
     )
     additional_files_dir: str = setting(
         "docker/additional-files",
         "Relative path to directory containing additional files to copy into image",
+        path="dir",
     )
     additional_pip_file: str = setting(
         "docker/additional-pip-requirements.txt",
         "Relative filepath to file containing additional pip packages to install",
+        path="file", recursive="enable_recursive_additional_pip",
     )
     after_dependency_installation_script: str = setting(
         "docker/custom.sh",
         "Relative filepath to script containing commands to run after dependency installation",
+        path="file", recursive="enable_recursive_after_dependency_installation_script",
     )
     base_image: Optional[str] = setting(
         None, "Base image `name:tag`", default_doc="*required*"
@@ -76,14 +86,17 @@ class Settings:
     before_dependency_identification_script: str = setting(
         "docker/before_dependency_identification.sh",
         "Relative filepath to script containing commands to run before dependency identification",
+        path="file",
     )
     before_dependency_installation_script: str = setting(
         "docker/before_dependency_installation.sh",
         "Relative filepath to script containing commands to run before dependency installation",
+        path="file", recursive="enable_recursive_before_dependency_installation_script",
     )
     blacklisted_packages_file: str = setting(
         "docker/blacklisted-packages.txt",
         "Relative filepath to file containing blacklisted packages",
+        path="file", recursive="enable_recursive_blacklisted_packages",
     )
     build_context: str = setting(".", "Build context of Docker build process (the ROS repository)")
     buildx_attestations: bool = setting(
@@ -210,8 +223,15 @@ class Settings:
     vcs_import_file: str = setting(
         ".repos",
         "Relative filepath to file containing additional repos to install via vcstool",
+        path="file", recursive="enable_recursive_vcs_import",
     )
     # --- beyond docker-ros ---
+    rosdep_rules_file: str = setting(
+        "docker/rosdep.yaml",
+        "Relative filepath to a rosdep rules file (YAML) whose keys come before the public "
+        "rules (on the host in the workspace's own rosdep database, never /etc)",
+        group="ours", path="file",
+    )
     workspace: Optional[str] = setting(
         None,
         "Host workspace of the step tasks and `--host` composites (repository at src/target)",
@@ -248,9 +268,24 @@ class Settings:
     sources: Mapping[str, str] = field(default_factory=dict, compare=False, repr=False)
     # Derived, not a setting: tags pushed besides the configured ones (`latest`, a git tag).
     push_also_as: Tuple[str, ...] = field(default=(), compare=False)
+    # Loaded leniently (`inv config`): setting name -> (value as given, why it is invalid).
+    problems: Mapping[str, Tuple[str, str]] = field(
+        default_factory=dict, compare=False, repr=False
+    )
 
     def source_of(self, name: str) -> str:
         return self.sources.get(name, "default")
+
+
+def explicitly_set(settings: Settings, name: str) -> bool:
+    """Set by the user to something else than the default (CI integrations and image builds
+    pass the defaults on, so the source alone does not tell)."""
+    return settings.source_of(name) != "default" and getattr(settings, name) != FIELDS[name].default
+
+
+def path_settings() -> List[str]:
+    """Settings holding a path relative to the repository."""
+    return [n for n, f in FIELDS.items() if f.metadata["path"]]
 
 
 def declarations() -> List[dataclasses.Field]:
@@ -361,15 +396,20 @@ def load_settings(
     environ: Optional[Mapping[str, str]] = None,
     flags: Optional[Mapping[str, object]] = None,
     project_dir: Optional[Path] = None,
+    lenient: bool = False,
 ) -> Settings:
-    """Merge defaults < invoke.yaml < .env < environment < flags; all errors in one message."""
+    """Merge defaults < invoke.yaml < .env < environment < flags; all errors in one message.
+    `lenient`: keep going instead, invalid values stay at their defaults and are listed in
+    `problems` (so that `inv config` can show a broken configuration)."""
     layers: List[Tuple[str, Mapping[str, object]]] = []
     errors: List[str] = []
+    problems: Dict[str, Tuple[str, str]] = {}
     yaml_values: Dict[str, object] = {}
     for key, value in (invoke_config or {}).items():
         name = str(key).lower().replace("-", "_")
         if name not in FIELDS:
             errors.append(f"invoke.yaml: unknown key docker_ros.{key}{_did_you_mean(str(key))}")
+            problems[f"invoke.yaml:{key}"] = (str(value), errors[-1])
         else:
             yaml_values[name] = value
     layers.append(("invoke.yaml", yaml_values))
@@ -391,16 +431,18 @@ def load_settings(
                 values[name] = parse_value(name, value)
             except SettingsError as exc:
                 errors.append(f"{exc} (from {source})")
+                problems[name] = (str(value), errors[-1])
+                sources[name] = source
                 continue
             sources[name] = origin
-    if errors:
+    if errors and not lenient:
         raise SettingsError("invalid configuration:\n  " + "\n  ".join(errors))
     derived = derived_defaults(values, sources, environ or {}, project_dir or Path.cwd())
     for name, (value, origin) in derived.items():
         values[name] = value
         if origin:
             sources[name] = origin
-    return Settings(**values, sources=sources)  # type: ignore[arg-type]
+    return Settings(**values, sources=sources, problems=problems)  # type: ignore[arg-type]
 
 
 class Derived(Tuple[object, str]):

@@ -23,7 +23,7 @@ from invoke import Collection, Context, Exit, Task
 
 from docker_ros import build
 from docker_ros.build import BuiltImage
-from docker_ros.config import config_table, read_settings
+from docker_ros.config import config_table, image_problems, path_problems, read_settings
 from docker_ros.settings import (
     FIELDS,
     Settings,
@@ -84,7 +84,7 @@ STEP_SETTINGS: Dict[str, Tuple[str, ...]] = {
               "git_https_user", "before_dependency_identification_script"),
     "blacklist": ("blacklisted_packages_file", "enable_recursive_blacklisted_packages"),
     "scripts": ("before_dependency_installation_script",),
-    "rosdep": ("ros_distro",),
+    "rosdep": ("ros_distro", "rosdep_rules_file"),
     "debs": ("additional_debs_file", "enable_recursive_additional_debs"),
     "pip": ("additional_pip_file", "enable_recursive_additional_pip"),
     "files": ("additional_files_dir",),
@@ -119,10 +119,12 @@ def settings_task(
     flags: Sequence[Flag] = (),
     uses: Sequence[str] = (),
     shortflags: Mapping[str, str] = {},
+    lenient: bool = False,
 ) -> Callable[..., Task]:
     """Make an invoke Task whose flags are the task's own, one per setting it uses, and
     --set NAME=VALUE for any other setting (the full reference: README and `inv config`);
-    a flag whose default is a list may be given several times."""
+    a flag whose default is a list may be given several times. `lenient`: invalid values
+    reach the task in Settings.problems instead of stopping it."""
 
     def decorate(func: Callable[..., Any]) -> Task:
         own = [f[0] for f in flags]
@@ -144,8 +146,10 @@ def settings_task(
                 for n in settings_flags:
                     kwargs.pop(n, None)
                 cfg = c.config.get("docker_ros", None) or {}
-                settings = read_settings(dict(cfg), overrides)
+                settings = read_settings(dict(cfg), overrides, lenient=lenient)
                 return func(c, settings, **kwargs)
+            except KeyboardInterrupt:
+                raise Exit(f"docker-ros {name}: interrupted", code=130) from None
             except (SettingsError, StepError, TaskError) as exc:
                 code = getattr(exc, "returncode", 1) or 1
                 where = exc.step if isinstance(exc, StepError) else name
@@ -227,9 +231,17 @@ def host_options(step: str, ws: Workspace) -> Dict[str, str]:
     return {"destination": str(ws.root / "additional-files")} if step == "files" else {}
 
 
+def check_inputs(settings: Settings, targets: Sequence[str] = ()) -> None:
+    """Bad paths and image names, all at once, before anything runs."""
+    problems = {**path_problems(settings), **(image_problems(settings, targets) if targets else {})}
+    if problems:
+        raise SettingsError("invalid configuration:\n  " + "\n  ".join(problems.values()))
+
+
 def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -> None:
     from docker_ros.steps import run_step
 
+    check_inputs(settings)
     with host_workspace(settings, dry_run=dry_run) as ws:
         for step in steps:
             run_step(step, ws, settings, phase="all", dry_run=dry_run, **host_options(step, ws))
@@ -265,6 +277,7 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
 
     runs_command = plan.start == "run" or ("command",) in plan.commands
     require(settings, ["base_image"] + (["command"] if runs_command else []))
+    check_inputs(settings, ("run",) if runs_command else ("dev",))
     if dry_run:
         argv = build.plan_build(settings, target=plan.start, platform=settings.platform[0],
                                 tools_image=f"{build.TOOLS_REPOSITORY}:<hash>",
@@ -289,9 +302,16 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
     return tag
 
 
-@settings_task("config", "Print every setting, its effective value and its source")
+@settings_task(
+    "config", "Print every setting, its effective value and its source; mark invalid ones",
+    lenient=True,
+)
 def config(c: Context, settings: Settings) -> None:
-    print(config_table(settings))
+    problems = {**path_problems(settings), **image_problems(settings, settings.target)}
+    print(config_table(settings, problems))
+    messages = [*(why for _, why in settings.problems.values()), *problems.values()]
+    if messages:
+        raise TaskError("invalid configuration:\n  " + "\n  ".join(messages))
 
 
 COMPOSITE_HELP = {
@@ -341,6 +361,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
     the summary table."""
     settings = dataclasses.replace(settings, target=tuple(targets))
     require(settings, required_for_build(settings))
+    check_inputs(settings, targets)
     assert settings.base_image
     if not dry_run:
         try:

@@ -96,8 +96,11 @@ def test_extra_ca_certs_work_during_the_build_and_stay_out_of_images(
 
     without = docker_ros(project, "build")
     assert without.returncode != 0
-    assert "failed in step pip" in without.stdout.strip().splitlines()[-1]
-    assert "CERTIFICATE_VERIFY_FAILED" in without.stdout
+    last = without.stdout.strip().splitlines()[-1]
+    assert "failed in step pip" in last
+    # The cause and the fix in the last line, after pip's first retry (no minutes of retries).
+    assert "CERTIFICATE_VERIFY_FAILED" in last and "set EXTRA_CA_CERTS" in last, last
+    assert "Retry(total=3" not in without.stdout
 
     certs = tmp_path / "certs"  # outside the repository (the build context)
     certs.mkdir()

@@ -4,6 +4,7 @@ import pytest
 from catkin_pkg.condition import evaluate_condition as catkin_evaluate
 
 from docker_ros.steps.packages import (
+    blacklisted_dependents,
     condition_context,
     evaluate_condition,
     find_package_dirs,
@@ -164,8 +165,9 @@ def test_select_keys_exec_all_blacklist_and_local_packages():
         "boost": ["app"],
         "libfoo": ["lib"],
         "python3-yaml": ["app"],
-        "vendored": ["user"],  # blacklisted source package: now expected from rosdep
-    }
+    }  # the blacklisted package's name is no key: see blacklisted_dependents
+    assert blacklisted_dependents(packages, "exec", ["vendored"]) == {"vendored": ["user"]}
+    assert blacklisted_dependents(packages, "all", ["lib", "app"]) == {}
     all_keys = select_keys(packages, "all", ["vendored"])
     assert sorted(all_keys) == [
         "boost",
@@ -174,7 +176,6 @@ def test_select_keys_exec_all_blacklist_and_local_packages():
         "libfoo",
         "libfoo-dev",
         "python3-yaml",
-        "vendored",
     ]
     assert "doxygen" not in all_keys  # rosdep leaves doc dependencies out too
     with pytest.raises(ValueError):

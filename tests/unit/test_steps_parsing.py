@@ -413,6 +413,13 @@ def test_colcon_stamps_only_files_whose_content_changed(tmp_path):
         os.utime(path, (1000, 1000))  # old times, as COPY may give
     edited.write_text("c")
     os.utime(edited, (1000, 1000))
-    colcon.stamp_changed_sources(ws)
-    assert same.stat().st_mtime == 1000
+    second = colcon.stamp_changed_sources(ws)
+    assert same.stat().st_mtime == first["pkg/same.cpp"][1]  # the time of the last build
     assert edited.stat().st_mtime > 1000
+    (ws.root / "build" / colcon.STAMP_FILE).write_text(__import__("json").dumps(second))
+    # A fresh clone gives unchanged files new times: they get their recorded times back.
+    for path in (same, edited):
+        os.utime(path, (4e9, 4e9))
+    colcon.stamp_changed_sources(ws)
+    assert same.stat().st_mtime == second["pkg/same.cpp"][1]
+    assert edited.stat().st_mtime == second["pkg/edited.cpp"][1] < 4e9

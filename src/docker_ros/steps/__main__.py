@@ -53,6 +53,17 @@ def parser() -> argparse.ArgumentParser:
         help="colcon: give sources whose content changed since the last build the current time "
         "(image builds, where build/ is a cache mount and COPY keeps old times)",
     )
+    p.add_argument(
+        "--mark-ignored",
+        action="store_true",
+        help="blacklist: put a COLCON_IGNORE file into each blacklisted package (the image's "
+        "copy of the sources; never the user's repository)",
+    )
+    p.add_argument(
+        "--imports-only",
+        action="store_true",
+        help="clone: import the .repos files present, no hook (the image's upstream stage)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return p
 
@@ -68,6 +79,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         options["destination"] = args.destination
     if args.stamp_changed:
         options["stamp_changed"] = "true"
+    if args.mark_ignored:
+        options["mark_ignored"] = "true"
+    if args.imports_only:
+        options["imports_only"] = "true"
     try:
         settings = load_settings(environ=os.environ, project_dir=Path(ws.target))
         run_step(args.step, ws, settings, phase=args.phase, dry_run=args.dry_run, **options)

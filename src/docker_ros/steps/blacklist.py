@@ -1,15 +1,20 @@
 """blacklist: ROS packages that are neither built nor used for dependencies.
 
 Nothing is deleted (on the host src/target is the user's repository): the result is
-`blacklist.json`, which rosdep and colcon (`--packages-ignore`) read."""
+`blacklist.json`, which rosdep and colcon (`--packages-ignore`) read. In the image's copy of
+the sources (option mark_ignored, never on the host) each blacklisted package also gets a
+COLCON_IGNORE file, so that a plain `colcon build` or `colcon list` in a dev container does
+not see it either."""
 
 import logging
+from pathlib import Path
 from typing import Any, Dict, List, Sequence
 
 from docker_ros.settings import Settings
 from docker_ros.steps.common import (
     Workspace,
     collect_list_entries,
+    dry,
     phases,
     step_log,
     unique,
@@ -37,12 +42,7 @@ def plan_blacklist(
 
 
 def compute(ws: Workspace, settings: Settings) -> Dict[str, Any]:
-    entries, _ = collect_list_entries(
-        ws,
-        STEP,
-        settings.blacklisted_packages_file,
-        recursive=settings.enable_recursive_blacklisted_packages,
-    )
+    entries, _ = collect_list_entries(ws, STEP, settings, "blacklisted_packages_file")
     # A line may hold several names (docker-ros passed lines to a shell command).
     names = unique([word for entry in entries for word in entry.split()])
     return plan_blacklist(names, find_packages(ws, settings, step=STEP), ws)
@@ -81,3 +81,15 @@ def main(
                 ", ".join(paths),
             )
         ws.save_plan(STEP, STATE_FILE, data, dry_run=dry_run)
+        if options.get("mark_ignored"):
+            for paths in data["packages"].values():
+                for path in paths:
+                    mark_ignored(ws.root / path, dry_run=dry_run)
+
+
+def mark_ignored(package: Path, *, dry_run: bool) -> None:
+    marker = package / "COLCON_IGNORE"
+    if dry_run:
+        dry(STEP, f"create {marker}")
+        return
+    marker.write_text("blacklisted by docker-ros (BLACKLISTED_PACKAGES_FILE)\n")

@@ -29,7 +29,9 @@ from docker_ros.steps.common import (
     phases,
     read_secret,
     remove_tree,
+    repository_path,
     run,
+    run_script,
     run_tee,
     step_log,
 )
@@ -131,11 +133,39 @@ def parse_vcs_failures(lines: Sequence[str], dest: Path, names: Sequence[str]) -
         if not bad:
             continue
         reason = re.sub(r":\s*Cloning into .*$", "", bad[0])
+        following = text[text.index(bad[0]) + 1:]
+        if reason.endswith(":") and following:
+            # git:// errors end the line before the cause: `unable to connect to HOST:` /
+            # `HOST[0: ...]: errno=Connection refused`.
+            reason += " " + following[0]
         detail = [line for line in bad if re.match(r"^(fatal|error):", line)]
         if detail and detail[0] not in reason:
             reason += ": " + detail[0]
         failures[name] = reason
     return failures
+
+
+LOOPBACK = re.compile(r"^(localhost|127\.\d+\.\d+\.\d+|\[?::1\]?)$")
+_CONNECT_FAILED = re.compile(r"connection refused|couldn't connect|failed to connect|"
+                             r"unable to connect|could not resolve host", re.IGNORECASE)
+
+
+def url_host(url: str) -> str:
+    """The host of a git URL (scheme://[user@]host[:port]/..., or scp-like [user@]host:path)."""
+    match = re.match(r"^[a-z+]+://(?:[^@/]*@)?(\[[^\]]*\]|[^:/]*)", url)
+    if match:
+        return match.group(1)
+    if uses_ssh(url):
+        return url.split(":", 1)[0].rpartition("@")[2]
+    return ""
+
+
+def failure_hint(url: str, reason: str, *, in_image: bool) -> str:
+    """What to do about a clone failure we recognise (empty when we do not)."""
+    if in_image and LOOPBACK.match(url_host(url)) and _CONNECT_FAILED.search(reason):
+        return (" (in an image build the loopback address is the build container itself: set "
+                "BUILD_NETWORK=host to reach a server on this machine)")
+    return ""
 
 
 def _repo_of(path: str, dest: Path, names: Sequence[str]) -> Optional[str]:
@@ -245,13 +275,14 @@ def git_credentials(
 
 
 def run_hook(ws: Workspace, settings: Settings, *, dry_run: bool) -> None:
-    script = ws.target / settings.before_dependency_identification_script
+    script = repository_path(ws, settings, "before_dependency_identification_script", step=STEP)
     if not script.is_file():
         LOG.info(
             "%s: no %s, no hook to run", STEP, settings.before_dependency_identification_script
         )
         return
-    run(["bash", str(script)], step=STEP, dry_run=dry_run, cwd=ws.root, what=str(script))
+    run_script(["bash", str(script)], script, step=STEP, dry_run=dry_run, cwd=ws.root,
+               what=str(script))
 
 
 def import_argv(repos_file: Path, dest: Path, *, skip_existing: bool) -> List[str]:
@@ -259,14 +290,9 @@ def import_argv(repos_file: Path, dest: Path, *, skip_existing: bool) -> List[st
     return argv + (["--skip-existing"] if skip_existing else [])
 
 
-def candidates(ws: Workspace, settings: Settings) -> List[Path]:
-    return find_special_files(
-        ws,
-        settings.vcs_import_file,
-        recursive=settings.enable_recursive_vcs_import,
-        pattern="*.repos",
-        step=STEP,
-    )
+def candidates(ws: Workspace, settings: Settings, *, required: bool = True) -> List[Path]:
+    return find_special_files(ws, settings, "vcs_import_file", pattern="*.repos", step=STEP,
+                              required=required)
 
 
 def import_file(
@@ -297,6 +323,8 @@ def import_file(
             f"repository '{name}' ({repos[name].get('url', '?')}"
             + (f" @ {repos[name]['version']}" if repos[name].get("version") else "")
             + f"): {reason}"
+            + failure_hint(repos[name].get("url", ""), reason,
+                           in_image=os.environ.get("DOCKER_ROS") == "1")
             for name, reason in sorted(failures.items())
         )
     else:
@@ -315,11 +343,15 @@ def main(
     dry_run: bool = False,
     **options: str,
 ) -> None:
-    """Single phase: the hook, then every .repos file, each imported once."""
+    """Single phase: the hook, then every .repos file, each imported once. Option
+    imports_only (the image's upstream stage, which holds the .repos files alone): no hook, and
+    an explicitly set VCS_IMPORT_FILE may be missing (the full run after it checks)."""
     phases(STEP, phase)
+    imports_only = bool(options.get("imports_only"))
     with step_log(STEP):
         ws.require_sources(STEP)
-        run_hook(ws, settings, dry_run=dry_run)
+        if not imports_only:
+            run_hook(ws, settings, dry_run=dry_run)
         state = ws.read_state(STATE_FILE) or {}
         imported: Dict[str, Any] = (
             dict(state.get("imported") or {}) if isinstance(state, dict) else {}
@@ -333,7 +365,7 @@ def main(
         with git_credentials(settings) as env:
             for _round in range(MAX_ROUNDS):
                 new = []
-                for repos_file in candidates(ws, settings):
+                for repos_file in candidates(ws, settings, required=not imports_only):
                     real = os.path.realpath(str(repos_file))
                     if real in seen_paths:
                         continue
@@ -351,6 +383,8 @@ def main(
                 )
         if not seen_paths:
             LOG.info("%s: no .repos files, nothing to import", STEP)
+        if not dry_run:  # the record of what is imported, also when nothing is
+            ws.write_state(STATE_FILE, {"imported": imported})
 
 
 def _import_once(

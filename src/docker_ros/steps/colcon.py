@@ -66,20 +66,29 @@ def changed_files(old: Dict[str, str], new: Dict[str, str]) -> List[str]:
     return sorted(path for path, digest in new.items() if old.get(path) != digest)
 
 
-def stamp_changed_sources(ws: Workspace) -> Dict[str, str]:
-    """In the image, build/ is a cache mount reused across builds, and COPY keeps the context's
-    modification times: a file whose content changed but whose time is older than its object
-    file would not be recompiled. Give every file whose content changed since the last
-    successful build the current time; return the hashes to record after the build."""
+def stamp_changed_sources(ws: Workspace) -> Dict[str, List[object]]:
+    """In the image, build/ is a cache mount reused across builds, while file times come from
+    COPY (the context's times) or from a fresh clone (now). Make decides by time, so: every
+    file whose content changed since the last successful build gets the current time, every
+    other file the time it had then (a re-imported repository must not look newer than its
+    objects). Returns the record ({path: [sha256, mtime]}) to write after the build."""
     record = ws.root / "build" / STAMP_FILE
     old = json.loads(record.read_text()) if record.is_file() else {}
+    old_hashes = {p: (v[0] if isinstance(v, list) else v) for p, v in old.items()}
     new = source_hashes(ws.src)
     now = time.time()
-    changed = changed_files(old, new)
-    for rel in changed:
-        os.utime(str(ws.src / rel), (now, now))
+    changed = set(changed_files(old_hashes, new))
+    stamped: Dict[str, List[object]] = {}
+    for rel, digest in new.items():
+        before = old.get(rel)
+        if rel in changed or not isinstance(before, list):
+            mtime = now if rel in changed else (ws.src / rel).stat().st_mtime
+        else:
+            mtime = float(before[1])
+        os.utime(str(ws.src / rel), (mtime, mtime))
+        stamped[rel] = [digest, mtime]
     LOG.info("%s: %d of %d source files changed since the last build", STEP, len(changed), len(new))
-    return new
+    return stamped
 
 
 def failed_packages(lines: Sequence[str]) -> List[str]:

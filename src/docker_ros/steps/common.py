@@ -201,16 +201,46 @@ def run(
     return proc.stdout if capture else ""
 
 
+def hook_context(environ: Optional[Mapping[str, str]] = None) -> str:
+    """Where hooks run: `image` (an image build, whose images set DOCKER_ROS=1) or `host`."""
+    env = os.environ if environ is None else environ
+    return "image" if env.get("DOCKER_ROS") == "1" else "host"
+
+
+def script_hint(content: bytes) -> str:
+    """What to do about a failed hook script whose content we recognise as the cause."""
+    if b"\r\n" in content:
+        return ("; the script has Windows (CRLF) line endings, which bash cannot run: convert it"
+                " (`dos2unix FILE`, or `git config core.autocrlf input` and check it out again)")
+    return ""
+
+
+def run_script(
+    argv: Sequence[str], script: Path, *, step: str, dry_run: bool, cwd: Path, what: str
+) -> None:
+    """Run a user hook (argv ends with the script) with DOCKER_ROS_CONTEXT=image|host set;
+    a failure we recognise says what to do."""
+    env = {**os.environ, "DOCKER_ROS_CONTEXT": hook_context()}
+    try:
+        run(argv, step=step, dry_run=dry_run, cwd=cwd, what=what, env=env)
+    except StepError as exc:
+        hint = script_hint(script.read_bytes()) if script.is_file() else ""
+        if not hint:
+            raise
+        raise StepError(step, exc.message + hint, exc.returncode) from None
+
+
 def run_tee(
     argv: Sequence[str],
     *,
     step: str,
     cwd: Optional[Path] = None,
     env: Optional[Mapping[str, str]] = None,
-    on_line: Optional[Callable[[str], None]] = None,
+    on_line: Optional[Callable[[str], bool]] = None,
 ) -> Tuple[int, List[str]]:
     """Run argv with stdout+stderr streamed line by line to our stdout (the user sees the tool's
-    output as it comes) and also returned, for parsing. Returns (exit code, lines)."""
+    output as it comes) and also returned, for parsing. Returns (exit code, lines).
+    `on_line` returning True stops the command (a failure already known, no use waiting)."""
     LOG.info("%s: %s", step, format_argv(argv))
     sys.stdout.flush()
     lines: List[str] = []
@@ -235,8 +265,9 @@ def run_tee(
             sys.stdout.flush()
             line = line.rstrip("\n")
             lines.append(line)
-            if on_line:
-                on_line(line)
+            if on_line and on_line(line):
+                proc.terminate()
+                break
     return proc.wait(), lines
 
 
@@ -260,28 +291,65 @@ def walk(
         yield Path(dirpath)
 
 
+def path_problem(repository: Path, relative: str) -> Optional[str]:
+    """Why `relative` does not name a place inside the repository (absolute, `..` out of it,
+    or through a symlink leading out of it), or None when it does."""
+    if Path(relative).is_absolute():
+        return "is an absolute path"
+    if os.path.normpath(relative).split(os.sep)[0] == "..":
+        return "leaves the repository through '..'"
+    root = os.path.realpath(str(repository))
+    real = os.path.realpath(os.path.join(root, relative))
+    if real != root and not real.startswith(root + os.sep):
+        return f"leads to {real} through a symlink"
+    return None
+
+
+def repository_path(ws: Workspace, settings: object, name: str, *, step: str) -> Path:
+    """The repository's file or folder that path setting `name` names; a StepError when the
+    setting points outside the repository (the image would get the build machine's files)."""
+    relative = str(getattr(settings, name))
+    problem = path_problem(ws.target, relative)
+    if problem:
+        raise StepError(step, f"{name.upper()}={relative!r} {problem}: give a path inside the "
+                        "repository")
+    return ws.target / relative
+
+
 def find_special_files(
     ws: Workspace,
-    relative_path: str,
+    settings: object,
+    name: str,
     *,
-    recursive: bool,
     pattern: Optional[str] = None,
     step: str = "docker-ros",
+    required: bool = True,
 ) -> List[Path]:
-    """docker-ros's file discovery: the configured file in the repository, and with
-    `recursive` every file of the same name (or matching `pattern`) anywhere in the workspace."""
+    """docker-ros's file discovery for path setting `name`: the configured file in the
+    repository, and when its recursive setting is on, every file of the same name (or matching
+    `pattern`) anywhere in the workspace. A file the user set explicitly must exist."""
+    from docker_ros.settings import FIELDS, explicitly_set
+
     ws.require_sources(step)
+    relative_path = str(getattr(settings, name))
+    switch = FIELDS[name].metadata["recursive"]
+    recursive = bool(switch and getattr(settings, switch))
     found: List[Path] = []
-    top = ws.target / relative_path
+    top = repository_path(ws, settings, name, step=step)
     if top.is_file():
         found.append(top)
     if recursive:
-        name = Path(relative_path).name
+        file_name = Path(relative_path).name
         for directory in walk(ws.src):
             for entry in sorted(directory.iterdir()):
-                matches = fnmatch.fnmatch(entry.name, pattern) if pattern else entry.name == name
+                matches = (fnmatch.fnmatch(entry.name, pattern) if pattern
+                           else entry.name == file_name)
                 if matches and entry.is_file() and entry not in found:
                     found.append(entry)
+    if not found and required and explicitly_set(settings, name):  # type: ignore[arg-type]
+        where = f" (nor any {pattern or file_name!r} in {ws.src})" if recursive else ""
+        raise StepError(step, f"{name.upper()} '{relative_path}' not found in the repository"
+                        f"{where}, but set explicitly: fix the path or unset it")
     return found
 
 
@@ -297,12 +365,12 @@ def read_list_file(path: Path) -> List[str]:
 
 
 def collect_list_entries(
-    ws: Workspace, step: str, relative_path: str, *, recursive: bool
+    ws: Workspace, step: str, settings: object, name: str
 ) -> Tuple[List[str], List[Path]]:
-    """Entries of every list file a step reads (in discovery order), and those files."""
-    files = find_special_files(ws, relative_path, recursive=recursive, step=step)
+    """Entries of every list file of path setting `name` (in discovery order), and the files."""
+    files = find_special_files(ws, settings, name, step=step)
     if not files:
-        LOG.info("%s: no %s found, nothing to do", step, relative_path)
+        LOG.info("%s: no %s found, nothing to do", step, getattr(settings, name))
     entries: List[str] = []
     for path in files:
         items = read_list_file(path)

@@ -17,10 +17,5 @@ def main(
 ) -> None:
     """collect: copy the AFTER_DEPENDENCY_INSTALLATION_SCRIPT(s) into the state; apply: run."""
     hooks.main(
-        ws,
-        STEP,
-        settings.after_dependency_installation_script,
-        recursive=settings.enable_recursive_after_dependency_installation_script,
-        phase=phase,
-        dry_run=dry_run,
+        ws, STEP, settings, "after_dependency_installation_script", phase=phase, dry_run=dry_run
     )

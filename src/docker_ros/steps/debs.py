@@ -34,12 +34,7 @@ def main(
     with step_log(STEP):
         plan: Dict[str, Any] = {}
         if do_collect:
-            entries, _ = collect_list_entries(
-                ws,
-                STEP,
-                settings.additional_debs_file,
-                recursive=settings.enable_recursive_additional_debs,
-            )
+            entries, _ = collect_list_entries(ws, STEP, settings, "additional_debs_file")
             plan = plan_debs(entries)
             ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
         if do_apply:

@@ -4,8 +4,17 @@ import logging
 from pathlib import Path
 from typing import Optional
 
-from docker_ros.settings import Settings
-from docker_ros.steps.common import Workspace, copy_tree, dry, phases, remove_tree, step_log
+from docker_ros.settings import Settings, explicitly_set
+from docker_ros.steps.common import (
+    StepError,
+    Workspace,
+    copy_tree,
+    dry,
+    phases,
+    remove_tree,
+    repository_path,
+    step_log,
+)
 
 STEP = "files"
 STATE_DIR = "additional-files"
@@ -17,7 +26,7 @@ def collect(ws: Workspace, settings: Settings, *, dry_run: bool) -> None:
     """Mirror the folder into <state>/additional-files (always created, maybe empty, so the
     image can COPY it unconditionally)."""
     ws.require_sources(STEP)
-    source = ws.target / settings.additional_files_dir
+    source = repository_path(ws, settings, "additional_files_dir", step=STEP)
     staged = ws.state / STATE_DIR
     remove_tree(staged, step=STEP, dry_run=dry_run)
     if dry_run:
@@ -26,6 +35,9 @@ def collect(ws: Workspace, settings: Settings, *, dry_run: bool) -> None:
         staged.mkdir(parents=True)
     if source.is_dir():
         copy_tree(source, staged, step=STEP, dry_run=dry_run)
+    elif explicitly_set(settings, "additional_files_dir"):
+        raise StepError(STEP, f"ADDITIONAL_FILES_DIR '{settings.additional_files_dir}' is no "
+                        "folder in the repository (set explicitly): fix the path or unset it")
     else:
         LOG.info(
             "%s: no %s folder in %s, nothing to copy",
@@ -62,5 +74,6 @@ def main(
             collect(ws, settings, dry_run=dry_run)
         if do_apply:
             # A dry run staged nothing: show the copy from the folder itself.
-            source = ws.target / settings.additional_files_dir if dry_run and do_collect else None
+            source = (repository_path(ws, settings, "additional_files_dir", step=STEP)
+                      if dry_run and do_collect else None)
             apply(ws, destination, dry_run=dry_run, source=source)

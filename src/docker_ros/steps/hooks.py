@@ -19,6 +19,7 @@ from docker_ros.steps.common import (
     phases,
     remove_tree,
     run,
+    run_script,
     step_log,
 )
 
@@ -40,12 +41,11 @@ def plan_hooks(ws: Workspace, step: str, sources: List[Path]) -> Dict[str, Any]:
     }
 
 
-def collect(
-    ws: Workspace, step: str, relative_path: str, *, recursive: bool, dry_run: bool
-) -> Dict[str, Any]:
-    sources = find_special_files(ws, relative_path, recursive=recursive, step=step)
+def collect(ws: Workspace, step: str, settings: object, name: str, *, dry_run: bool
+            ) -> Dict[str, Any]:
+    sources = find_special_files(ws, settings, name, step=step)
     if not sources:
-        LOG.info("%s: no %s found, nothing to run", step, relative_path)
+        LOG.info("%s: no %s found, nothing to run", step, getattr(settings, name))
     plan = plan_hooks(ws, step, sources)
     hook_dir = ws.state / "hooks" / step
     remove_tree(hook_dir, step=step, dry_run=dry_run)
@@ -78,15 +78,16 @@ def apply(ws: Workspace, step: str, plan: Dict[str, Any], *, dry_run: bool) -> N
         cwd = source.parent if source.parent.is_dir() else ws.state
         if not dry_run and not script.is_file():
             raise StepError(step, f"{script} missing: run `{step}` with phase collect first")
-        run(["bash", "-e", str(script)], step=step, dry_run=dry_run, cwd=cwd, what=str(source))
+        run_script(["bash", "-e", str(script)], script, step=step, dry_run=dry_run, cwd=cwd,
+                   what=str(source))
 
 
 def main(
     ws: Workspace,
     step: str,
-    relative_path: str,
+    settings: object,
+    name: str,
     *,
-    recursive: bool,
     phase: str,
     dry_run: bool,
 ) -> None:
@@ -94,7 +95,7 @@ def main(
     with step_log(step):
         plan: Dict[str, Any] = {}
         if do_collect:
-            plan = collect(ws, step, relative_path, recursive=recursive, dry_run=dry_run)
+            plan = collect(ws, step, settings, name, dry_run=dry_run)
         if do_apply:
             if not do_collect:
                 plan = ws.load_plan(step, step + ".json")

@@ -233,7 +233,23 @@ def find_packages(
             packages.append(parse_package_xml(path.read_text(), context, directory))
         except (ValueError, OSError) as exc:
             raise StepError(step, f"{path}: {exc}") from None
+    duplicates = duplicate_packages(packages)
+    if duplicates:
+        listed = "; ".join(
+            f"{name} in {' and '.join(ws.relative(p) for p in paths)}"
+            for name, paths in duplicates.items()
+        )
+        raise StepError(step, f"two packages with the same name: {listed} (colcon cannot build "
+                        "both: remove one, or put a COLCON_IGNORE file in its folder)")
     return packages
+
+
+def duplicate_packages(packages: Sequence[Package]) -> Dict[str, List[Path]]:
+    """Package names found more than once, with every folder holding one."""
+    paths: Dict[str, List[Path]] = {}
+    for package in packages:
+        paths.setdefault(package.name, []).append(package.path)
+    return {name: found for name, found in sorted(paths.items()) if len(found) > 1}
 
 
 # --- keys ---
@@ -247,17 +263,18 @@ def select_keys(
 ) -> Dict[str, List[str]]:
     """rosdep keys -> sorted names of the packages needing them, for "all" or "exec" types.
 
-    Blacklisted packages are left out; keys naming a (non-blacklisted) workspace package are
-    built from source and so are no rosdep keys (a blacklisted package's name stays a key:
-    docker-ros users blacklist a source package to get it from apt instead). Packages of the
-    `underlay` (a docker-ros base image's workspace) are no keys either."""
+    Blacklisted packages are left out, and so are their names: a package depending on a
+    blacklisted one does not make it a rosdep key (see blacklisted_dependents, for the warning).
+    Keys naming a workspace package are built from source, and packages of the `underlay` (a
+    docker-ros base image's workspace) are installed: neither is a rosdep key."""
     if dependency_types not in DEPENDENCY_SETS:
         raise ValueError(
             f"unknown dependency types {dependency_types!r}; use {' or '.join(DEPENDENCY_SETS)}"
         )
     skip: Set[str] = set(blacklist)
     kept = [p for p in packages if p.name not in skip]
-    local = {p.name for p in kept} | set(underlay)
+    # Blacklisted names count even when their folders are hidden (COLCON_IGNORE in the image).
+    local = {p.name for p in packages} | skip | set(underlay)
     keys: Dict[str, Set[str]] = {}
     for package in kept:
         for tag in DEPENDENCY_SETS[dependency_types]:
@@ -265,6 +282,22 @@ def select_keys(
                 if key not in local:
                     keys.setdefault(key, set()).add(package.name)
     return {key: sorted(names) for key, names in sorted(keys.items())}
+
+
+def blacklisted_dependents(
+    packages: Sequence[Package], dependency_types: str, blacklist: Iterable[str]
+) -> Dict[str, List[str]]:
+    """Blacklisted package -> the packages (not blacklisted) that depend on it."""
+    skip = set(blacklist)
+    found: Dict[str, Set[str]] = {}
+    for package in packages:
+        if package.name in skip:
+            continue
+        for tag in DEPENDENCY_SETS[dependency_types]:
+            for key in package.depends.get(tag, ()):
+                if key in skip:
+                    found.setdefault(key, set()).add(package.name)
+    return {name: sorted(users) for name, users in sorted(found.items())}
 
 
 def underlay_packages(root: Path = BASE_IMAGE_WS) -> List[str]:

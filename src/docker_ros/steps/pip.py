@@ -17,9 +17,11 @@ from docker_ros.steps.common import (
     StepError,
     Workspace,
     collect_list_entries,
+    format_argv,
     is_root,
     phases,
     run,
+    run_tee,
     step_log,
     unique,
 )
@@ -126,7 +128,27 @@ def pip_install(arguments: Sequence[str], *, step: str, dry_run: bool, what: str
         return
     python = python_command()
     flags = install_flags(probe_python(python, step=step), root=is_root())
-    run(pip_install_argv(python, arguments, flags), step=step, dry_run=dry_run, what=what)
+    argv = pip_install_argv(python, arguments, flags)
+    if dry_run:
+        run(argv, step=step, dry_run=True)
+        return
+    returncode, lines = run_tee(argv, step=step, on_line=lambda line: bool(tls_failure(line)))
+    if returncode != 0:
+        tls = [tls_failure(line) for line in lines if tls_failure(line)]
+        cause = tls[0] if tls else (lines[-1].strip() if lines else "no output")
+        raise StepError(step, f"{what + ' ' if what else ''}failed with exit code {returncode}: "
+                        f"{format_argv(argv)}: {cause}", returncode or 1)
+
+
+def tls_failure(line: str) -> str:
+    """The cause and what to do, when a pip output line says TLS verification failed (pip would
+    retry for minutes; a proxy that re-signs HTTPS does not go away by retrying)."""
+    if "CERTIFICATE_VERIFY_FAILED" not in line:
+        return ""
+    host = re.search(r"host='([^']+)'", line)
+    return ("TLS certificate verification failed (CERTIFICATE_VERIFY_FAILED"
+            + (f", {host.group(1)}" if host else "") + "): if HTTPS goes through a proxy that "
+            "re-signs it, set EXTRA_CA_CERTS to the proxy's CA certificate (PEM file or folder)")
 
 
 def main(
@@ -142,12 +164,7 @@ def main(
     with step_log(STEP):
         plan: Dict[str, Any] = {}
         if do_collect:
-            entries, _ = collect_list_entries(
-                ws,
-                STEP,
-                settings.additional_pip_file,
-                recursive=settings.enable_recursive_additional_pip,
-            )
+            entries, _ = collect_list_entries(ws, STEP, settings, "additional_pip_file")
             plan = {"requirements": unique(entries)}
             ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
         if do_apply:

@@ -4,28 +4,36 @@ collect writes rosdep.json with two sets, "all" (dev image) and "exec" (run imag
 {"apt": [...], "pip": [...]}. Resolution uses `rosdep resolve`, which does not look at what is
 installed, so the result only depends on the sources, the rosdep database and the OS."""
 
+import contextlib
+import hashlib
 import logging
 import os
 import re
+import shutil
 import subprocess
+import tempfile
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
-from docker_ros.settings import Settings
+from docker_ros.settings import Settings, explicitly_set
 from docker_ros.steps.blacklist import blacklisted_packages
 from docker_ros.steps.common import (
     StepError,
     Workspace,
     apt_install,
     dry,
+    format_argv,
+    hook_context,
     phases,
     privileged,
+    repository_path,
     ros_distro,
     run,
     step_log,
 )
 from docker_ros.steps.packages import (
     DEPENDENCY_SETS,
+    blacklisted_dependents,
     find_packages,
     select_keys,
     underlay_packages,
@@ -35,6 +43,7 @@ from docker_ros.steps.pip import pip_install
 STEP = "rosdep"
 STATE_FILE = "rosdep.json"
 INSTALLERS = ("apt", "pip")
+SYSTEM_SOURCES = Path("/etc/ros/rosdep/sources.list.d")
 LOG = logging.getLogger(__name__)
 
 Resolution = Dict[str, Dict[str, List[str]]]  # key -> installer -> system packages
@@ -97,14 +106,18 @@ def resolve_argv(keys: Sequence[str], distro: Optional[str]) -> List[str]:
 
 
 def resolve(
-    keys: Sequence[str], distro: Optional[str], *, step: str = STEP
+    keys: Sequence[str],
+    distro: Optional[str],
+    *,
+    step: str = STEP,
+    env: Optional[Mapping[str, str]] = None,
 ) -> Tuple[Resolution, Dict[str, str]]:
     """Resolve keys with as few rosdep calls as possible: rosdep stops at some errors, so the
     failing keys are taken out and the rest resolved again. Returns (resolved, failed)."""
     remaining = sorted(set(keys))
     failed: Dict[str, str] = {}
     resolved: Resolution = {}
-    env = rosdep_env()
+    env = rosdep_env(env)
     while remaining:
         argv = resolve_argv(remaining, distro)
         LOG.info(
@@ -177,8 +190,8 @@ def format_failures(failed: Mapping[str, str], needed_by: Mapping[str, Sequence[
         "cannot resolve rosdep key"
         + ("s " if len(parts) > 1 else " ")
         + "; ".join(parts)
-        + " (fix the key in package.xml, add a rosdep rule, blacklist the package, or run"
-        " `rosdep update`)"
+        + " (fix the key in package.xml, add a rule to ROSDEP_RULES_FILE (docker/rosdep.yaml),"
+        " blacklist the package, or run `rosdep update`)"
     )
 
 
@@ -196,6 +209,75 @@ def rosdep_ready(environ: Optional[Mapping[str, str]] = None) -> Tuple[bool, boo
     return sources, (ros_home / "rosdep" / "sources.cache" / "index").is_file()
 
 
+def base_source_lists(environ: Optional[Mapping[str, str]] = None) -> List[Path]:
+    """The sources lists rosdep uses here (ROSDEP_SOURCE_PATH, else `rosdep init`'s folder)."""
+    env = os.environ if environ is None else environ
+    source_path = env.get("ROSDEP_SOURCE_PATH") or str(SYSTEM_SOURCES)
+    return [p for d in source_path.split(os.pathsep) if Path(d).is_dir()
+            for p in sorted(Path(d).iterdir()) if p.suffix == ".list"]
+
+
+def plan_sources(rules: Optional[Path], base_lists: Sequence[Path]) -> Dict[str, str]:
+    """The files of a private sources.list.d: the repository's rules first (earlier sources
+    win in rosdep), then the base lists as they are."""
+    files = {"00-docker-ros-rules.list": f"yaml {rules.resolve().as_uri()}\n"} if rules else {}
+    for index, path in enumerate(base_lists, start=10):
+        files[f"{index}-{path.name}"] = path.read_text()
+    return files
+
+
+def unreachable_sources(text: str) -> List[str]:
+    """Sources `rosdep update` could not read, with the reason."""
+    return [f"{m.group(1)} ({m.group(2).strip()})" for m in re.finditer(
+        r"unable to process source \[([^\]]+)\]:\s*\n\s*(.+)", text)]
+
+
+def private_database(
+    home: Path, rules: Optional[Path], distro: Optional[str], *, quiet_reuse: bool = True
+) -> Dict[str, str]:
+    """A rosdep database of its own in `home` (never /etc, never ~/.ros): the repository's rules
+    and the base rules it can reach. Returns the environment for rosdep resolve."""
+    files = plan_sources(rules, base_source_lists())
+    sources = home / "sources.list.d"
+    env = {**rosdep_env(), "ROSDEP_SOURCE_PATH": str(sources), "ROS_HOME": str(home / "home")}
+    content = "".join(k + v for k, v in sorted(files.items()))
+    content += rules.read_text() if rules else ""
+    stamp = home / "inputs.sha256"
+    digest = hashlib.sha256(content.encode()).hexdigest()
+    cache = home / "home" / "rosdep" / "sources.cache" / "index"
+    if quiet_reuse and cache.is_file() and stamp.is_file() and stamp.read_text() == digest:
+        return env
+    if not files:
+        raise StepError(STEP, "no rosdep rules here: neither ROSDEP_RULES_FILE nor any sources "
+                        f"list in {SYSTEM_SOURCES} (run `sudo rosdep init`, or add the rules "
+                        "your packages need to docker/rosdep.yaml)")
+    shutil.rmtree(str(home), ignore_errors=True)
+    sources.mkdir(parents=True)
+    for name, text in files.items():
+        (sources / name).write_text(text)
+    argv = ["rosdep", "update"] + (["--rosdistro", distro] if distro else [])
+    for attempt in ("index", "no index"):
+        LOG.info("%s: %s (own database in %s)", STEP, format_argv(argv), home)
+        proc = subprocess.run(argv, env=env, capture_output=True, text=True)
+        if proc.returncode == 0 or cache.is_file():
+            break
+        if attempt == "index":
+            # The rosdistro index (GitHub) unreachable: rules files alone still resolve keys.
+            LOG.warning("%s: rosdep update failed (%s); trying without the rosdistro index "
+                        "(ROS package keys then come from rules files only)", STEP,
+                        (proc.stderr.strip().splitlines() or ["no message"])[-1])
+            index = home / "index-v4.yaml"
+            index.write_text("type: index\nversion: 4\ndistributions: {}\n")
+            env["ROSDISTRO_INDEX_URL"] = index.as_uri()
+    if not cache.is_file():
+        raise StepError(STEP, "rosdep update failed: " + (
+            proc.stderr.strip().splitlines() or ["no message"])[-1])
+    for source in unreachable_sources(proc.stderr):
+        LOG.warning("%s: rules source not reachable, its keys stay unresolved: %s", STEP, source)
+    stamp.write_text(digest)
+    return env
+
+
 def prepare_rosdep(distro: Optional[str], *, dry_run: bool) -> bool:
     """`rosdep init`/`rosdep update` when never done here. Returns whether resolution can run."""
     sources, cache = rosdep_ready()
@@ -206,6 +288,30 @@ def prepare_rosdep(distro: Optional[str], *, dry_run: bool) -> bool:
         run(argv, step=STEP, dry_run=dry_run, env=rosdep_env())
         return not dry_run
     return True
+
+
+@contextlib.contextmanager
+def rosdep_database(
+    ws: Workspace, rules: Optional[Path], distro: Optional[str], *, dry_run: bool
+) -> Iterator[Optional[Dict[str, str]]]:
+    """The environment rosdep resolves in. With the repository's own rules: a database of our
+    own, in the host workspace (kept, updated when its inputs change) or, in images and dry
+    runs, in a temporary folder (nothing of it in a layer). Without: rosdep's usual database,
+    made with `rosdep init`/`rosdep update` when missing (a dry run uses a temporary one)."""
+    temporary = dry_run or hook_context() == "image"
+    if rules is None and (not dry_run or all(rosdep_ready())):
+        if not prepare_rosdep(distro, dry_run=dry_run):
+            raise StepError(STEP, "rosdep database not ready")  # only dry runs get here
+        yield None
+        return
+    if not temporary:
+        yield private_database(ws.state / "rosdep", rules, distro)
+        return
+    with tempfile.TemporaryDirectory(prefix="docker-ros-rosdep-") as tmp:
+        if dry_run:
+            dry(STEP, f"resolve with a temporary rosdep database in {tmp}"
+                + (f" (rules: {rules})" if rules else ""))
+        yield private_database(Path(tmp), rules, distro)
 
 
 def collect(
@@ -219,6 +325,10 @@ def collect(
         types: select_keys(packages, types, blacklist, underlay) for types in DEPENDENCY_SETS
     }
     all_keys = selected["all"]
+    for name, users in blacklisted_dependents(packages, "all", blacklist).items():
+        LOG.warning("%s: %s depend%s on the blacklisted package %s: not installed, not built "
+                    "(blacklist %s too if it cannot do without)", STEP, ", ".join(users),
+                    "s" if len(users) == 1 else "", name, "it" if len(users) == 1 else "them")
     LOG.info(
         "%s: %d packages (%d blacklisted), %d rosdep keys (%d exec)",
         STEP,
@@ -227,14 +337,17 @@ def collect(
         len(all_keys),
         len(selected["exec"]),
     )
+    rules_path = repository_path(ws, settings, "rosdep_rules_file", step=STEP)
+    rules = rules_path if rules_path.is_file() else None
+    if rules is None and explicitly_set(settings, "rosdep_rules_file"):
+        raise StepError(STEP, f"ROSDEP_RULES_FILE '{settings.rosdep_rules_file}' not found "
+                        "in the repository, but set explicitly: fix the path or unset it")
     # No keys, no rosdep: a workspace without dependencies needs no rosdep database.
-    if all_keys and not prepare_rosdep(distro, dry_run=dry_run):
-        dry(
-            STEP,
-            f"resolve {len(all_keys)} keys after `rosdep update`: " + " ".join(sorted(all_keys)),
-        )
-        return None
-    resolved, failed = resolve(sorted(all_keys), distro) if all_keys else ({}, {})
+    resolved: Resolution = {}
+    failed: Dict[str, str] = {}
+    if all_keys:
+        with rosdep_database(ws, rules, distro, dry_run=dry_run) as env:
+            resolved, failed = resolve(sorted(all_keys), distro, env=env)
     if failed:
         raise StepError(STEP, format_failures(failed, all_keys))
     for key in sorted(all_keys):

@@ -1,0 +1,70 @@
+"""Bad input in real image builds (issue 11): the last line carries the cause and the fix;
+Ctrl-C stops with 130, tags nothing and leaves nothing running."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from tests.docker.buildhelp import docker_ros, image_exists, write_env
+from tests.rosfixtures import free_port, make_package, write_repos
+
+pytestmark = pytest.mark.docker
+
+
+def test_loopback_clone_in_an_image_build_points_at_build_network(
+    ros1_base_image: str, tmp_path: Path
+) -> None:
+    make_package(tmp_path / "pkg", "pkg")
+    write_repos(tmp_path / ".repos", {"dep": {"type": "git", "version": "main",
+                                               "url": f"http://127.0.0.1:{free_port()}/dep.git"}})
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE="docker-ros-test/repos-loop:1")
+    result = docker_ros(tmp_path, "build", "--until", "clone")
+    assert result.returncode != 0
+    last = result.stdout.strip().splitlines()[-1]
+    assert "failed in step clone" in last and "repository 'dep'" in last, last
+    assert "set BUILD_NETWORK=host to reach a server on this machine" in last, last
+    assert not image_exists("docker-ros-test/repos-loop:1-until-clone")
+
+
+def test_ctrl_c_exits_130_tags_nothing_leaves_nothing(ros1_base_image: str,
+                                                      tmp_path: Path) -> None:
+    make_package(tmp_path / "pkg", "pkg")
+    (tmp_path / "docker").mkdir()
+    marker = f"started-{uuid.uuid4().hex}"
+    pause = f"{300 + uuid.uuid4().int % 1000}.{os.getpid()}"  # a sleep nobody else runs
+    (tmp_path / "docker" / "before_dependency_identification.sh").write_text(
+        f"echo {marker}\nsleep {pause}\n")
+    ref = "docker-ros-test/repos-interrupted:1"
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE=ref, COMMAND="true")
+    env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    proc = subprocess.Popen([sys.executable, "-m", "docker_ros", "build"], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)  # its own group: Ctrl-C hits it all
+    assert proc.stdout is not None
+    seen = []
+    deadline = time.monotonic() + 900
+    for line in proc.stdout:
+        seen.append(line)
+        if marker in line and "echo" not in line or time.monotonic() > deadline:
+            break
+    assert any(marker in line for line in seen), "".join(seen)[-3000:]
+    time.sleep(1)
+    os.killpg(proc.pid, signal.SIGINT)
+    rest, _ = proc.communicate(timeout=120)
+    out = "".join(seen) + rest
+    assert proc.returncode == 130, out[-3000:]
+    assert out.strip().splitlines()[-1] == "docker-ros build: interrupted"
+    assert not image_exists(ref)
+    time.sleep(2)
+    left = subprocess.run(["pgrep", "-f", f"sleep {pause}"], capture_output=True, text=True)
+    assert left.stdout == "", "the hook still runs in the build container"
+    group = subprocess.run(["pgrep", "-g", str(proc.pid)], capture_output=True, text=True)
+    assert group.stdout == "", "processes of the interrupted build are left"

@@ -1,0 +1,123 @@
+"""Bad input on a real repository: caught before anything runs, one last line naming the
+culprit and what to do (issue 11). The steps run as the image runs them (steps CLI)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.rosfixtures import free_port, make_package, tree_snapshot, write_repos
+
+pytestmark = pytest.mark.host
+SRC = Path(__file__).resolve().parents[2] / "src"
+
+
+def run(args: list, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+    full = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    full.update({"PYTHONPATH": str(SRC), **(env or {})})
+    return subprocess.run([sys.executable, "-m", *args], cwd=cwd, env=full,
+                          capture_output=True, text=True, timeout=300)
+
+
+def last_line(proc: subprocess.CompletedProcess) -> str:
+    assert "Traceback" not in proc.stderr, proc.stderr
+    return proc.stderr.strip().splitlines()[-1]
+
+
+@pytest.fixture
+def repo(tmp_path: Path) -> Path:
+    repo = tmp_path / "repo"
+    make_package(repo / "pkg_a", "pkg_a")
+    (repo / ".env").write_text(f"WORKSPACE={tmp_path / 'ws'}\nBASE_IMAGE=none:1\nCOMMAND=x\n")
+    return repo
+
+
+def test_files_dir_symlinked_to_etc_is_refused_on_host_and_in_image_steps(repo: Path,
+                                                                          tmp_path: Path) -> None:
+    (repo / "docker").mkdir()
+    (repo / "docker" / "additional-files").symlink_to("/etc")
+    before = tree_snapshot(repo)
+    for args in (["docker_ros", "files"], ["docker_ros", "build"]):
+        proc = run(args, repo)
+        assert proc.returncode == 1, proc.stdout
+        assert last_line(proc).endswith(
+            "ADDITIONAL_FILES_DIR='docker/additional-files' leads to /etc through a symlink: "
+            "give a path inside the repository"), proc.stderr
+    assert not (tmp_path / "ws" / "additional-files").exists()
+    # The step itself (as the image's resolve stage runs it) refuses too.
+    ws = tmp_path / "image-ws"
+    (ws / "src").mkdir(parents=True)
+    (ws / "src" / "target").symlink_to(repo)
+    proc = run(["docker_ros.steps", "files", "--workspace", str(ws), "--phase", "collect"], repo)
+    assert proc.returncode == 1
+    assert "leads to /etc through a symlink" in last_line(proc)
+    assert not (ws / ".docker-ros" / "additional-files" / "passwd").exists()
+    assert tree_snapshot(repo) == before
+
+
+def test_build_context_and_image_checked_before_buildkit(repo: Path, tmp_path: Path) -> None:
+    missing = run(["docker_ros", "build", "--build-context", str(tmp_path / "nope")], repo)
+    assert missing.returncode == 1
+    assert f"BUILD_CONTEXT '{tmp_path / 'nope'}' is not a folder" in last_line(missing)
+    bad = run(["docker_ros", "build"], repo, env={"IMAGE": "My Robot:v1"})
+    assert bad.returncode == 1
+    assert "IMAGE_NAME (from IMAGE): 'my robot' is not a valid image name" in last_line(bad)
+    assert "#1 [internal]" not in bad.stdout  # BuildKit never started
+
+
+def test_explicit_list_files_must_exist_defaults_stay_silent(repo: Path, tmp_path: Path) -> None:
+    silent = run(["docker_ros", "clone"], repo)
+    assert silent.returncode == 0, silent.stderr
+    assert "no .repos files, nothing to import" in silent.stderr
+    for env in ({"VCS_IMPORT_FILE": "deps.repos", "ENABLE_RECURSIVE_VCS_IMPORT": "false"},
+                {"VCS_IMPORT_FILE": "deps.repos"}):
+        proc = run(["docker_ros", "clone"], repo, env=env)
+        assert proc.returncode == 1, proc.stderr
+        assert "VCS_IMPORT_FILE 'deps.repos' not found in the repository" in last_line(proc)
+
+
+def test_duplicate_package_names_fail_in_collect_naming_both(repo: Path) -> None:
+    make_package(repo / "copy" / "pkg_a", "pkg_a")
+    proc = run(["docker_ros", "rosdep", "--dry-run"], repo)
+    assert proc.returncode == 1
+    assert last_line(proc) == (
+        "docker-ros rosdep: two packages with the same name: pkg_a in src/target/copy/pkg_a and "
+        "src/target/pkg_a (colcon cannot build both: remove one, or put a COLCON_IGNORE file in "
+        "its folder)")
+
+
+def test_dotenv_look_alike_warns_and_config_prints_invalid_values(repo: Path) -> None:
+    with (repo / ".env").open("a") as env:
+        env.write("ENABLE_RECURSIVE_VCS_IMPRT=false\nENABLE_SLIM=maybe\nROS_DOMAIN_ID=7\n")
+    proc = run(["docker_ros", "config"], repo)
+    assert ("unknown variable ENABLE_RECURSIVE_VCS_IMPRT ignored (did you mean "
+            "ENABLE_RECURSIVE_VCS_IMPORT?)") in proc.stderr
+    assert "ROS_DOMAIN_ID" not in proc.stderr
+    assert proc.returncode == 1
+    rows = {line.split()[0]: line.split() for line in proc.stdout.splitlines()}
+    assert rows["ENABLE_SLIM"][1:] == ["maybe", ".env", "<-", "INVALID"]
+    assert rows["COMMAND"][1:] == ["x", ".env"]
+    assert "ENABLE_SLIM='maybe' is not a boolean" in last_line(proc)
+
+
+def test_refused_git_connection_keeps_its_cause(repo: Path) -> None:
+    write_repos(repo / ".repos", {"dep": {"type": "git", "version": "main",
+                                          "url": f"git://127.0.0.1:{free_port()}/dep.git"}})
+    proc = run(["docker_ros", "clone"], repo)
+    assert proc.returncode != 0
+    line = last_line(proc)
+    assert line.startswith("docker-ros clone: vcs import of ") and "repository 'dep'" in line
+    assert line.endswith("errno=Connection refused"), line  # on the host: no BUILD_NETWORK hint
+
+
+def test_crlf_hook_says_so(repo: Path) -> None:
+    (repo / "docker").mkdir()
+    (repo / "docker" / "before_dependency_installation.sh").write_bytes(
+        b"set -e\r\necho hook\r\n")
+    proc = run(["docker_ros", "scripts"], repo)
+    assert proc.returncode != 0
+    assert "the script has Windows (CRLF) line endings" in last_line(proc), proc.stderr

@@ -1,0 +1,144 @@
+"""Bad input caught before the build, one line naming the culprit (issue 11): the pure checks."""
+
+from pathlib import Path
+
+import pytest
+
+from docker_ros.config import config_table, dotenv_warnings, image_problems, path_problems
+from docker_ros.settings import SettingsError, explicitly_set, load_settings
+from docker_ros.steps import clone, pip
+from docker_ros.steps.common import path_problem, script_hint
+from docker_ros.steps.packages import Package, duplicate_packages
+
+
+def settings_for(repository: Path, **env: str):
+    return load_settings(environ={"BUILD_CONTEXT": str(repository), **env},
+                         project_dir=repository)
+
+
+def test_path_problem_absolute_dotdot_and_symlinks(tmp_path: Path) -> None:
+    (tmp_path / "docker").mkdir()
+    (tmp_path / "docker" / "etc").symlink_to("/etc")
+    (tmp_path / "docker" / "inside").symlink_to(tmp_path / "docker")
+    assert path_problem(tmp_path, "/etc") == "is an absolute path"
+    assert path_problem(tmp_path, "docker/../../x") == "leaves the repository through '..'"
+    assert path_problem(tmp_path, "docker/etc") == "leads to /etc through a symlink"
+    assert path_problem(tmp_path, "docker/etc/passwd") == "leads to /etc/passwd through a symlink"
+    for fine in ("docker/inside", "docker/not-there.txt", "docker/../docker/x", ".repos", "."):
+        assert path_problem(tmp_path, fine) is None, fine
+
+
+def test_path_settings_outside_the_repository_are_named(tmp_path: Path) -> None:
+    (tmp_path / "files").symlink_to("/etc")
+    settings = settings_for(tmp_path, ADDITIONAL_FILES_DIR="files", ADDITIONAL_DEBS_FILE="/x",
+                            VCS_IMPORT_FILE="../other.repos")
+    problems = path_problems(settings)
+    assert sorted(problems) == ["additional_debs_file", "additional_files_dir", "vcs_import_file"]
+    assert problems["additional_files_dir"] == (
+        "ADDITIONAL_FILES_DIR='files' leads to /etc through a symlink: give a path inside the "
+        "repository")
+
+
+def test_missing_build_context_is_named(tmp_path: Path) -> None:
+    problems = path_problems(settings_for(tmp_path / "nope"))
+    assert list(problems.values()) == [
+        f"BUILD_CONTEXT '{tmp_path / 'nope'}' is not a folder: set it to the ROS repository to "
+        "build"]
+
+
+def test_explicitly_set_files_must_exist_defaults_may_be_absent(tmp_path: Path) -> None:
+    assert path_problems(settings_for(tmp_path)) == {}
+    # CI integrations pass every default on: a default value from the environment is no choice.
+    ci = settings_for(tmp_path, VCS_IMPORT_FILE=".repos", ADDITIONAL_FILES_DIR="docker/"
+                      "additional-files")
+    assert not explicitly_set(ci, "vcs_import_file") and path_problems(ci) == {}
+    problems = path_problems(settings_for(
+        tmp_path, VCS_IMPORT_FILE="deps.repos", ENABLE_RECURSIVE_VCS_IMPORT="false",
+        BLACKLISTED_PACKAGES_FILE="bl.txt", ADDITIONAL_FILES_DIR="files"))
+    assert problems == {
+        "vcs_import_file": "VCS_IMPORT_FILE 'deps.repos' not found in the repository, but set "
+        "explicitly: fix the path or unset it",
+        "blacklisted_packages_file": "BLACKLISTED_PACKAGES_FILE 'bl.txt' not found in the "
+        "repository, but set explicitly: fix the path or unset it",
+        "additional_files_dir": "ADDITIONAL_FILES_DIR 'files' not found in the repository, but "
+        "set explicitly: fix the path or unset it",
+    }
+    # Recursive discovery may still find the file in imported repositories: the step decides.
+    assert "vcs_import_file" not in path_problems(settings_for(tmp_path,
+                                                               VCS_IMPORT_FILE="deps.repos"))
+
+
+def test_invalid_image_names_name_the_setting(tmp_path: Path) -> None:
+    bad = settings_for(tmp_path, IMAGE="my robot:v1")
+    assert image_problems(bad, ("run",)) == {
+        "image_name": "IMAGE_NAME (from IMAGE): 'my robot' is not a valid image name"}
+    tag = settings_for(tmp_path, IMAGE_NAME="ok/name", IMAGE_TAG="v1?")
+    assert set(image_problems(tag, ("dev", "run"))) == {"image_tag", "dev_image_tag"}
+    assert "IMAGE_TAG: 'v1?' is not a valid image tag" in image_problems(tag, ("run",)).values()
+    folder = load_settings(environ={}, project_dir=Path("/tmp/My Robot"))
+    assert "set IMAGE or IMAGE_NAME" in image_problems(folder, ("run",))["image_name"]
+    for good in ("localhost:5000/a/b-c:1.0", "ghcr.io/org/repo_x:latest", "a__b/c.d:tag-1"):
+        assert image_problems(settings_for(tmp_path, IMAGE=good), ("dev", "run")) == {}, good
+
+
+def test_dotenv_look_alikes_warn_with_did_you_mean() -> None:
+    warnings = dotenv_warnings({"ENABLE_RECURSIVE_VCS_IMPRT": "true", "ROS_DOMAIN_ID": "3",
+                                "BASE_IMAGE": "x", "COMAND": "y"})
+    assert warnings == [
+        "unknown variable ENABLE_RECURSIVE_VCS_IMPRT ignored (did you mean "
+        "ENABLE_RECURSIVE_VCS_IMPORT?)",
+        "unknown variable COMAND ignored (did you mean COMMAND?)",
+    ]
+
+
+def test_lenient_load_keeps_bad_values_for_config() -> None:
+    with pytest.raises(SettingsError):
+        load_settings(environ={"ENABLE_SLIM": "maybe"})
+    settings = load_settings(environ={"ENABLE_SLIM": "maybe", "IMAGE_TAG": "v2"},
+                             invoke_config={"imgae_tag": "x"}, lenient=True)
+    assert settings.enable_slim is True and settings.image_tag == "v2"
+    assert set(settings.problems) == {"enable_slim", "invoke.yaml:imgae_tag"}
+    rows = {line.split()[0]: line.split() for line in config_table(settings).splitlines()}
+    assert rows["ENABLE_SLIM"][1:] == ["maybe", "environment", "<-", "INVALID"]
+    assert rows["IMAGE_TAG"][1:] == ["v2", "environment"]
+
+
+def test_duplicate_packages_name_every_path() -> None:
+    def package(name: str, path: str) -> Package:
+        return Package(name, Path(path), 3, "cmake", {})
+
+    found = [package("a", "src/target/a"), package("b", "src/target/b"),
+             package("a", "src/upstream/x/a")]
+    assert duplicate_packages(found) == {"a": [Path("src/target/a"), Path("src/upstream/x/a")]}
+    assert duplicate_packages(found[:2]) == {}
+
+
+def test_git_errors_keep_their_cause_and_loopback_hint() -> None:
+    lines = ["=== /ws/src/upstream/x (git) ===",
+             "Could not determine ref type of version: fatal: unable to connect to 127.0.0.1:",
+             "127.0.0.1[0: 127.0.0.1]: errno=Connection refused"]
+    reason = clone.parse_vcs_failures(lines, Path("/ws/src/upstream"), ["x"])["x"]
+    assert reason.endswith("unable to connect to 127.0.0.1: 127.0.0.1[0: 127.0.0.1]: "
+                           "errno=Connection refused")
+    url = "git://127.0.0.1:9418/x.git"
+    assert "BUILD_NETWORK=host" in clone.failure_hint(url, reason, in_image=True)
+    assert clone.failure_hint(url, reason, in_image=False) == ""
+    assert clone.failure_hint("https://example.com/x.git", reason, in_image=True) == ""
+    assert clone.failure_hint(url, "fatal: invalid reference: main", in_image=True) == ""
+    for url, host in (("http://u@localhost:8080/x", "localhost"), ("git@127.0.0.1:x.git",
+                      "127.0.0.1"), ("ssh://[::1]:22/x", "[::1]"), ("/srv/x.git", "")):
+        assert clone.url_host(url) == host
+
+
+def test_pip_tls_failure_is_recognised_with_the_hint() -> None:
+    line = ("WARNING: Retrying (Retry(total=4, connect=None, read=None, redirect=None, "
+            "status=None)) after connection broken by 'SSLError(SSLCertVerificationError(1, "
+            "'[SSL: CERTIFICATE_VERIFY_FAILED] certificate verify failed: unable to get local "
+            "issuer certificate (_ssl.c:1006)'))': /simple/tomli-w/")
+    assert "set EXTRA_CA_CERTS" in pip.tls_failure(line)
+    assert pip.tls_failure("Collecting tomli-w") == ""
+
+
+def test_crlf_scripts_get_a_hint() -> None:
+    assert "CRLF" in script_hint(b"#!/bin/bash\r\necho hi\r\n")
+    assert script_hint(b"#!/bin/bash\necho hi\n") == ""
