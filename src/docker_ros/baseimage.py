@@ -16,8 +16,9 @@ from pathlib import Path
 from typing import List, Optional, Tuple
 
 from docker_ros.engine import image_exists, inspect_image, remove_image
+from docker_ros.runtime.process import privileged, run
+from docker_ros.runtime.workspace import StepError, format_argv, step_log
 from docker_ros.settings import host_platform
-from docker_ros.steps.common import StepError, format_argv, privileged, run, step_log
 
 LOG = logging.getLogger(__name__)
 STEP = "baseimage"

@@ -17,8 +17,8 @@ from typing import IO, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 import docker_ros
 from docker_ros import engine
 from docker_ros.engine import image_exists, image_size
+from docker_ros.runtime.files import walk
 from docker_ros.settings import FIELDS, Settings, as_env, env_name
-from docker_ros.steps.common import walk
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
@@ -26,7 +26,8 @@ TOOLS_REPOSITORY = "docker-ros-tools"
 IMPORTS_REPOSITORY = "docker-ros-imports"
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
 TOOLS_PATTERNS = (
-    "__init__.py", "settings.py", "ci.py", "testing.py", "steps/*.py", "docker/*.sh",
+    "__init__.py", "settings.py", "ci.py", "testing.py", "steps/*.py", "runtime/*.py",
+    "docker/*.sh",
 )
 SECRETS = ("git_https_password", "git_ssh_private_key")
 # Settings that shape the build through the tool itself rather than a Dockerfile ARG.

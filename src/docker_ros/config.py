@@ -13,6 +13,7 @@ from typing import Dict, List, Mapping, Optional, Sequence
 from dotenv import dotenv_values
 
 from docker_ros.ci import github_default_branch
+from docker_ros.runtime.files import path_problem
 from docker_ros.settings import (
     FIELDS,
     Settings,
@@ -22,7 +23,6 @@ from docker_ros.settings import (
     load_settings,
     path_settings,
 )
-from docker_ros.steps.common import path_problem
 
 LOG = logging.getLogger("docker_ros")
 # docker's reference grammar (distribution/reference): [domain[:port]/]component(/component)*

@@ -27,8 +27,8 @@ from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, T
 import docker
 
 from docker_ros import build, engine
+from docker_ros.runtime.workspace import StepError
 from docker_ros.settings import Settings, as_env, env_name
-from docker_ros.steps.common import StepError
 
 Command = Tuple[str, ...]  # the arguments after `python3 -m docker_ros.steps`
 STEP_MODULE = ("python3", "-m", "docker_ros.steps")

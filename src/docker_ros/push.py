@@ -8,8 +8,8 @@ from typing import Dict, List, Mapping, Optional, Sequence
 
 from docker_ros import engine
 from docker_ros.build import BuildError, image_ref, platform_ref
+from docker_ros.runtime.workspace import format_argv
 from docker_ros.settings import Settings
-from docker_ros.steps.common import format_argv
 
 LOCAL_REGISTRIES = ("localhost", "127.0.0.1")
 

@@ -24,8 +24,8 @@ from typing import IO, Callable, Dict, List, Mapping, Optional, Sequence, Set, T
 
 from docker_ros.build import PACKAGE_DIR, image_ref, image_size, platform_ref
 from docker_ros.engine import inspect_image
+from docker_ros.runtime.workspace import format_argv
 from docker_ros.settings import Settings, host_platform
-from docker_ros.steps.common import format_argv
 
 TRACER = PACKAGE_DIR / "slimtrace.py"
 EXCHANGE = "/docker-ros-slim"  # the tracer and its results inside the trace container

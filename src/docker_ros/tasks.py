@@ -24,6 +24,7 @@ from invoke import Collection, Context, Exit, Task
 from docker_ros import build
 from docker_ros.build import BuiltImage
 from docker_ros.config import config_table, image_problems, path_problems, read_settings
+from docker_ros.runtime.workspace import StepError, Workspace, format_argv, setup_logging
 from docker_ros.settings import (
     FIELDS,
     Settings,
@@ -37,7 +38,6 @@ from docker_ros.settings import (
     required_for_build,
 )
 from docker_ros.steps import STEPS
-from docker_ros.steps.common import StepError, Workspace, format_argv, setup_logging
 
 Flag = Tuple[str, object, str]  # name, default, help
 DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change nothing")

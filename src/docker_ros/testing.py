@@ -113,10 +113,12 @@ def copy_results(ws_root: Path, destination: Path) -> None:
 def run_in_image(ws_root: Path, destination: Path, environ: Dict[str, str]) -> Dict[str, int]:
     """colcon build (as the build stage: same arguments, same build/ cache), colcon test,
     colcon test-result; returns and records the exit codes, never raises for a failed test."""
+    from docker_ros.runtime.process import run_tee
+    from docker_ros.runtime.rosenv import ros_setup_files, sourced_env
+    from docker_ros.runtime.workspace import StepError, Workspace
     from docker_ros.settings import load_settings
     from docker_ros.steps import colcon
     from docker_ros.steps.blacklist import blacklisted_packages
-    from docker_ros.steps.common import StepError, Workspace, ros_setup_files, run_tee, sourced_env
 
     ws = Workspace(ws_root)
     settings = load_settings(environ=environ, project_dir=Path(ws.target))
@@ -180,7 +182,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("destination", help="folder for the results")
     parser.add_argument("--workspace", default="/docker-ros/ws", help="colcon workspace")
     args = parser.parse_args(argv)
-    from docker_ros.steps.common import setup_logging
+    from docker_ros.runtime.workspace import setup_logging
 
     setup_logging()
     run_in_image(Path(args.workspace), Path(args.destination), dict(os.environ))

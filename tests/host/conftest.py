@@ -8,8 +8,8 @@ from typing import Callable, Dict
 
 import pytest
 
+from docker_ros.runtime.workspace import Workspace
 from docker_ros.settings import Settings, load_settings
-from docker_ros.steps.common import Workspace
 
 
 class Project:

@@ -5,8 +5,8 @@ import subprocess
 
 import pytest
 
+from docker_ros.runtime.workspace import StepError
 from docker_ros.steps import blacklist, colcon, command
-from docker_ros.steps.common import StepError
 from tests.rosfixtures import make_package, tree_snapshot
 
 pytestmark = pytest.mark.host

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.runtime.workspace import StepError
 from docker_ros.steps import run_step
-from docker_ros.steps.common import StepError
 
 pytestmark = pytest.mark.host
 SRC = Path(__file__).resolve().parents[2] / "src"

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.runtime.workspace import StepError
 from docker_ros.steps import clone
-from docker_ros.steps.common import StepError
 from tests.rosfixtures import git, make_git_repo, tree_snapshot, write_repos
 
 pytestmark = pytest.mark.host

@@ -2,8 +2,8 @@
 
 import pytest
 
+from docker_ros.runtime.workspace import StepError
 from docker_ros.steps import custom, scripts
-from docker_ros.steps.common import StepError
 from tests.rosfixtures import tree_snapshot
 
 pytestmark = pytest.mark.host

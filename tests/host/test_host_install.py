@@ -7,8 +7,9 @@ import subprocess
 
 import pytest
 
+from docker_ros.runtime.process import is_root
+from docker_ros.runtime.workspace import StepError
 from docker_ros.steps import blacklist, debs, files, pip, rosdep
-from docker_ros.steps.common import StepError, is_root
 from tests.rosfixtures import make_package, rosdep_update, tree_snapshot, write_rosdep_rules
 
 pytestmark = pytest.mark.host

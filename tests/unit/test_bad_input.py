@@ -5,10 +5,11 @@ from pathlib import Path
 import pytest
 
 from docker_ros.config import config_table, dotenv_warnings, image_problems, path_problems
+from docker_ros.runtime.files import path_problem
+from docker_ros.runtime.packages import Package, duplicate_packages
+from docker_ros.runtime.process import script_hint
 from docker_ros.settings import SettingsError, explicitly_set, load_settings
 from docker_ros.steps import clone, pip
-from docker_ros.steps.common import path_problem, script_hint
-from docker_ros.steps.packages import Package, duplicate_packages
 
 
 def settings_for(repository: Path, **env: str):

@@ -2,13 +2,13 @@
 
 import pytest
 
-from docker_ros.steps.common import StepError
-from docker_ros.steps.prepare import (
+from docker_ros.runtime.prepare import (
     plan_ros_installation,
     plan_tool_packages,
     ros_package_names,
     ros_present,
 )
+from docker_ros.runtime.workspace import StepError
 
 
 def plan(**kw):

@@ -3,7 +3,7 @@
 import pytest
 from catkin_pkg.condition import evaluate_condition as catkin_evaluate
 
-from docker_ros.steps.packages import (
+from docker_ros.runtime.packages import (
     blacklisted_dependents,
     condition_context,
     evaluate_condition,

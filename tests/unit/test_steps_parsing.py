@@ -6,19 +6,17 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.settings import load_settings
-from docker_ros.steps import clone, colcon, debs, pip, rosdep
-from docker_ros.steps.common import (
-    StepError,
-    Workspace,
+from docker_ros.runtime.files import read_list_file
+from docker_ros.runtime.rosenv import (
     parse_env0,
-    phases,
-    read_list_file,
     read_secret,
     ros_setup_files,
     ros_version,
     sourced_env,
 )
+from docker_ros.runtime.workspace import StepError, Workspace, phases
+from docker_ros.settings import load_settings
+from docker_ros.steps import clone, colcon, debs, pip, rosdep
 
 
 def test_read_list_file_comments_blanks_and_spaces(tmp_path):
@@ -398,8 +396,8 @@ def test_workspace_relative_and_state(tmp_path):
 def test_colcon_stamps_only_files_whose_content_changed(tmp_path):
     import os
 
+    from docker_ros.runtime.workspace import Workspace
     from docker_ros.steps import colcon
-    from docker_ros.steps.common import Workspace
 
     ws = Workspace(tmp_path)
     (ws.src / "pkg").mkdir(parents=True)

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parents[2] / "src"
-STEP_FILES = sorted((SRC / "docker_ros" / "steps").glob("*.py"))
+STEP_FILES = sorted((SRC / "docker_ros" / "steps").glob("*.py")) + sorted(
+    (SRC / "docker_ros" / "runtime").glob("*.py"))
 # testing.py runs in the image's test stage, slimtrace.py in the run image being slimmed,
 # ci.py with settings.py
 IN_IMAGE = [SRC / "docker_ros" / name
@@ -20,8 +21,10 @@ CHECKED = STEP_FILES + IN_IMAGE
 IMPORT_ALL = """
 import importlib, json, pkgutil, sys
 import docker_ros.settings, docker_ros.slimtrace, docker_ros.steps, docker_ros.testing
-for info in pkgutil.iter_modules(docker_ros.steps.__path__):
-    importlib.import_module("docker_ros.steps." + info.name)
+import docker_ros.runtime
+for package in (docker_ros.steps, docker_ros.runtime):
+    for info in pkgutil.iter_modules(package.__path__):
+        importlib.import_module(package.__name__ + "." + info.name)
 print(json.dumps(sorted(sys.modules)))
 """
 

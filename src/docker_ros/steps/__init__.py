@@ -3,8 +3,8 @@
 from typing import TYPE_CHECKING, Callable, Dict
 
 if TYPE_CHECKING:  # the settings type only; nothing outside the standard library at run time
+    from docker_ros.runtime.workspace import Workspace
     from docker_ros.settings import Settings
-    from docker_ros.steps.common import Workspace
 
 STEPS = (
     "clone",
@@ -25,6 +25,7 @@ IMAGE_STEPS = ("prepare",)
 def step_mains() -> "Dict[str, Callable[..., None]]":
     """Each step's entry function, by name (imported on first use: the modules import this
     package for its names)."""
+    from docker_ros.runtime import prepare
     from docker_ros.steps import (
         blacklist,
         clone,
@@ -34,7 +35,6 @@ def step_mains() -> "Dict[str, Callable[..., None]]":
         debs,
         files,
         pip,
-        prepare,
         rosdep,
         scripts,
     )
@@ -66,7 +66,7 @@ def run_step(
     """Run one step by name: `<its module>.main(ws, settings, ...)`."""
     mains = step_mains()
     if name not in mains:
-        from docker_ros.steps.common import StepError
+        from docker_ros.runtime.workspace import StepError
 
         raise StepError(name, f"unknown step {name!r}; steps: {', '.join(STEPS)}")
     mains[name](ws, settings, phase=phase, dry_run=dry_run, **options)

@@ -7,9 +7,9 @@ import sys
 from pathlib import Path
 from typing import Dict, List, Optional
 
+from docker_ros.runtime.workspace import PHASES, StepError, Workspace, setup_logging
 from docker_ros.settings import SettingsError, load_settings
 from docker_ros.steps import IMAGE_STEPS, STEPS, run_step
-from docker_ros.steps.common import PHASES, StepError, Workspace, setup_logging
 
 DEFAULT_WORKSPACE = "/docker-ros/ws"
 

@@ -10,16 +10,10 @@ import logging
 from pathlib import Path
 from typing import Any, Dict, List, Sequence
 
+from docker_ros.runtime.files import collect_list_entries, unique
+from docker_ros.runtime.packages import Package, find_packages
+from docker_ros.runtime.workspace import Workspace, dry, phases, step_log
 from docker_ros.settings import Settings
-from docker_ros.steps.common import (
-    Workspace,
-    collect_list_entries,
-    dry,
-    phases,
-    step_log,
-    unique,
-)
-from docker_ros.steps.packages import Package, find_packages
 
 STEP = "blacklist"
 STATE_FILE = "blacklist.json"

@@ -15,26 +15,12 @@ import tempfile
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Set
 
+from docker_ros.runtime.apt import apt_install
+from docker_ros.runtime.files import file_sha256, find_special_files, remove_tree, repository_path
+from docker_ros.runtime.process import is_root, run, run_script, run_tee
+from docker_ros.runtime.rosenv import SECRETS_DIR, read_secret
+from docker_ros.runtime.workspace import StepError, Workspace, dry, format_argv, phases, step_log
 from docker_ros.settings import Settings
-from docker_ros.steps.common import (
-    SECRETS_DIR,
-    StepError,
-    Workspace,
-    apt_install,
-    dry,
-    file_sha256,
-    find_special_files,
-    format_argv,
-    is_root,
-    phases,
-    read_secret,
-    remove_tree,
-    repository_path,
-    run,
-    run_script,
-    run_tee,
-    step_log,
-)
 
 STEP = "clone"
 STATE_FILE = "clone.json"

@@ -10,19 +10,11 @@ import time
 from pathlib import Path
 from typing import Dict, List, Sequence
 
+from docker_ros.runtime.process import run, run_tee
+from docker_ros.runtime.rosenv import ros_setup_files, sourced_env
+from docker_ros.runtime.workspace import StepError, Workspace, dry, phases, step_log
 from docker_ros.settings import Settings
 from docker_ros.steps.blacklist import blacklisted_packages
-from docker_ros.steps.common import (
-    StepError,
-    Workspace,
-    dry,
-    phases,
-    ros_setup_files,
-    run,
-    run_tee,
-    sourced_env,
-    step_log,
-)
 
 STEP = "colcon"
 STAMP_FILE = ".docker-ros-source-hashes.json"

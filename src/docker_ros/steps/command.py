@@ -6,17 +6,10 @@ import logging
 from pathlib import Path
 from typing import List
 
+from docker_ros.runtime.process import run
+from docker_ros.runtime.rosenv import ros_setup_files, sourced_env
+from docker_ros.runtime.workspace import StepError, Workspace, dry, phases, step_log
 from docker_ros.settings import Settings
-from docker_ros.steps.common import (
-    StepError,
-    Workspace,
-    dry,
-    phases,
-    ros_setup_files,
-    run,
-    sourced_env,
-    step_log,
-)
 
 STEP = "command"
 LOG = logging.getLogger(__name__)

@@ -1,8 +1,8 @@
 """custom: run the after-dependency-installation hook script(s)."""
 
+from docker_ros.runtime import hooks
+from docker_ros.runtime.workspace import Workspace
 from docker_ros.settings import Settings
-from docker_ros.steps import hooks
-from docker_ros.steps.common import Workspace
 
 STEP = "custom"
 

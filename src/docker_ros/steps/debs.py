@@ -2,14 +2,10 @@
 
 from typing import Any, Dict, List, Sequence
 
+from docker_ros.runtime.apt import apt_install
+from docker_ros.runtime.files import collect_list_entries
+from docker_ros.runtime.workspace import Workspace, phases, step_log
 from docker_ros.settings import Settings
-from docker_ros.steps.common import (
-    Workspace,
-    apt_install,
-    collect_list_entries,
-    phases,
-    step_log,
-)
 
 STEP = "debs"
 STATE_FILE = "debs.json"

@@ -4,17 +4,9 @@ import logging
 from pathlib import Path
 from typing import Optional
 
+from docker_ros.runtime.files import copy_tree, remove_tree, repository_path
+from docker_ros.runtime.workspace import StepError, Workspace, dry, phases, step_log
 from docker_ros.settings import Settings, explicitly_set
-from docker_ros.steps.common import (
-    StepError,
-    Workspace,
-    copy_tree,
-    dry,
-    phases,
-    remove_tree,
-    repository_path,
-    step_log,
-)
 
 STEP = "files"
 STATE_DIR = "additional-files"

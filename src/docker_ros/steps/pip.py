@@ -8,23 +8,12 @@ import json
 import os
 import re
 import shlex
-import subprocess
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
+from docker_ros.runtime.files import collect_list_entries, unique
+from docker_ros.runtime.process import is_root, probe, run, run_tee
+from docker_ros.runtime.workspace import LOG, StepError, Workspace, format_argv, phases, step_log
 from docker_ros.settings import Settings
-from docker_ros.steps.common import (
-    LOG,
-    StepError,
-    Workspace,
-    collect_list_entries,
-    format_argv,
-    is_root,
-    phases,
-    run,
-    run_tee,
-    step_log,
-    unique,
-)
 
 STEP = "pip"
 STATE_FILE = "pip.json"
@@ -98,16 +87,7 @@ def pip_install_argv(python: str, arguments: Sequence[str], flags: Sequence[str]
 
 def probe_python(python: str, *, step: str) -> Dict[str, Any]:
     """Ask the interpreter about PEP 668, virtualenv and its pip (read-only; also in dry runs)."""
-    try:
-        proc = subprocess.run(
-            [python, "-c", PROBE],
-            capture_output=True,
-            text=True,
-        )
-    except FileNotFoundError:
-        raise StepError(
-            step, f"command not found: {python} (set {PYTHON_ENV} or PATH)", 127
-        ) from None
+    proc = probe([python, "-c", PROBE], step=step, hint=f"set {PYTHON_ENV} or PATH")
     try:
         data = json.loads(proc.stdout.strip().splitlines()[-1])
     except (ValueError, IndexError):

@@ -10,34 +10,24 @@ import logging
 import os
 import re
 import shutil
-import subprocess
 import tempfile
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
-from docker_ros.settings import Settings, explicitly_set
-from docker_ros.steps.blacklist import blacklisted_packages
-from docker_ros.steps.common import (
-    StepError,
-    Workspace,
-    apt_install,
-    dry,
-    format_argv,
-    hook_context,
-    phases,
-    privileged,
-    repository_path,
-    ros_distro,
-    run,
-    step_log,
-)
-from docker_ros.steps.packages import (
+from docker_ros.runtime.apt import apt_install
+from docker_ros.runtime.files import repository_path
+from docker_ros.runtime.packages import (
     DEPENDENCY_SETS,
     blacklisted_dependents,
     find_packages,
     select_keys,
     underlay_packages,
 )
+from docker_ros.runtime.process import hook_context, privileged, probe, run
+from docker_ros.runtime.rosenv import ros_distro
+from docker_ros.runtime.workspace import StepError, Workspace, dry, format_argv, phases, step_log
+from docker_ros.settings import Settings, explicitly_set
+from docker_ros.steps.blacklist import blacklisted_packages
 from docker_ros.steps.pip import pip_install
 
 STEP = "rosdep"
@@ -126,17 +116,7 @@ def resolve(
             f" --rosdistro {distro}" if distro else "",
             len(remaining),
         )
-        try:
-            proc = subprocess.run(
-                argv,
-                capture_output=True,
-                text=True,
-                env=env,
-            )
-        except FileNotFoundError:
-            raise StepError(
-                step, "command not found: rosdep (install python3-rosdep)", 127
-            ) from None
+        proc = probe(argv, step=step, env=env, hint="install python3-rosdep")
         if proc.returncode == 0:
             resolved.update(parse_resolve_output(proc.stdout, remaining))
             break
@@ -258,7 +238,7 @@ def private_database(
     argv = ["rosdep", "update"] + (["--rosdistro", distro] if distro else [])
     for attempt in ("index", "no index"):
         LOG.info("%s: %s (own database in %s)", STEP, format_argv(argv), home)
-        proc = subprocess.run(argv, env=env, capture_output=True, text=True)
+        proc = probe(argv, step=STEP, env=env, hint="install python3-rosdep")
         if proc.returncode == 0 or cache.is_file():
             break
         if attempt == "index":

@@ -7,17 +7,11 @@ import shutil
 from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence
 
+from docker_ros.runtime.apt import apt_env
+from docker_ros.runtime.process import run
+from docker_ros.runtime.rosenv import BASE_IMAGE_WS, ROS1_DISTROS
+from docker_ros.runtime.workspace import LOG, StepError, Workspace, step_log
 from docker_ros.settings import Settings
-from docker_ros.steps.common import (
-    BASE_IMAGE_WS,
-    LOG,
-    ROS1_DISTROS,
-    StepError,
-    Workspace,
-    apt_env,
-    run,
-    step_log,
-)
 
 ROS_APT_SOURCE_URL = (
     "https://github.com/ros-infrastructure/ros-apt-source/releases/download/"

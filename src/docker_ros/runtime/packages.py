@@ -7,15 +7,9 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Dict, Iterable, List, Mapping, NamedTuple, Optional, Sequence, Set, Tuple
 
-from docker_ros.steps.common import (
-    BASE_IMAGE_WS,
-    IGNORE_MARKERS,
-    StepError,
-    Workspace,
-    ros_distro,
-    ros_version,
-    walk,
-)
+from docker_ros.runtime.files import walk
+from docker_ros.runtime.rosenv import BASE_IMAGE_WS, ros_distro, ros_version
+from docker_ros.runtime.workspace import IGNORE_MARKERS, StepError, Workspace
 
 LOG = logging.getLogger(__name__)
 

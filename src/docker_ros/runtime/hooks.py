@@ -7,21 +7,10 @@ import shutil
 from pathlib import Path
 from typing import Any, Dict, List
 
-from docker_ros.steps.common import (
-    StepError,
-    Workspace,
-    apt_env,
-    apt_get,
-    apt_lists_present,
-    dry,
-    find_special_files,
-    is_root,
-    phases,
-    remove_tree,
-    run,
-    run_script,
-    step_log,
-)
+from docker_ros.runtime.apt import apt_env, apt_get, apt_lists_present
+from docker_ros.runtime.files import find_special_files, remove_tree
+from docker_ros.runtime.process import is_root, run, run_script
+from docker_ros.runtime.workspace import StepError, Workspace, dry, phases, step_log
 
 LOG = logging.getLogger(__name__)
 
