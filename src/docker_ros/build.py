@@ -262,10 +262,12 @@ def tools_tree(destination: Path) -> str:
 
 
 def dockerignore(context: Path) -> str:
-    """The user's .dockerignore plus ours: `.env` files hold credentials and stay out."""
+    """The user's .dockerignore plus ours: `.env` files hold credentials and stay out, and so
+    does gitlab-ci-local's scratch folder (copies of the repository made inside it)."""
     user = context / ".dockerignore"
     lines = user.read_text().splitlines() if user.is_file() else []
-    return "\n".join([*lines, "# added by docker-ros", ".env", "**/.env"]) + "\n"
+    ours = ["# added by docker-ros", ".env", "**/.env", ".gitlab-ci-local"]
+    return "\n".join([*lines, *ours]) + "\n"
 
 
 def stage_dockerfile(context: Path, destination: Path) -> Path:

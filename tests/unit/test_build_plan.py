@@ -111,6 +111,7 @@ def test_dockerignore_keeps_env_files_out_and_the_users_rules(tmp_path):
     staged = build.stage_dockerfile(tmp_path, _mk(tmp_path))
     ignore = (staged.parent / "Dockerfile.dockerignore").read_text().splitlines()
     assert ignore[0] == "build/" and ".env" in ignore and "**/.env" in ignore
+    assert ".gitlab-ci-local" in ignore
     assert staged.read_text() == build.DOCKERFILE.read_text()
     assert (tmp_path / ".dockerignore").read_text() == "build/\n"
 

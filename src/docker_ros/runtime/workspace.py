@@ -18,7 +18,11 @@ STATE_DIR_NAME = ".docker-ros"
 
 
 # Directories never searched for packages or special files.
-SKIP_DIRS = {".git", ".hg", ".svn", "build", "install", "log", STATE_DIR_NAME, "__pycache__"}
+# (.gitlab-ci-local: gitlab-ci-local's copies of the repository, made inside it.)
+SKIP_DIRS = {
+    ".git", ".hg", ".svn", "build", "install", "log", STATE_DIR_NAME, "__pycache__",
+    ".gitlab-ci-local",
+}
 
 
 IGNORE_MARKERS = ("COLCON_IGNORE", "CATKIN_IGNORE", "AMENT_IGNORE")
