@@ -247,6 +247,8 @@ class Settings:
         (),
         "Registry images to reuse as build cache (comma-separated; each a `--cache-from`;"
         " give the dev and the run image so that every stage finds its layers)",
+        default_doc="in CI: the dev and run images the pipeline pushes (and the default"
+        " branch's); else none",
         group="ours",
     )
     build_network: Optional[str] = setting(
@@ -507,7 +509,28 @@ def derived_defaults(
             out["registry"] = ("ghcr.io", "derived from GITHUB_ACTIONS (environment)")
         elif environ.get("CI_REGISTRY"):
             out["registry"] = (environ["CI_REGISTRY"], "derived from CI_REGISTRY (environment)")
+    if not values.get("cache_from") and detect_pipeline(environ) is not None:
+        merged = {**values, **{name: value for name, (value, _) in out.items()}}
+        out["cache_from"] = (ci_cache_refs(merged),
+                             "derived from the CI pipeline (its pushed dev and run images)")
     return out
+
+
+def ci_cache_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
+    """CACHE_FROM of a CI job on an empty runner: the dev and run images this pipeline pushes
+    (also as `-<arch>`, ENABLE_SINGLEARCH_PUSH's names) and, off the default branch, those of
+    the default branch (without IMAGE_POSTFIX). A ref not (yet) in the registry only costs
+    BuildKit a failed look-up."""
+    postfix = str(values.get("image_postfix") or "")
+    platforms: Tuple[str, ...] = tuple(values.get("platform") or ())  # type: ignore[arg-type]
+    refs: List[str] = []
+    for kind in ("dev", "run"):
+        name = values["image_name" if kind == "run" else "dev_image_name"]
+        tag = str(values.get("image_tag", "latest") if kind == "run" else values["dev_image_tag"])
+        tags = [tag] + ([tag[: -len(postfix)]] if postfix and tag.endswith(postfix) else [])
+        for each in tags:
+            refs += [f"{name}:{each}"] + [f"{name}:{each}-{p}" for p in platforms]
+    return tuple(dict.fromkeys(refs))
 
 
 def ci_tags(values: Mapping[str, object], environ: Mapping[str, str]) -> Dict[str, object]:

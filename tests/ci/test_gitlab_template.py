@@ -65,7 +65,10 @@ def pipelines(ros1_base_image: str, local_registry: str,
     git(repo, "checkout", "-q", "-b", FEATURE)
     results["feature"] = gitlab_ci_local(repo, variables)
     git(repo, "checkout", "-q", "main")
-    results["main"] = gitlab_ci_local(repo, variables)
+    # On main, as docker-ros's defaults: tests and the slim image (pipeline variables beat the
+    # file's, as in GitLab).
+    results["main"] = gitlab_ci_local(repo, {**variables, "ENABLE_SLIM": "true",
+                                             "ENABLE_INDUSTRIAL_CI": "true"})
     return {"registry": local_registry, **results}
 
 
@@ -81,6 +84,7 @@ def test_feature_branch_and_main_push_docker_ros_tags(pipelines: dict) -> None:
     assert registry_tags(pipelines["registry"], IMAGE) == [
         "latest", "latest-amd64", "latest-dev", "latest-dev-amd64",
         "latest-dev_feature-gitlab-test_ci", "latest-dev_feature-gitlab-test_ci-amd64",
+        "latest-slim", "latest-slim-amd64",
         "latest_feature-gitlab-test_ci", "latest_feature-gitlab-test_ci-amd64",
     ]
     assert manifest_architectures(f"{pipelines['registry']}/{IMAGE}:latest") == ["amd64"]
@@ -88,10 +92,16 @@ def test_feature_branch_and_main_push_docker_ros_tags(pipelines: dict) -> None:
 
 def test_secrets_and_setup_stay_out_of_the_log(pipelines: dict) -> None:
     log = pipelines["main"].stdout
-    assert "docker-ros ci: docker-ros build" in log and "docker-ros ci: docker-ros push" in log
+    for task in ("build", "test", "slim", "push"):
+        assert f"docker-ros ci: docker-ros {task}" in log, task
+    assert "docker-ros test (amd64): " in log
     assert "--password" not in log.replace("--password-stdin", "")
 
 
 def test_pushed_run_image_runs(pipelines: dict) -> None:
     ref = f"{pipelines['registry']}/{IMAGE}:latest_feature-gitlab-test_ci"
     assert_pulled_image_runs(ref)
+
+
+def test_pushed_slim_image_runs(pipelines: dict) -> None:
+    assert_pulled_image_runs(f"{pipelines['registry']}/{IMAGE}:latest-slim")

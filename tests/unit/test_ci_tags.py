@@ -142,3 +142,16 @@ def test_ci_job_plan_tests_before_pushing_and_names_missing_tasks():
         "ENABLE_INDUSTRIAL_CI=true needs the `test` task, which this docker-ros does not have "
         "yet: set ENABLE_INDUSTRIAL_CI=false"
     ]
+
+
+def test_ci_jobs_reuse_the_pushed_dev_and_run_images_as_cache_by_default() -> None:
+    env = {**CASES["gitlab-feature"], "CI_REGISTRY_IMAGE": "reg/g/p", "PLATFORM": "amd64"}
+    feature = load_settings(environ=env, project_dir=Path("/tmp/p"))
+    assert feature.cache_from[:2] == ("reg/g/p:latest-dev_feature-my-thing_ci",
+                                      "reg/g/p:latest-dev_feature-my-thing_ci-amd64")
+    # a feature branch also reuses the default branch's images
+    assert {"reg/g/p:latest-dev", "reg/g/p:latest"} <= set(feature.cache_from)
+    assert feature.source_of("cache_from").startswith("derived from the CI pipeline")
+    given = load_settings(environ={**env, "CACHE_FROM": "x/y:z"}, project_dir=Path("/tmp/p"))
+    assert given.cache_from == ("x/y:z",)
+    assert load_settings(environ={}, project_dir=Path("/tmp/p")).cache_from == ()
