@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 from typing import List, Optional
 
 from invoke import Program
@@ -15,4 +16,9 @@ def main(argv: Optional[List[str]] = None) -> None:
     # Read invoke.yaml (key docker_ros) from the project we run in, as `inv` does next to tasks.py.
     ns.loaded_from = os.getcwd()
     program = Program(namespace=ns, name="docker-ros", binary="docker-ros", version=__version__)
-    program.run(None if argv is None else ["docker-ros", *argv])
+    try:
+        program.run(None if argv is None else ["docker-ros", *argv])
+    except BrokenPipeError:
+        # The reader of our output (e.g. `docker-ros --list | head`) closed it: not our error.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        sys.exit(141)
