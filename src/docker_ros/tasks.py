@@ -723,7 +723,7 @@ def example(c: Context, settings: Settings, *, seconds: int) -> None:
     run_ref = next(i.ref for i in images if i.target == "run")
     print(f"docker run --rm {run_ref}   (stopped after {seconds} s)")
     try:
-        subprocess.run(["docker", "run", "--rm", "--init", "--name", "docker-ros-example",
+        subprocess.run(["docker", "run", "--rm", "--name", "docker-ros-example",
                         run_ref], timeout=seconds)
     except subprocess.TimeoutExpired:
         subprocess.run(["docker", "rm", "-f", "docker-ros-example"], capture_output=True)
