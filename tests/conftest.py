@@ -123,12 +123,17 @@ def local_registry(
         wait_for_registry(address, server, log_path)
         yield address
     finally:
-        server.terminate()
-        try:
-            server.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait()
+        stop(server, timeout=10)
+
+
+def stop(process: subprocess.Popen, *, timeout: float) -> None:
+    """Terminate a server the tests started; kill it if it does not end in time."""
+    process.terminate()
+    try:
+        process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
 
 
 def free_port() -> int:
@@ -198,11 +203,6 @@ def empty_engine(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory)
         assert save.wait() == 0
         yield host
     finally:
-        daemon.terminate()
-        try:
-            daemon.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            daemon.kill()
-            daemon.wait()
+        stop(daemon, timeout=30)
         subprocess.run(["ip", "link", "del", bridge], capture_output=True)
         subprocess.run(["rm", "-rf", "--one-file-system", str(work)], capture_output=True)
