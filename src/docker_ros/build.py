@@ -143,6 +143,22 @@ def plan_build(
     return argv
 
 
+def plan_shown(
+    settings: Settings,
+    *,
+    target: str,
+    platform: str,
+    tag: str,
+    output: str = "",
+    extra_build_args: Mapping[str, str] = {},
+) -> List[str]:
+    """plan_build as a dry run shows it, before the tools image and CA bundle exist."""
+    return plan_build(settings, target=target, platform=platform,
+                      tools_image=f"{TOOLS_REPOSITORY}:<hash>", tag=tag,
+                      secrets=plan_secrets(settings, None), output=output,
+                      extra_build_args=extra_build_args)
+
+
 def secret_env(settings: Settings) -> Dict[str, str]:
     """The environment of the buildx process that carries the secret values."""
     return {f"DOCKER_ROS_SECRET_{env_name(n)}": getattr(settings, n) for n in SECRETS
@@ -363,8 +379,6 @@ def check_engine() -> None:
         raise BuildError("the docker buildx plugin is missing: install it (scripts/setup.sh)")
 
 
-def base_image_available(ref: str) -> bool:
-    return image_exists(ref) or engine.pull(ref)
 
 
 def build_image(

@@ -58,6 +58,11 @@ def pull(ref: str) -> bool:
     return True
 
 
+def local_or_pulled(ref: str) -> bool:
+    """ref is a local image, or one pulled now."""
+    return image_exists(ref) or pull(ref)
+
+
 def tag(source: str, target: str) -> None:
     repository, name_tag = parse_repository_tag(target)
     try:

@@ -21,7 +21,7 @@ from typing import Any, Callable, Dict, Iterator, List, Mapping, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
 
-from docker_ros import build
+from docker_ros import build, engine
 from docker_ros.build import BuiltImage
 from docker_ros.config import config_table, image_problems, path_problems, read_settings
 from docker_ros.runtime.workspace import StepError, Workspace, format_argv, setup_logging
@@ -278,15 +278,13 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
     runs_command = plan.start == "run" or ("command",) in plan.commands
     require(settings, ["base_image"] + (["command"] if runs_command else []))
     check_inputs(settings, ("run",) if runs_command else ("dev",))
+    mount = f" -v {Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
+    mount = mount if plan.sources else ""
     if dry_run:
-        argv = build.plan_build(settings, target=plan.start, platform=settings.platform[0],
-                                tools_image=f"{build.TOOLS_REPOSITORY}:<hash>",
-                                tag=container.tag_of(settings, "stage", plan.start),
-                                secrets=build.plan_secrets(settings, None))
+        argv = build.plan_shown(settings, target=plan.start, platform=settings.platform[0],
+                                tag=container.tag_of(settings, "stage", plan.start))
         print("[dry-run] build:", format_argv(argv))
-        mounts = [f"{Path(settings.build_context).resolve()}:{container.TARGET_DIR}"]
-        print("[dry-run] in one container of it" +
-              (f" (-v {mounts[0]})" if plan.sources else "") + ":")
+        print(f"[dry-run] in one container of it{f' ({mount.strip()})' if mount else ''}:")
         for command in plan.commands:
             print("[dry-run]   " + container.shown(command))
         print(f"[dry-run] commit and tag {plan.tag}")
@@ -296,9 +294,7 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
         tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
-    mount = f" -v {Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
-    print(f"tagged {tag}\n"
-          f"  enter it: docker run --rm -it{mount if plan.sources else ''} {tag} bash")
+    print(f"tagged {tag}\n  enter it: docker run --rm -it{mount} {tag} bash")
     return tag
 
 
@@ -368,7 +364,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             build.check_engine()
         except build.BuildError as exc:
             raise TaskError(str(exc)) from None
-    if not dry_run and not build.base_image_available(settings.base_image):
+    if not dry_run and not engine.local_or_pulled(settings.base_image):
         raise TaskError(
             f"BASE_IMAGE '{settings.base_image}' is neither a local image nor pullable: check "
             "the name, `docker login`, or make one with `inv bootstrap-base-image`"
@@ -378,9 +374,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
         for target in [t for t in ("dev", "run") if t in targets]:
             tag = build.platform_ref(build.image_ref(settings, target), platform, settings.platform)
             if dry_run:
-                argv = build.plan_build(settings, target=target, platform=platform,
-                                        tools_image=f"{build.TOOLS_REPOSITORY}:<hash>",
-                                        tag=tag, secrets=build.plan_secrets(settings, None))
+                argv = build.plan_shown(settings, target=target, platform=platform, tag=tag)
                 print("[dry-run] build:", format_argv(argv))
                 continue
             try:
@@ -440,8 +434,7 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     settings = dataclasses.replace(settings, target=("run",))
     refs = [build.platform_ref(build.image_ref(settings, "run"), p, settings.platform)
             for p in settings.platform]
-    # base_image_available: a local image, else one pulled now
-    if not dry_run and not all(build.base_image_available(ref) for ref in refs):
+    if not dry_run and not all(engine.local_or_pulled(ref) for ref in refs):
         print(f"slim: run image {', '.join(refs)} neither local nor pullable: building it")
         _build(settings, ("run",), dry_run=dry_run, slim=True)
         return
@@ -474,10 +467,8 @@ def _test(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
         with tempfile.TemporaryDirectory(prefix="docker-ros-test-") as tmp:
             output = f"type=local,dest={tmp}"
             if dry_run:
-                argv = build.plan_build(settings, target="test-results", platform=platform,
-                                        tools_image=f"{build.TOOLS_REPOSITORY}:<hash>", tag=tag,
-                                        secrets=build.plan_secrets(settings, None),
-                                        output=output, extra_build_args=run)
+                argv = build.plan_shown(settings, target="test-results", platform=platform,
+                                        tag=tag, output=output, extra_build_args=run)
                 print("[dry-run] test:", format_argv(argv))
                 print(f"[dry-run] test: would copy the results to {dest}")
                 continue

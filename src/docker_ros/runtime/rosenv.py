@@ -25,19 +25,6 @@ ROS1_DISTROS = (
 BASH_OWN_VARS = ("_", "SHLVL", "PWD", "OLDPWD")
 
 
-def env_flag(environ: Mapping[str, str], name: str, default: bool) -> bool:
-    """Strict boolean from an environment variable (true/false/1/0/yes/no, any case)."""
-    raw = environ.get(name)
-    if raw is None or raw == "":
-        return default
-    word = raw.strip().lower()
-    if word in ("true", "1", "yes"):
-        return True
-    if word in ("false", "0", "no"):
-        return False
-    raise StepError("config", f"{name}={raw!r} is not a boolean; use true/false/1/0/yes/no")
-
-
 def read_secret(settings: object, name: str, secrets_dir: Path = SECRETS_DIR) -> Optional[str]:
     """A secret from the settings, or when unset there, from the BuildKit secret file
     `<secrets_dir>/<ENV_NAME>`. Never log the result."""
