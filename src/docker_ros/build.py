@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 import shutil
@@ -12,7 +13,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
+from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 import docker_ros
 from docker_ros import engine
@@ -46,7 +47,8 @@ NOT_BUILD_INPUTS = frozenset({
 STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
 STEP_START = re.compile(r"Starting >>> (\w+)")
 STEP_END = re.compile(r"(Finished|Failed  ) <<< (\w+)")
-VERTEX = re.compile(r"#(\d+) \[([\w-]+) \d+/\d+\]")
+# a build step of a stage; bake puts the target first: `#7 [run build 1/1]`
+VERTEX = re.compile(r"#(\d+) \[(?:[\w-]+ )?([\w-]+) \d+/\d+\]")
 
 
 class BuildError(Exception):
@@ -92,18 +94,14 @@ def platform_ref(ref: str, platform: str, platforms: Sequence[str]) -> str:
     return ref if len(platforms) <= 1 else f"{ref}-{platform}"
 
 
-def build_args(settings: Settings, declared: Sequence[str]) -> List[str]:
-    """--build-arg for every declared ARG whose setting is set (docker-ros's add_arg_if_set).
+def build_args(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
+    """The value of every declared ARG whose setting is set (docker-ros's add_arg_if_set).
     Secrets are never build arguments (they would stay in the image history)."""
     values = as_env(settings)
-    args: List[str] = []
-    for name in declared:
-        if name in values and name.lower() in FIELDS:
-            args += ["--build-arg", f"{name}={values[name]}"]
-    return args
+    return {name: values[name] for name in declared if name in values and name.lower() in FIELDS}
 
 
-def plan_build(
+def definition(
     settings: Settings,
     *,
     target: str,
@@ -116,47 +114,88 @@ def plan_build(
     output: str = "",
     extra_build_args: Mapping[str, str] = {},
     imports_image: str = f"{IMPORTS_REPOSITORY}:<hash>",
-) -> List[str]:
-    """The `docker buildx build` argv for one target and platform (`output`: an --output
-    exporter instead of loading or pushing the image)."""
-    argv = ["docker", "buildx", "build", "--progress=plain", "--file", str(dockerfile)]
-    argv += ["--target", target, "--platform", f"linux/{platform}", "--tag", tag]
-    argv += ["--build-arg", f"BASE_IMAGE={settings.base_image}"]
-    argv += ["--build-arg", f"DOCKER_ROS_TOOLS={tools_image}"]
-    argv += ["--build-arg", f"DOCKER_ROS_IMPORTS={imports_image}"]
-    declared = [a for a in dockerfile_args(dockerfile) if a != "BASE_IMAGE"]
-    argv += build_args(settings, declared)
-    for name, value in sorted(extra_build_args.items()):
-        argv += ["--build-arg", f"{name}={value}"]
-    for secret_id, source in sorted(secrets.items()):
-        argv += ["--secret", f"id={secret_id},{source}"]
+) -> Dict[str, Any]:
+    """One target and platform as a `docker buildx bake` target: the single description behind
+    both plan_build (one `buildx build`) and plan_bake (several targets in one BuildKit run).
+    `output`: an --output exporter instead of loading or pushing the image."""
+    args = {"BASE_IMAGE": settings.base_image or "", "DOCKER_ROS_TOOLS": tools_image,
+            "DOCKER_ROS_IMPORTS": imports_image}
+    args.update(build_args(settings, [a for a in dockerfile_args(dockerfile) if a not in args]))
+    args.update(sorted(extra_build_args.items()))
+    target_def: Dict[str, Any] = {
+        "context": str(Path(settings.build_context)),
+        "dockerfile": str(dockerfile),
+        "target": target,
+        "platforms": [f"linux/{platform}"],
+        "tags": [tag],
+        "args": args,
+        "secret": [f"id={i},{source}" for i, source in sorted(secrets.items())],
+        "output": [output or ("type=registry" if push else "type=docker")],
+    }
     if settings.build_network:
-        argv += ["--network", settings.build_network]
+        target_def["network"] = settings.build_network
     if not settings.buildx_attestations:
-        argv += ["--provenance=false"]
+        target_def["attest"] = ["type=provenance,disabled=true"]
     if settings.cache_from:
-        for ref in settings.cache_from:
-            argv += ["--cache-from", ref]
-        argv += ["--cache-to", "type=inline"]
-    argv += ["--output", output] if output else ["--push" if push else "--load"]
-    argv.append(str(Path(settings.build_context)))
+        target_def["cache-from"] = list(settings.cache_from)
+        target_def["cache-to"] = ["type=inline"]
+    return target_def
+
+
+def plan_build(settings: Settings, **options: Any) -> List[str]:
+    """The `docker buildx build` argv for one target and platform (options: see definition)."""
+    return build_argv(definition(settings, **options))
+
+
+def build_argv(spec: Mapping[str, Any]) -> List[str]:
+    """A bake target's definition as one `docker buildx build` argv."""
+    argv = ["docker", "buildx", "build", "--progress=plain", "--file", spec["dockerfile"]]
+    argv += ["--target", spec["target"], "--platform", spec["platforms"][0]]
+    argv += ["--tag", spec["tags"][0]]
+    for name, value in spec["args"].items():
+        argv += ["--build-arg", f"{name}={value}"]
+    for secret in spec["secret"]:
+        argv += ["--secret", secret]
+    if "network" in spec:
+        argv += ["--network", spec["network"]]
+    if "attest" in spec:
+        argv += ["--provenance=false"]
+    for ref in spec.get("cache-from", []):
+        argv += ["--cache-from", ref]
+    argv += ["--cache-to", "type=inline"] if "cache-to" in spec else []
+    exporter = spec["output"][0]
+    loads = {"type=docker": "--load", "type=registry": "--push"}
+    argv += [loads[exporter]] if exporter in loads else ["--output", exporter]
+    argv.append(spec["context"])
     return argv
 
 
-def plan_shown(
-    settings: Settings,
-    *,
-    target: str,
-    platform: str,
-    tag: str,
-    output: str = "",
-    extra_build_args: Mapping[str, str] = {},
-) -> List[str]:
-    """plan_build as a dry run shows it, before the tools image and CA bundle exist."""
-    return plan_build(settings, target=target, platform=platform,
+def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str) -> List[str]:
+    """The `docker buildx bake` argv building the targets (bake target name -> definition,
+    written as JSON to definition_file) in one BuildKit run: stages they share are built once,
+    the others in parallel, from one load of the build context."""
+    return ["docker", "buildx", "bake", "--progress=plain", "--file", definition_file,
+            *targets]
+
+
+def bake_file(targets: Mapping[str, Dict[str, Any]]) -> str:
+    """The bake definition (JSON). It names secrets' environment variables, never values."""
+    return json.dumps({"target": dict(targets)}, indent=2, sort_keys=True) + "\n"
+
+
+def shown_definition(settings: Settings, *, target: str, platform: str, tag: str,
+                     output: str = "", extra_build_args: Mapping[str, str] = {}
+                     ) -> Dict[str, Any]:
+    """definition as a dry run shows it, before the tools image and CA bundle exist."""
+    return definition(settings, target=target, platform=platform,
                       tools_image=f"{TOOLS_REPOSITORY}:<hash>", tag=tag,
                       secrets=plan_secrets(settings, None), output=output,
                       extra_build_args=extra_build_args)
+
+
+def plan_shown(settings: Settings, **options: Any) -> List[str]:
+    """plan_build as a dry run shows it (options: see shown_definition)."""
+    return build_argv(shown_definition(settings, **options))
 
 
 def secret_env(settings: Settings) -> Dict[str, str]:
@@ -381,19 +420,21 @@ def check_engine() -> None:
 
 
 
-def build_image(
+def build_images(
     settings: Settings,
     *,
-    target: str,
+    targets: Mapping[str, str],
     platform: str,
-    tag: str,
     out: IO[str] = sys.stdout,
     environ: Optional[Mapping[str, str]] = None,
     push: bool = False,
     output: str = "",
     extra_build_args: Mapping[str, str] = {},
-) -> BuiltImage:
-    """Build one target for one platform; raise BuildError naming the failed step."""
+    bake: bool = True,
+) -> List[BuiltImage]:
+    """Build the targets (target -> tag) for one platform, by default in one `docker buildx
+    bake` run (bake=False: one `docker buildx build` per target, one after the other, as
+    docker-ros does); raise BuildError naming the failed step."""
     environ = os.environ if environ is None else environ
     tools = ensure_tools_image(platform)
     imports = ensure_imports_image(settings, platform)
@@ -405,35 +446,66 @@ def build_image(
         bundle = None
         if settings.extra_ca_certs:
             bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
-        secrets = plan_secrets(settings, bundle)
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
-        argv = plan_build(settings, target=target, platform=platform, tools_image=tools,
-                          tag=tag, secrets=secrets, push=push, dockerfile=dockerfile,
-                          output=output, extra_build_args=extra_build_args,
-                          imports_image=imports)
-        # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
-        out.write(f"==> docker-ros build {target} ({platform}) -> {tag}\n")
-        began = time.monotonic()
-        proc = subprocess.Popen(argv, env=child_env, stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, text=True, bufsize=1)
-        assert proc.stdout is not None
-        lines: List[str] = []
-        log = (_kept(lines, line) for line in iter(proc.stdout.readline, ""))
-        try:
-            errors = stream_build(log, out, environ)
-            code = proc.wait()
-        except KeyboardInterrupt:
-            # buildx got the same Ctrl-C: let it cancel the build (nothing is tagged) and end.
-            proc.terminate()
-            proc.wait()
-            raise
+        specs = {target: definition(settings, target=target, platform=platform,
+                                    tools_image=tools, tag=tag,
+                                    secrets=plan_secrets(settings, bundle), push=push,
+                                    dockerfile=dockerfile, output=output,
+                                    extra_build_args=extra_build_args, imports_image=imports)
+                 for target, tag in targets.items()}
+        if bake:
+            definition_file = Path(tmp) / "docker-ros.bake.json"
+            definition_file.write_text(bake_file(specs))
+            runs = [(tuple(targets), plan_bake(specs, str(definition_file)))]
+        else:
+            runs = [((t,), plan_build(settings, target=t, platform=platform, tools_image=tools,
+                                      tag=targets[t], secrets=plan_secrets(settings, bundle),
+                                      push=push, dockerfile=dockerfile, output=output,
+                                      extra_build_args=extra_build_args, imports_image=imports))
+                    for t in targets]
+        built = []
+        for names, argv in runs:
+            seconds = run_buildx(argv, names, platform, env=child_env, out=out, environ=environ,
+                                 header=", ".join(f"{t} -> {targets[t]}" for t in names))
+            built += [BuiltImage(t, targets[t], platform, seconds) for t in names]
+    return built
+
+
+def build_image(settings: Settings, *, target: str, platform: str, tag: str,
+                **options: Any) -> BuiltImage:
+    """Build one target for one platform (options: see build_images)."""
+    return build_images(settings, targets={target: tag}, platform=platform, bake=False,
+                        **options)[0]
+
+
+def run_buildx(argv: Sequence[str], targets: Sequence[str], platform: str, *,
+               env: Mapping[str, str], out: IO[str], environ: Mapping[str, str],
+               header: str) -> float:
+    """Run one buildx command, its log folded into out; its seconds, or a BuildError."""
+    # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
+    out.write(f"==> docker-ros build ({platform}) {header}\n")
+    began = time.monotonic()
+    proc = subprocess.Popen(list(argv), env=dict(env), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, bufsize=1)
+    assert proc.stdout is not None
+    lines: List[str] = []
+    log = (_kept(lines, line) for line in iter(proc.stdout.readline, ""))
+    try:
+        errors = stream_build(log, out, environ)
+        code = proc.wait()
+    except KeyboardInterrupt:
+        # buildx got the same Ctrl-C: let it cancel the build (nothing is tagged) and end.
+        proc.terminate()
+        proc.wait()
+        raise
     if code != 0:
         where = f"in step {errors[-1]}" if errors else "(see the BuildKit error above)"
         stage, step = failed_step(lines)
-        raise BuildError(f"building target '{target}' ({platform}) failed {where}", code,
-                         stage=stage, step=step)
-    return BuiltImage(target, tag, platform, time.monotonic() - began)
+        what = "target" if len(targets) == 1 else "targets"
+        raise BuildError(f"building {what} {', '.join(repr(t) for t in targets)} ({platform}) "
+                         f"failed {where}", code, stage=stage, step=step)
+    return time.monotonic() - began
 
 
 def summary_table(images: Sequence[BuiltImage]) -> str:

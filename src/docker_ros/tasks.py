@@ -371,15 +371,18 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
         )
     built: List[BuiltImage] = []
     for platform in settings.platform:
-        for target in [t for t in ("dev", "run") if t in targets]:
-            tag = build.platform_ref(build.image_ref(settings, target), platform, settings.platform)
-            if dry_run:
-                argv = build.plan_shown(settings, target=target, platform=platform, tag=tag)
-                print("[dry-run] build:", format_argv(argv))
-                continue
+        tags = {t: build.platform_ref(build.image_ref(settings, t), platform, settings.platform)
+                for t in ("dev", "run") if t in targets}
+        if dry_run:
+            specs = {t: build.shown_definition(settings, target=t, platform=platform, tag=tag)
+                     for t, tag in tags.items()}
+            print("[dry-run] build:",
+                  format_argv(build.plan_bake(specs, "<temporary>/docker-ros.bake.json")))
+            print(f"[dry-run] with <temporary>/docker-ros.bake.json:\n{build.bake_file(specs)}",
+                  end="")
+        else:
             try:
-                built.append(build.build_image(settings, target=target, platform=platform,
-                                               tag=tag))
+                built += build.build_images(settings, targets=tags, platform=platform)
             except build.BuildError as exc:
                 if shell_on_failure:
                     reproduce_failure(settings, exc)

@@ -243,8 +243,8 @@ def image_hits(refs: Sequence[str], material: Material, control: bytes) -> List[
 
 def assert_nothing_leaked(built: Build, material: Material) -> None:
     leaks = [f"build log: {w}" for w in hits(built.log.encode(), material.needles)]
-    buildx = [c for c in built.cmdlines if b"buildx\0build" in c]
-    assert buildx, "the command line of `docker buildx build` was never seen"
+    buildx = [c for c in built.cmdlines if b"buildx\0bake" in c]
+    assert buildx, "the command line of `docker buildx bake` was never seen"
     for cmdline in built.cmdlines:
         shown = cmdline.replace(b"\0", b" ")[:200].decode(errors="replace")
         leaks += [f"command line {shown!r}: {w}" for w in hits(cmdline, material.needles)]

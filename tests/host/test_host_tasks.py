@@ -116,6 +116,7 @@ def test_build_dry_run_shows_secret_arguments_without_their_values(project: Path
            "GIT_HTTPS_USER": "me", "BASE_IMAGE": "docker-ros-test/ros1:bookworm"}
     result = cli(project, "build", "--dry-run", env=env)
     assert result.returncode == 0, result.stderr
-    secret = "--secret id=GIT_HTTPS_PASSWORD,env=DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD"
+    assert "docker buildx bake" in result.stdout
+    secret = '"id=GIT_HTTPS_PASSWORD,env=DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD"'
     assert secret in result.stdout
     assert "hunter2" not in result.stdout + result.stderr

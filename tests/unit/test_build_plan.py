@@ -131,3 +131,28 @@ def test_build_cache_is_per_repository_and_platform():
 
 def test_until_tag():
     assert build.until_ref(settings(IMAGE="r/i:v1"), "rosdep") == "r/i:v1-until-rosdep"
+
+
+def test_bake_builds_the_targets_in_one_run_from_the_same_definitions():
+    s = settings(GIT_HTTPS_PASSWORD="hunter2", BUILD_NETWORK="host", CACHE_FROM="r/x:latest")
+    secrets = build.plan_secrets(s, None)
+    specs = {t: build.definition(s, target=t, platform="arm64", tools_image="tools:x",
+                                 tag=f"img:{t}", secrets=secrets) for t in ("dev", "run")}
+    argv = build.plan_bake(specs, "/tmp/d.json")
+    assert argv[:3] == ["docker", "buildx", "bake"] and argv[-2:] == ["dev", "run"]
+    text = build.bake_file(specs)
+    assert "hunter2" not in text and "DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD" in text
+    run = specs["run"]
+    assert (run["target"], run["tags"], run["platforms"]) == ("run", ["img:run"], ["linux/arm64"])
+    assert run["network"] == "host" and run["cache-from"] == ["r/x:latest"]
+    # the single-target argv says the same as the bake target
+    one = build.build_argv(run)
+    assert one[one.index("--network") + 1] == "host" and "--load" in one
+    assert [one[i + 1] for i, a in enumerate(one) if a == "--build-arg"] == [
+        f"{k}={v}" for k, v in run["args"].items()]
+
+
+def test_a_failed_step_is_found_in_a_bake_log_too():
+    lines = ["#7 [dev source 2/2] RUN --mount=... clone\n", "#9 [run build 1/1] RUN colcon\n",
+             "#9 3.1 docker-ros colcon: package a failed to build\n"]
+    assert build.failed_step(lines) == ("build", "colcon")
