@@ -65,7 +65,7 @@ def _installs(dependency_types: str) -> Tuple[Command, ...]:
 STAGES = {
     "source": Stage("source", "checkout", (("clone",), ("blacklist", "--mark-ignored")), True),
     "resolve": Stage(
-        "resolve", "source",
+        "resolve", "resolve-inputs",
         tuple((step, "--phase", "collect") for step in INSTALL_STEPS + ("command",)), True,
     ),
     "dependencies-run": Stage("dependencies-run", "resolved-run", _installs("exec"), False),

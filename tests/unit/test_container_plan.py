@@ -72,7 +72,8 @@ def test_a_step_alone_starts_where_its_stage_does_and_runs_the_earlier_commands(
     assert container.plan_step(settings(), "colcon").commands == (("colcon",),)
     assert container.plan_step(settings(), "command").start == "run"
     failed = container.plan_step(settings(), "debs", stage="resolve")
-    assert failed.start == "source" and failed.commands[-1] == ("debs", "--phase", "collect")
+    assert failed.start == "resolve-inputs"
+    assert failed.commands[-1] == ("debs", "--phase", "collect")
 
 
 def test_until_is_the_build_state_right_after_the_step():

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from docker_ros.runtime.files import read_list_file
+from docker_ros.runtime.packages import Package
 from docker_ros.runtime.rosenv import (
     parse_env0,
     read_secret,
@@ -405,19 +406,43 @@ def test_colcon_stamps_only_files_whose_content_changed(tmp_path):
     same, edited = ws.src / "pkg" / "same.cpp", ws.src / "pkg" / "edited.cpp"
     same.write_text("a")
     edited.write_text("b")
-    first = colcon.stamp_changed_sources(ws)
+    first, changed = colcon.stamp_changed_sources(ws)
+    assert changed == {"pkg/same.cpp", "pkg/edited.cpp"}
     (ws.root / "build" / colcon.STAMP_FILE).write_text(__import__("json").dumps(first))
     for path in (same, edited):
         os.utime(path, (1000, 1000))  # old times, as COPY may give
     edited.write_text("c")
     os.utime(edited, (1000, 1000))
-    second = colcon.stamp_changed_sources(ws)
+    second, changed = colcon.stamp_changed_sources(ws)
+    assert changed == {"pkg/edited.cpp"}
     assert same.stat().st_mtime == first["pkg/same.cpp"][1]  # the time of the last build
     assert edited.stat().st_mtime > 1000
     (ws.root / "build" / colcon.STAMP_FILE).write_text(__import__("json").dumps(second))
     # A fresh clone gives unchanged files new times: they get their recorded times back.
     for path in (same, edited):
         os.utime(path, (4e9, 4e9))
-    colcon.stamp_changed_sources(ws)
+    assert colcon.stamp_changed_sources(ws)[1] == set()
     assert same.stat().st_mtime == second["pkg/same.cpp"][1]
     assert edited.stat().st_mtime == second["pkg/edited.cpp"][1] < 4e9
+    same.unlink()
+    assert colcon.stamp_changed_sources(ws)[1] == {"pkg/same.cpp"}  # a removed file counts
+
+
+def test_colcon_builds_only_changed_packages_and_dependents_when_nothing_else_changed():
+    dirs = {"a": "target/a", "b": "target/b", "sub": "target/a/sub"}
+    same = {"argv": ["colcon", "build"], "environment": "e1", "packages": dirs}
+    select = colcon.incremental_selection
+    assert select(same, dict(same), {"target/a/src/x.cpp"}, dirs) == ["a"]
+    assert select(same, dict(same), {"target/a/sub/x.cpp", "target/b/y"}, dirs) == ["b", "sub"]
+    assert select(same, dict(same), set(), dirs) == []
+    # full builds: the first one, a file outside every package, another environment
+    assert select({}, same, {"target/a/x"}, dirs) is None
+    assert select(same, dict(same), {"target/CMakeLists.txt"}, dirs) is None
+    assert select(same, {**same, "environment": "e2"}, {"target/a/x"}, dirs) is None
+    assert select(same, {**same, "packages": {"a": "target/a"}}, {"target/a/x"}, dirs) is None
+    pkgs = [Package("a", Path("a"), 2, "ament_cmake", {"depend": ()}),
+            Package("b", Path("b"), 2, "ament_cmake", {"build_depend": ("a",)}),
+            Package("c", Path("c"), 2, "ament_cmake", {"exec_depend": ("b", "std_msgs")}),
+            Package("d", Path("d"), 2, "ament_cmake", {"depend": ("std_msgs",)})]
+    assert colcon.dependents(["a"], pkgs) == {"a", "b", "c"}
+    assert colcon.dependents(["d"], pkgs) == {"d"}

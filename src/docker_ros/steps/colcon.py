@@ -8,8 +8,9 @@ import re
 import shlex
 import time
 from pathlib import Path
-from typing import Dict, List, Sequence
+from typing import Dict, List, Mapping, Optional, Sequence, Set, Tuple
 
+from docker_ros.runtime.packages import Package, find_packages
 from docker_ros.runtime.process import run, run_tee
 from docker_ros.runtime.rosenv import ros_setup_files, sourced_env
 from docker_ros.runtime.workspace import StepError, Workspace, dry, phases, step_log
@@ -18,6 +19,11 @@ from docker_ros.steps.blacklist import blacklisted_packages
 
 STEP = "colcon"
 STAMP_FILE = ".docker-ros-source-hashes.json"
+# In the build/ cache mount: the install space of the last successful build, and what it was
+# built from (colcon arguments, packages, environment), for incremental image builds.
+INSTALL_COPY = ".docker-ros-install"
+INSTALL_RECORD = ".docker-ros-install.json"
+DPKG_STATUS = Path("/var/lib/dpkg/status")
 LOG = logging.getLogger(__name__)
 _FAILED = re.compile(r"^Failed\s+<<<\s+(\S+)")
 
@@ -58,12 +64,13 @@ def changed_files(old: Dict[str, str], new: Dict[str, str]) -> List[str]:
     return sorted(path for path, digest in new.items() if old.get(path) != digest)
 
 
-def stamp_changed_sources(ws: Workspace) -> Dict[str, List[object]]:
+def stamp_changed_sources(ws: Workspace) -> Tuple[Dict[str, List[object]], Set[str]]:
     """In the image, build/ is a cache mount reused across builds, while file times come from
     COPY (the context's times) or from a fresh clone (now). Make decides by time, so: every
     file whose content changed since the last successful build gets the current time, every
     other file the time it had then (a re-imported repository must not look newer than its
-    objects). Returns the record ({path: [sha256, mtime]}) to write after the build."""
+    objects). Returns the record ({path: [sha256, mtime]}) to write after the build, and the
+    files added, changed or removed since the last one."""
     record = ws.root / "build" / STAMP_FILE
     old = json.loads(record.read_text()) if record.is_file() else {}
     old_hashes = {p: (v[0] if isinstance(v, list) else v) for p, v in old.items()}
@@ -80,7 +87,57 @@ def stamp_changed_sources(ws: Workspace) -> Dict[str, List[object]]:
         os.utime(str(ws.src / rel), (mtime, mtime))
         stamped[rel] = [digest, mtime]
     LOG.info("%s: %d of %d source files changed since the last build", STEP, len(changed), len(new))
-    return stamped
+    removed = set(old_hashes) - set(new)
+    return stamped, changed | removed
+
+
+def owner(path: str, package_dirs: Mapping[str, str]) -> Optional[str]:
+    """The package (name -> directory, relative to src) holding a file, or None."""
+    best: Optional[str] = None
+    for name, directory in package_dirs.items():
+        if path.startswith(directory + "/") and (best is None
+                                                  or len(directory) > len(package_dirs[best])):
+            best = name
+    return best
+
+
+def incremental_selection(previous: Mapping[str, object], current: Mapping[str, object],
+                          changed: Set[str], package_dirs: Mapping[str, str]
+                          ) -> Optional[List[str]]:
+    """The changed packages, for `colcon build --packages-above` (they and their dependents)
+    over the install space of the last build; None when only a full build is right: the first
+    build, other colcon arguments, packages or dependencies, or a changed file outside every
+    package."""
+    if not previous or previous != current:
+        return None
+    owners = {owner(path, package_dirs) for path in changed}
+    if None in owners:
+        return None
+    return sorted(o for o in owners if o)
+
+
+def dependents(selected: Sequence[str], packages: Sequence[Package]) -> Set[str]:
+    """The selected packages and every package depending on them, recursively (as colcon's
+    --packages-above, over all dependency kinds)."""
+    found = set(selected)
+    grew = True
+    while grew:
+        grew = False
+        for package in packages:
+            keys = {k for keys in package.depends.values() for k in keys}
+            if package.name not in found and keys & found:
+                found.add(package.name)
+                grew = True
+    return found
+
+
+def environment_digest(ws: Workspace) -> str:
+    """What the build runs on: the installed apt packages and the resolution (pip, hooks...)."""
+    digest = hashlib.sha256()
+    for path in [DPKG_STATUS, *sorted(ws.state.glob("**/*"))]:
+        if path.is_file():
+            digest.update(str(path).encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
 
 
 def failed_packages(lines: Sequence[str]) -> List[str]:
@@ -114,18 +171,61 @@ def main(
             run(argv, step=STEP, dry_run=True, cwd=ws.root)
             return
         env = sourced_env(setup, step=STEP)
-        stamps = stamp_changed_sources(ws) if options.get("stamp_changed") else None
-        returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env=env)
-        if returncode != 0:
-            failed = failed_packages(lines)
-            what = (
-                ("package " + ", ".join(failed) + " failed to build")
-                if failed
-                else ("colcon build failed")
-            )
-            raise StepError(
-                STEP, f"{what} (exit code {returncode}); see the output above", returncode
-            )
-        if stamps is not None:
-            # Only after success: a failed build must find the same files changed next time.
-            (ws.root / "build" / STAMP_FILE).write_text(json.dumps(stamps, sort_keys=True))
+        if not options.get("stamp_changed"):
+            build(ws, argv, env)
+            return
+        stamps, changed = stamp_changed_sources(ws)
+        packages = find_packages(ws, settings, step=STEP)
+        package_dirs = {p.name: p.path.relative_to(ws.src).as_posix() for p in packages}
+        current = {"argv": argv, "environment": environment_digest(ws), "packages": package_dirs}
+        cache = ws.root / "build"
+        record = cache / INSTALL_RECORD
+        previous = json.loads(record.read_text()) if record.is_file() else {}
+        selected = incremental_selection(previous, current, changed, package_dirs)
+        if selected is not None and (cache / INSTALL_COPY).is_dir():
+            restore_install(ws, cache / INSTALL_COPY)
+            rebuilt = dependents(selected, packages) - set(ignore)
+            if rebuilt:
+                LOG.info("%s: %s changed: building them and their dependents only", STEP,
+                         ", ".join(selected))
+                build(ws, [*argv, "--packages-above", *selected], env)
+            else:
+                LOG.info("%s: no package changed, the install space is the last build's", STEP)
+        else:
+            rebuilt = None
+            build(ws, argv, env)
+        # Only after success: a failed build must find the same files changed next time.
+        keep_install(ws, cache / INSTALL_COPY, rebuilt)
+        record.write_text(json.dumps(current, sort_keys=True))
+        (cache / STAMP_FILE).write_text(json.dumps(stamps, sort_keys=True))
+
+
+def build(ws: Workspace, argv: Sequence[str], env: Optional[Mapping[str, str]] = None) -> None:
+    returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env=env)
+    if returncode != 0:
+        failed = failed_packages(lines)
+        what = (("package " + ", ".join(failed) + " failed to build") if failed
+                else "colcon build failed")
+        raise StepError(STEP, f"{what} (exit code {returncode}); see the output above",
+                        returncode)
+
+
+def restore_install(ws: Workspace, copy: Path) -> None:
+    """The last build's install space, as the start of an incremental build."""
+    install = ws.root / "install"
+    if install.exists():
+        run(["rm", "-rf", str(install)], step=STEP)
+    run(["cp", "-a", str(copy), str(install)], step=STEP)
+
+
+def keep_install(ws: Workspace, copy: Path, rebuilt: Optional[Set[str]]) -> None:
+    """Keep the install space in the cache: all of it (rebuilt None), or the rebuilt packages'
+    folders and colcon's top-level files."""
+    install = ws.root / "install"
+    if rebuilt is None or not copy.is_dir():
+        run(["rm", "-rf", str(copy)], step=STEP)
+        run(["cp", "-a", str(install), str(copy)], step=STEP)
+        return
+    entries = [e for e in sorted(install.iterdir()) if not e.is_dir() or e.name in rebuilt]
+    run(["rm", "-rf", *(str(copy / e.name) for e in entries)], step=STEP)
+    run(["cp", "-a", *(str(e) for e in entries), str(copy)], step=STEP)
