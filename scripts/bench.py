@@ -52,14 +52,17 @@ from docker_ros.settings import FIELDS, env_name  # noqa: E402
 IMAGE = "docker-ros-bench/ws:latest"
 DEV_IMAGE = "docker-ros-bench/ws:latest-dev"
 IMPORTS_IMAGE = "docker-ros-bench/imports:latest"
+SEPARATE_IMAGE = "docker-ros-bench/separate:latest"
 IMPORTS_REPO = "bench_upstream"
-UPSTREAM_VERTEX = re.compile(r"^#(\d+) \[upstream .*clone --imports-only")
+# bake puts the target before the stage: `#12 [dev upstream 2/2] RUN ...`
+UPSTREAM_VERTEX = re.compile(r"^#(\d+) \[(?:\S+ )?upstream .*clone --imports-only")
+DEPENDENCIES_RUN = re.compile(r"^\[(?:\S+ )?dependencies-(dev|run) .*\] RUN ")
 DEFAULT_BASE_IMAGE = "docker-ros/ros1:bookworm"
 WS = "/docker-ros/ws"
 COMPILE_MARK = "docker-ros-bench compiles"
 COMPILED = re.compile(re.escape(COMPILE_MARK) + r" (\S+?\.cpp)")
 # the first vertex of every buildx invocation (vertex numbers restart there)
-INVOCATION = re.compile(r"^#1 \[internal\] load build definition")
+INVOCATION = re.compile(r"^#1 \[internal\] load (build|local bake) definition")
 VERTEX = re.compile(r"^#(\d+) (\[.*)")
 VERTEX_STATE = re.compile(r"^#(\d+) (CACHED|DONE)")
 STAMPED = re.compile(r"colcon: (\d+) of (\d+) source files changed")
@@ -202,6 +205,8 @@ class Scenario:
     detail: str = ""
     ratio_cold: Optional[float] = None
     ratio_baseline: Optional[float] = None
+    ratio_limit: Optional[float] = None
+    deps_overlap: Optional[float] = None  # seconds both dependency RUNs ran at once
     image_seconds: Dict[str, float] = field(default_factory=dict)
     load1: float = 0.0
 
@@ -430,9 +435,11 @@ def resolve_keys(base_image: str, keys: Sequence[str]) -> Dict[str, List[str]]:
     return found
 
 
-def run_cli(project: Path, log: Path, *, verbose: bool) -> tuple[float, str]:
-    """`python -m docker_ros build` in project, as a user runs it; (seconds, output)."""
-    argv = [sys.executable, "-m", "docker_ros", "build"]
+def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = (),
+            times: Optional[List[float]] = None) -> tuple[float, str]:
+    """`python -m docker_ros build ARGS` in project, as a user runs it; (seconds, output).
+    times: receives the wall time each output line arrived."""
+    argv = [sys.executable, "-m", "docker_ros", "build", *args]
     env = clean_environ()
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO / "src"), env.get("PYTHONPATH")]))
     began = time.monotonic()
@@ -444,6 +451,8 @@ def run_cli(project: Path, log: Path, *, verbose: bool) -> tuple[float, str]:
         out.write(f"\n===== {shlex.join(argv)} (cwd {project})\n")
         for line in proc.stdout:
             lines.append(line)
+            if times is not None:
+                times.append(time.monotonic())
             out.write(line)
             if verbose:
                 sys.stdout.write(line)
@@ -462,7 +471,7 @@ def compiled_units(output: str) -> List[str]:
 
 def dependency_layers(output: str) -> str:
     """'rebuilt' when a dependencies-{dev,run} RUN executed, 'reused' when all came from cache.
-    Vertex numbers restart with every buildx invocation (one per target)."""
+    Vertex numbers restart with every buildx invocation."""
     names: Dict[str, str] = {}
     cached: Dict[str, bool] = {}
     ran = False
@@ -479,7 +488,7 @@ def dependency_layers(output: str) -> str:
         if not match or match.group(1) not in names:
             continue
         name = names[match.group(1)]
-        if not (name.startswith("[dependencies-") and " RUN " in name):
+        if not DEPENDENCIES_RUN.match(name):
             continue
         seen = True
         if match.group(2) == "CACHED":
@@ -489,6 +498,31 @@ def dependency_layers(output: str) -> str:
     if not seen:
         return "?"
     return "rebuilt" if ran else "reused"
+
+
+def dependency_overlap(lines: Sequence[str], times: Sequence[float]) -> Optional[float]:
+    """Seconds during which the dependencies-dev and dependencies-run RUNs both ran (from the
+    first output line of each to its DONE), or None when either came from cache."""
+    names: Dict[str, str] = {}
+    spans: Dict[str, List[float]] = {}
+    for line, at in zip(lines, times):
+        if INVOCATION.match(line):
+            names = {}
+        match = VERTEX.match(line)
+        if match:
+            flavour = DEPENDENCIES_RUN.match(match.group(2))
+            if flavour:
+                names[match.group(1)] = flavour.group(1)
+            continue
+        number = re.match(r"^#(\d+) ", line)
+        if number and number.group(1) in names:
+            span = spans.setdefault(names[number.group(1)], [at, at])
+            span[1] = at
+            if line.startswith(f"#{number.group(1)} CACHED"):
+                spans.pop(names[number.group(1)])
+    if set(spans) != {"dev", "run"}:
+        return None
+    return max(0.0, min(spans["dev"][1], spans["run"][1]) - max(spans["dev"][0], spans["run"][0]))
 
 
 def imports_state(output: str) -> str:
@@ -562,13 +596,21 @@ class Bench:
     def say(self, text: str) -> None:
         print(f"[bench] {text}", flush=True)
 
-    def build(self, name: str, root: Optional[Path] = None) -> Scenario:
+    def build(self, name: str, root: Optional[Path] = None,
+              invocations: Sequence[Sequence[str]] = ((),)) -> Scenario:
+        """One scenario: the CLI's build, or several builds one after the other (invocations:
+        their extra arguments), timed together."""
         self.say(f"{name} ...")
         load = load1()
-        seconds, output = run_cli(root or self.root, self.log, verbose=self.args.verbose)
+        seconds, output, times = 0.0, "", []  # type: float, str, List[float]
+        for args in invocations:
+            took, out = run_cli(root or self.root, self.log, verbose=self.args.verbose,
+                                args=args, times=times)
+            seconds, output = seconds + took, output + out
         row = Scenario(name, seconds, compiled_units(output), dependency_layers(output),
                        changed_sources=changed_sources(output),
-                       image_seconds=image_seconds(output), load1=load)
+                       image_seconds=image_seconds(output), load1=load,
+                       deps_overlap=dependency_overlap(output.splitlines(True), times))
         row.imports = imports_state(output)
         self.say(f"{name}: {seconds:.1f} s, {len(row.compiled)} TUs compiled, "
                  f"dependency layers {row.deps_layers}, sources taken as changed "
@@ -635,6 +677,50 @@ class Bench:
         self.say(f"baseline: {seconds:.1f} s, {len(row.compiled)} TUs compiled")
         self.rows.append(row)
 
+    def limit(self) -> None:
+        """The physical limit of scenario 3's edit: in a container of the dev image, a full
+        colcon build (not timed: the warm build tree), the same kind of edit in the same file,
+        then timed: `colcon build` of that package alone plus writing the install space as a
+        layer would be (tar, sha256)."""
+        self.say("L  physical limit ...")
+        name = package_name(self.count - 1)
+        cmake = shlex.split(self.args.cmake_args)
+        colcon = "colcon build --base-paths src" + (
+            " --cmake-args " + shlex.join(cmake) if cmake else "")
+        source = f"src/target/{name}/src/describe.cpp"
+        script = "\n".join([
+            "set -e", f"cd {WS}", f"{colcon} >/dev/null",
+            f"sed -i 's/kMark = \"[^\"]*\"/kMark = \"limit-edit\"/' {source}",
+            "t0=$(date +%s.%N)", f"{colcon} --packages-select {name}",
+            "t1=$(date +%s.%N)", "tar -cf - install | sha256sum >/dev/null",
+            "t2=$(date +%s.%N)", 'echo "LIMIT $t0 $t1 $t2"',
+        ])
+        argv = ["docker", "run", "--rm", DEV_IMAGE, "bash", "-c", script]
+        load = load1()
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=3600)
+        with self.log.open("a") as out:
+            out.write(f"\n===== {shlex.join(argv)}\n{proc.stdout}{proc.stderr}")
+        found = re.search(r"LIMIT ([\d.]+) ([\d.]+) ([\d.]+)", proc.stdout)
+        if proc.returncode != 0 or not found:
+            raise BenchError(f"physical limit measurement failed ({proc.returncode}); log: "
+                             f"{self.log}")
+        start, built, exported = (float(v) for v in found.groups())
+        row = Scenario("L  physical limit of 3", exported - start,
+                       compiled_units(proc.stdout + proc.stderr), load1=load)
+        self.check(row, len(row.compiled) == 1,
+                   f"colcon {built - start:.1f} s + install layer {exported - built:.1f} s, "
+                   f"{len(row.compiled)} TU compiled")
+        self.say(f"limit: {row.seconds:.1f} s ({row.detail})")
+        self.rows.append(row)
+
+    def separate_cold(self, root: Path) -> None:
+        """Cold as docker-ros builds: dev, then run, each its own build of a workspace new to
+        the engine (same packages, another run id and path: no cache of scenario 1 applies)."""
+        row = self.build("D  cold, dev then run separately", root,
+                         invocations=(("--target", "dev"), ("--target", "run")))
+        self.check_run(row, f"{package_name(self.count - 1)}[original]", ref=SEPARATE_IMAGE)
+        docker("image", "rm", "-f", SEPARATE_IMAGE, SEPARATE_IMAGE + "-dev")
+
     def change_first(self) -> None:
         set_mark(self.root, 0, "changed-first")
         row = self.build("3b one .cpp changed, first pkg")
@@ -679,22 +765,21 @@ def ratio(value: float, reference: Optional[float]) -> Optional[float]:
 
 
 def table(rows: Sequence[Scenario], sizes: Dict[str, float], total_units: int) -> str:
-    head = ("scenario", "seconds", "x cold", "x baseline", "TUs compiled", "src changed",
-            "dep layers", "import", "dev/run s", "load1", "check")
+    head = ("scenario", "seconds", "x cold", "x baseline", "x limit", "TUs compiled",
+            "src changed", "dep layers", "deps parallel", "import", "load1", "check")
     lines: List[Tuple[str, ...]] = [head]
     for row in rows:
-        per_image = "/".join(f"{row.image_seconds[t]:.0f}" for t in ("dev", "run")
-                             if t in row.image_seconds) or "-"
         lines.append((
             row.name,
             f"{row.seconds:.1f}",
             f"{row.ratio_cold:.2f}" if row.ratio_cold is not None else "-",
             f"{row.ratio_baseline:.2f}" if row.ratio_baseline is not None else "-",
+            f"{row.ratio_limit:.2f}" if row.ratio_limit is not None else "-",
             f"{len(row.compiled)}/{row.units or total_units}",
             row.changed_sources,
             row.deps_layers,
+            f"{row.deps_overlap:.1f} s" if row.deps_overlap is not None else "-",
             row.imports,
-            per_image,
             f"{row.load1:.1f}",
             row.check,
         ))
@@ -763,8 +848,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"[bench] workspace of {args.packages} packages in {root}; log {log}", flush=True)
         bench = Bench(args, root, log)
         bench.cold()
+        separate = tmp / "ws-separate"
+        write_workspace(separate, count=args.packages, chain=args.chain, depth=args.depth,
+                        key=args.key, base_image=args.base_image, cmake_args=args.cmake_args,
+                        run_id=run_id + "-separate", image=SEPARATE_IMAGE)
+        bench.separate_cold(separate)
         bench.no_change()
         bench.change_last()
+        bench.limit()
         bench.baseline()
         bench.change_first()
         bench.add_dependency(resolved[args.add_key])
@@ -793,18 +884,28 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     rows = bench.rows
     cold = rows[0].seconds
     baseline = next(r.seconds for r in rows if r.name.startswith("B "))
+    limit = next(r.seconds for r in rows if r.name.startswith("L "))
+    apart = next(r.seconds for r in rows if r.name.startswith("D "))
+    edit = next(r for r in rows if r.name.startswith("3 "))
     for row in rows:
         row.ratio_cold = ratio(row.seconds, cold)
         if row.name.startswith(("3", "6b")):
             row.ratio_baseline = ratio(row.seconds, baseline)
+        if row.name.startswith("3 "):
+            row.ratio_limit = ratio(row.seconds, limit)
     total_units = 3 * args.packages
     print()
     print(table(rows, sizes, total_units))
     print(f"\nTUs: translation units compiled of {total_units} (3 .cpp per package); "
           "src changed: source files the colcon step took for changed (and re-stamped); "
-          "dep layers: the dependencies-{dev,run} RUN layers; dev/run s: the CLI's per-image "
-          "times; x baseline: our whole `docker-ros build` (dev+run images) against a bare "
+          "dep layers: the dependencies-{dev,run} RUN layers; deps parallel: seconds both "
+          "dependency RUNs ran at once; x limit: against L, the physical limit (a warm colcon "
+          "build of that package alone plus writing the install space as a layer); "
+          "x baseline: our whole `docker-ros build` (dev+run images) against a bare "
           "colcon build from scratch; load1: load average when the scenario started.")
+    print(f"cold build: ours {cold:.1f} s, dev then run separately (docker-ros) {apart:.1f} s: "
+          f"{cold / apart:.2f}x; one-file edit (3): {edit.seconds:.1f} s against the "
+          f"physical limit {limit:.1f} s: {edit.ratio_limit or 0:.2f}x")
     failed = any(r.check == "FAIL" for r in rows)
     for row in rows:
         if row.check == "FAIL":

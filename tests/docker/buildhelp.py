@@ -79,14 +79,16 @@ def run_until(ref: str, needle: str, seconds: float, *docker_args: str) -> str:
 
 
 def cached_vertices(log: str) -> Dict[str, bool]:
-    """BuildKit plain log -> {vertex name: came from cache?}, e.g. '[run 2/3] RUN ...'."""
+    """BuildKit plain log -> {vertex name: came from cache?}, e.g. '[run 2/3] RUN ...'
+    (the bake target before the stage dropped: `[dev base 2/4]` is `[base 2/4]`)."""
     names: Dict[str, str] = {}
     cached: Dict[str, bool] = {}
     for line in log.splitlines():
         match = re.match(r"#(\d+) (\[.*)", line)
         if match:
-            names[match.group(1)] = match.group(2)
-            cached.setdefault(match.group(2), False)
+            name = re.sub(r"^\[[\w-]+ ([\w-]+ \d+/\d+\])", r"[\1", match.group(2))
+            names[match.group(1)] = name
+            cached.setdefault(name, False)
             continue
         match = re.match(r"#(\d+) CACHED", line)
         if match and match.group(1) in names:

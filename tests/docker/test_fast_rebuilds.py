@@ -53,9 +53,24 @@ def test_one_file_change_recompiles_one_package(ros1_base_image: str, tmp_path: 
     ran = subprocess.run(["docker", "run", "--rm", "docker-ros-test/fast:1"],
                          capture_output=True, text=True, timeout=120)
     assert ran.stdout.split() == ["pkg_a", "pkg_b", "changed", "pkg_c"], ran
+    assert "pkg_b changed: building them and their dependents only" in second.stdout
+
+    # A package removed: a full build, and the install space (kept in the cache for
+    # incremental builds) no longer holds it.
+    for path in sorted((tmp_path / "pkg_c").rglob("*"), reverse=True):
+        path.unlink() if path.is_file() else path.rmdir()
+    (tmp_path / "pkg_c").rmdir()
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE="docker-ros-test/fast:1",
+              COMMAND="ls /docker-ros/ws/install")
+    third = docker_ros(tmp_path, "build", "--target", "run")
+    assert third.returncode == 0, third.stdout[-4000:]
+    assert "--packages-above" not in third.stdout and not compiled_objects(third.stdout)
+    listed = subprocess.run(["docker", "run", "--rm", "docker-ros-test/fast:1"],
+                            capture_output=True, text=True, timeout=120)
+    assert "pkg_a" in listed.stdout.split() and "pkg_c" not in listed.stdout.split(), listed
 
 
-def test_registry_image_serves_as_cache_on_an_empty_machine(
+def test_registry_images_serve_as_cache_on_an_empty_machine(
     ros1_base_image: str, local_registry: str, empty_engine: str, tmp_path: Path
 ) -> None:
     ref = f"{local_registry}/docker-ros-test/cached:latest"
@@ -63,18 +78,19 @@ def test_registry_image_serves_as_cache_on_an_empty_machine(
     (tmp_path / "docker").mkdir()
     (tmp_path / "docker" / "additional-debs.txt").write_text("jq\n")
     write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE=ref, COMMAND="jq --version",
-              CACHE_FROM=ref, BUILD_NETWORK="host")
-    pushed = docker_ros(tmp_path, "push", "--target", "run")
+              CACHE_FROM=f"{ref}-dev,{ref}", BUILD_NETWORK="host", TARGET="dev,run")
+    pushed = docker_ros(tmp_path, "push")
     assert pushed.returncode == 0, pushed.stdout[-4000:]
-    assert f"pushed {ref}" in pushed.stdout
+    assert f"pushed {ref}" in pushed.stdout and f"pushed {ref}-dev" in pushed.stdout
 
     # An empty machine: a daemon of its own with no image but the base and no build cache.
-    rebuilt = docker_ros(tmp_path, "build", "--target", "run", env={"DOCKER_HOST": empty_engine})
+    # Every dependency layer of both targets comes from the two registry images.
+    rebuilt = docker_ros(tmp_path, "build", env={"DOCKER_HOST": empty_engine})
     assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
     installs = {name: cached for name, cached in cached_vertices(rebuilt.stdout).items()
-                if "debs --phase apply" in name and name.startswith("[dependencies-run")}
-    assert installs and all(installs.values()), installs
-    assert "Setting up jq" not in rebuilt.stdout.split("[dependencies-dev")[0]
+                if name.startswith(("[dependencies-", "[resolved-dev"))}
+    assert len(installs) >= 3 and all(installs.values()), installs
+    assert "Setting up jq" not in rebuilt.stdout
     on_empty = {**os.environ, "DOCKER_HOST": empty_engine}
     jq = subprocess.run(["docker", "run", "--rm", ref, "jq", "--version"], env=on_empty,
                         capture_output=True, text=True)
