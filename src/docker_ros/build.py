@@ -178,6 +178,12 @@ def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str) -> Li
             *targets]
 
 
+def can_bake(settings: Settings) -> bool:
+    """Whether one bake run can build the targets: the buildx of Debian (0.13) knows no
+    `network` attribute, so with BUILD_NETWORK every target is a `docker buildx build`."""
+    return not settings.build_network
+
+
 def bake_file(targets: Mapping[str, Dict[str, Any]]) -> str:
     """The bake definition (JSON). It names secrets' environment variables, never values."""
     return json.dumps({"target": dict(targets)}, indent=2, sort_keys=True) + "\n"
@@ -433,8 +439,8 @@ def build_images(
     bake: bool = True,
 ) -> List[BuiltImage]:
     """Build the targets (target -> tag) for one platform, by default in one `docker buildx
-    bake` run (bake=False: one `docker buildx build` per target, one after the other, as
-    docker-ros does); raise BuildError naming the failed step."""
+    bake` run (bake=False or not can_bake: one `docker buildx build` per target, one after the
+    other, as docker-ros does); raise BuildError naming the failed step."""
     environ = os.environ if environ is None else environ
     tools = ensure_tools_image(platform)
     imports = ensure_imports_image(settings, platform)
@@ -454,7 +460,7 @@ def build_images(
                                     dockerfile=dockerfile, output=output,
                                     extra_build_args=extra_build_args, imports_image=imports)
                  for target, tag in targets.items()}
-        if bake:
+        if bake and can_bake(settings):
             definition_file = Path(tmp) / "docker-ros.bake.json"
             definition_file.write_text(bake_file(specs))
             runs = [(tuple(targets), plan_bake(specs, str(definition_file)))]

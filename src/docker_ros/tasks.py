@@ -373,13 +373,17 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
     for platform in settings.platform:
         tags = {t: build.platform_ref(build.image_ref(settings, t), platform, settings.platform)
                 for t in ("dev", "run") if t in targets}
-        if dry_run:
+        if dry_run and build.can_bake(settings):
             specs = {t: build.shown_definition(settings, target=t, platform=platform, tag=tag)
                      for t, tag in tags.items()}
             print("[dry-run] build:",
                   format_argv(build.plan_bake(specs, "<temporary>/docker-ros.bake.json")))
             print(f"[dry-run] with <temporary>/docker-ros.bake.json:\n{build.bake_file(specs)}",
                   end="")
+        elif dry_run:
+            for target, tag in tags.items():
+                argv = build.plan_shown(settings, target=target, platform=platform, tag=tag)
+                print("[dry-run] build:", format_argv(argv))
         else:
             try:
                 built += build.build_images(settings, targets=tags, platform=platform)
