@@ -137,9 +137,20 @@ def definition(
     if not settings.buildx_attestations:
         target_def["attest"] = ["type=provenance,disabled=true"]
     if settings.cache_from:
-        target_def["cache-from"] = list(settings.cache_from)
+        target_def["cache-from"] = cache_sources(settings.cache_from, target)
         target_def["cache-to"] = ["type=inline"]
     return target_def
+
+
+def cache_sources(refs: Sequence[str], target: str) -> List[str]:
+    """The CACHE_FROM refs a target imports: the dev images' (a `-dev` in the tag) for dev, the
+    others for run and every other target; all refs when none is of that kind. Each image is
+    the cache of its own target only: BuildKit takes the first cache that matches a stage both
+    targets share, and when that is the other image's, the target's own dependency layers no
+    longer match (measured: on an empty machine the second image's installed again)."""
+    dev = [r for r in refs if "-dev" in r.rpartition(":")[2]]
+    mine = dev if target == "dev" else [r for r in refs if r not in dev]
+    return mine or list(refs)
 
 
 def plan_build(settings: Settings, **options: Any) -> List[str]:
@@ -179,9 +190,9 @@ def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str) -> Li
 
 
 def can_bake(settings: Settings) -> bool:
-    """Whether one bake run can build the targets: the buildx of Debian (0.13) knows no
-    `network` attribute, so with BUILD_NETWORK every target is a `docker buildx build`."""
-    return not settings.build_network
+    """Whether one bake run can build the targets. Not with BUILD_NETWORK: the buildx of Debian
+    (0.13) knows no `network` attribute. Not with CACHE_FROM: see cache_sources."""
+    return not settings.build_network and not settings.cache_from
 
 
 def bake_file(targets: Mapping[str, Dict[str, Any]]) -> str:
@@ -465,11 +476,7 @@ def build_images(
             definition_file.write_text(bake_file(specs))
             runs = [(tuple(targets), plan_bake(specs, str(definition_file)))]
         else:
-            runs = [((t,), plan_build(settings, target=t, platform=platform, tools_image=tools,
-                                      tag=targets[t], secrets=plan_secrets(settings, bundle),
-                                      push=push, dockerfile=dockerfile, output=output,
-                                      extra_build_args=extra_build_args, imports_image=imports))
-                    for t in targets]
+            runs = [((t,), build_argv(spec)) for t, spec in specs.items()]
         built = []
         for names, argv in runs:
             seconds = run_buildx(argv, names, platform, env=child_env, out=out, environ=environ,

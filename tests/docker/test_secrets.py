@@ -168,8 +168,8 @@ def build(repo: Path, base: str, name: str, env: Dict[str, str], **dotenv: str) 
     dev, run = f"{image}-dev", image
     for ref in (dev, run):
         remove_image(ref)
-    write_env(repo, BASE_IMAGE=base, IMAGE=image, TARGET="dev,run", BUILD_NETWORK="host",
-              COMMAND=f"{UPSTREAM}_node", **dotenv)
+    write_env(repo, **{"BASE_IMAGE": base, "IMAGE": image, "TARGET": "dev,run",
+                       "BUILD_NETWORK": "host", "COMMAND": f"{UPSTREAM}_node", **dotenv})
     watcher = CommandLines()
     watcher.start()
     # Only the settings given here (the environment outranks .env: none may come from ours).
@@ -243,8 +243,8 @@ def image_hits(refs: Sequence[str], material: Material, control: bytes) -> List[
 
 def assert_nothing_leaked(built: Build, material: Material) -> None:
     leaks = [f"build log: {w}" for w in hits(built.log.encode(), material.needles)]
-    buildx = [c for c in built.cmdlines if b"buildx\0bake" in c]
-    assert buildx, "the command line of `docker buildx bake` was never seen"
+    buildx = [c for c in built.cmdlines if b"buildx\0bake" in c or b"buildx\0build" in c]
+    assert buildx, "the command line of `docker buildx bake` (or `build`) was never seen"
     for cmdline in built.cmdlines:
         shown = cmdline.replace(b"\0", b" ")[:200].decode(errors="replace")
         leaks += [f"command line {shown!r}: {w}" for w in hits(cmdline, material.needles)]
@@ -307,6 +307,22 @@ def test_https_password_from_environment(
     built = build(repo, ros1_base_image, "https-env", {"GIT_HTTPS_PASSWORD": material.password},
                   **https_settings(http_remote))
     assert_upstream_built(built)
+    assert_nothing_leaked(built, material)
+
+
+def test_secrets_of_a_baked_build_stay_out(
+    ros1_base_image: str, material: Material, tmp_path: Path
+) -> None:
+    """Without BUILD_NETWORK dev and run are one `docker buildx bake`: its definition file
+    names the secrets' variables only, and nothing reaches the images, logs or command lines."""
+    repo = tmp_path / "baked"
+    repo.mkdir()
+    (repo / "README.md").write_text("docker-ros secrets test: project baked\n")
+    built = build(repo, ros1_base_image, "baked",
+                  {"GIT_HTTPS_PASSWORD": material.password, "GIT_SSH_PRIVATE_KEY": material.key},
+                  BUILD_NETWORK="")
+    assert built.returncode == 0, built.log[-4000:]
+    assert any(b"buildx\0bake" in c for c in built.cmdlines)
     assert_nothing_leaked(built, material)
 
 

@@ -54,10 +54,15 @@ def test_secrets_are_never_build_arguments():
 def test_cache_from_and_attestations():
     argv = plan(settings(CACHE_FROM="127.0.0.1:5000/x:latest"))
     assert argv[argv.index("--cache-from") + 1] == "127.0.0.1:5000/x:latest"
-    both = plan(settings(CACHE_FROM="r/x:latest-dev, r/x:latest"))
-    froms = [both[i + 1] for i, arg in enumerate(both) if arg == "--cache-from"]
-    assert froms == ["r/x:latest-dev", "r/x:latest"]
-    assert both.count("--cache-to") == 1
+    both = settings(CACHE_FROM="r/x:latest-dev, r/x:latest, r/x:latest-dev_main_ci-arm64")
+    for target, refs in (("run", ["r/x:latest"]),
+                         ("dev", ["r/x:latest-dev", "r/x:latest-dev_main_ci-arm64"])):
+        argv = plan(both, target=target)
+        assert [argv[i + 1] for i, a in enumerate(argv) if a == "--cache-from"] == refs
+        assert argv.count("--cache-to") == 1
+    # one kind only: every target imports it
+    assert build.cache_sources(["r/x:latest"], "dev") == ["r/x:latest"]
+    argv = plan(settings(CACHE_FROM="127.0.0.1:5000/x:latest"))
     assert "--provenance=false" in argv
     assert "--provenance=false" not in plan(settings(BUILDX_ATTESTATIONS="true"))
 
@@ -150,8 +155,10 @@ def test_bake_builds_the_targets_in_one_run_from_the_same_definitions():
     assert one[one.index("--network") + 1] == "host" and "--load" in one
     assert [one[i + 1] for i, a in enumerate(one) if a == "--build-arg"] == [
         f"{k}={v}" for k, v in run["args"].items()]
-    # Debian's buildx (0.13) bakes no `network`: with BUILD_NETWORK, one build per target
+    # Debian's buildx (0.13) bakes no `network`; with registry cache each image is the first
+    # build of its stages: one build per target
     assert not build.can_bake(s) and build.can_bake(settings())
+    assert not build.can_bake(settings(CACHE_FROM="r/x:latest"))
 
 
 def test_a_failed_step_is_found_in_a_bake_log_too():
