@@ -6,6 +6,7 @@ an image. One workspace, built once for dev+run, then rebuilt twice."""
 from __future__ import annotations
 
 import subprocess
+import uuid
 from typing import Dict, Iterator
 
 import pytest
@@ -42,7 +43,10 @@ def workspace(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) ->
     server = git_http_server(remotes, USER, PASSWORD)
     host = f"127.0.0.1:{server.server_address[1]}"
 
-    repo = make_blacklist_repo(base / "repo", "my_tool:\n  debian: [jq]\n")
+    # a new run id in the rules: the resolve stage (which sees only the files resolving reads)
+    # runs and logs, however warm the engine is
+    rules = f"# run {uuid.uuid4().hex}\nmy_tool:\n  debian: [jq]\n"
+    repo = make_blacklist_repo(base / "repo", rules)
     (repo / "docker" / "before_dependency_installation.sh").write_text(
         'echo "$DOCKER_ROS_CONTEXT" > /docker-ros-context\n')
     write_repos(repo / ".repos", {"upstream_libs": {"url": f"http://{host}/upstream_libs.git",
