@@ -53,6 +53,7 @@ IMAGE = "docker-ros-bench/ws:latest"
 DEV_IMAGE = "docker-ros-bench/ws:latest-dev"
 IMPORTS_IMAGE = "docker-ros-bench/imports:latest"
 SEPARATE_IMAGE = "docker-ros-bench/separate:latest"
+WARM_IMAGE = "docker-ros-bench/warm-up:latest"
 IMPORTS_REPO = "bench_upstream"
 # bake puts the target before the stage: `#12 [dev upstream 2/2] RUN ...`
 UPSTREAM_VERTEX = re.compile(r"^#(\d+) \[(?:\S+ )?upstream .*clone --imports-only")
@@ -436,9 +437,9 @@ def resolve_keys(base_image: str, keys: Sequence[str]) -> Dict[str, List[str]]:
 
 
 def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = (),
-            times: Optional[List[float]] = None) -> tuple[float, str]:
+            timed: Optional[List[Tuple[float, str]]] = None) -> tuple[float, str]:
     """`python -m docker_ros build ARGS` in project, as a user runs it; (seconds, output).
-    times: receives the wall time each output line arrived."""
+    timed: receives each output line with the wall time it arrived."""
     argv = [sys.executable, "-m", "docker_ros", "build", *args]
     env = clean_environ()
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO / "src"), env.get("PYTHONPATH")]))
@@ -451,8 +452,8 @@ def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = ()
         out.write(f"\n===== {shlex.join(argv)} (cwd {project})\n")
         for line in proc.stdout:
             lines.append(line)
-            if times is not None:
-                times.append(time.monotonic())
+            if timed is not None:
+                timed.append((time.monotonic(), line))
             out.write(line)
             if verbose:
                 sys.stdout.write(line)
@@ -500,12 +501,12 @@ def dependency_layers(output: str) -> str:
     return "rebuilt" if ran else "reused"
 
 
-def dependency_overlap(lines: Sequence[str], times: Sequence[float]) -> Optional[float]:
+def dependency_overlap(timed: Sequence[Tuple[float, str]]) -> Optional[float]:
     """Seconds during which the dependencies-dev and dependencies-run RUNs both ran (from the
     first output line of each to its DONE), or None when either came from cache."""
     names: Dict[str, str] = {}
     spans: Dict[str, List[float]] = {}
-    for line, at in zip(lines, times):
+    for at, line in timed:
         if INVOCATION.match(line):
             names = {}
         match = VERTEX.match(line)
@@ -602,15 +603,15 @@ class Bench:
         their extra arguments), timed together."""
         self.say(f"{name} ...")
         load = load1()
-        seconds, output, times = 0.0, "", []  # type: float, str, List[float]
+        seconds, output, timed = 0.0, "", []  # type: float, str, List[Tuple[float, str]]
         for args in invocations:
             took, out = run_cli(root or self.root, self.log, verbose=self.args.verbose,
-                                args=args, times=times)
+                                args=args, timed=timed)
             seconds, output = seconds + took, output + out
         row = Scenario(name, seconds, compiled_units(output), dependency_layers(output),
                        changed_sources=changed_sources(output),
                        image_seconds=image_seconds(output), load1=load,
-                       deps_overlap=dependency_overlap(output.splitlines(True), times))
+                       deps_overlap=dependency_overlap(timed))
         row.imports = imports_state(output)
         self.say(f"{name}: {seconds:.1f} s, {len(row.compiled)} TUs compiled, "
                  f"dependency layers {row.deps_layers}, sources taken as changed "
@@ -629,6 +630,14 @@ class Bench:
         ok = expected in output
         self.check(row, ok, f"run image, `{shlex.join(command) or 'default command'}` printed "
                    f"{output[-300:]!r}" + ("" if ok else f", expected {expected!r}"))
+
+    def warm_up(self, root: Path) -> None:
+        """Not measured: a one-package workspace on the same base, so that the layers every
+        workspace shares (the base image prepared by this version of the tools) are built
+        before the cold builds, and neither of them pays for them."""
+        self.say("0  warm-up (not measured) ...")
+        run_cli(root, self.log, verbose=self.args.verbose)
+        docker("image", "rm", "-f", WARM_IMAGE, WARM_IMAGE + "-dev")
 
     def cold(self) -> None:
         # Never `docker builder prune`: the engine is shared, and the new workspace (run id,
@@ -689,7 +698,7 @@ class Bench:
             " --cmake-args " + shlex.join(cmake) if cmake else "")
         source = f"src/target/{name}/src/describe.cpp"
         script = "\n".join([
-            "set -e", f"cd {WS}", f"{colcon} >/dev/null",
+            "set -e", f"cd {WS}", f"{colcon} >/dev/null 2>&1",
             f"sed -i 's/kMark = \"[^\"]*\"/kMark = \"limit-edit\"/' {source}",
             "t0=$(date +%s.%N)", f"{colcon} --packages-select {name}",
             "t1=$(date +%s.%N)", "tar -cf - install | sha256sum >/dev/null",
@@ -847,6 +856,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         run_id=run_id)
         print(f"[bench] workspace of {args.packages} packages in {root}; log {log}", flush=True)
         bench = Bench(args, root, log)
+        warm = tmp / "ws-warm-up"
+        write_workspace(warm, count=1, chain=args.chain, depth=1, key=args.key,
+                        base_image=args.base_image, cmake_args=args.cmake_args,
+                        run_id=run_id + "-warm-up", image=WARM_IMAGE)
+        bench.warm_up(warm)
         bench.cold()
         separate = tmp / "ws-separate"
         write_workspace(separate, count=args.packages, chain=args.chain, depth=args.depth,
