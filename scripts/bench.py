@@ -40,7 +40,7 @@ import textwrap
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Set, Tuple
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO / "src") not in sys.path:
@@ -503,9 +503,11 @@ def dependency_layers(output: str) -> str:
 
 def dependency_overlap(timed: Sequence[Tuple[float, str]]) -> Optional[float]:
     """Seconds during which the dependencies-dev and dependencies-run RUNs both ran (from the
-    first output line of each to its DONE), or None when either came from cache."""
+    first output line of each to its DONE), or None when either came from cache. (With bake a
+    stage both targets use is one vertex per target: the one that ran counts.)"""
     names: Dict[str, str] = {}
-    spans: Dict[str, List[float]] = {}
+    spans: Dict[str, List[float]] = {}  # vertex -> [first line, last line]
+    cached: Set[str] = set()
     for at, line in timed:
         if INVOCATION.match(line):
             names = {}
@@ -517,13 +519,14 @@ def dependency_overlap(timed: Sequence[Tuple[float, str]]) -> Optional[float]:
             continue
         number = re.match(r"^#(\d+) ", line)
         if number and number.group(1) in names:
-            span = spans.setdefault(names[number.group(1)], [at, at])
-            span[1] = at
+            key = f"{names[number.group(1)]} #{number.group(1)}"
+            spans.setdefault(key, [at, at])[1] = at
             if line.startswith(f"#{number.group(1)} CACHED"):
-                spans.pop(names[number.group(1)])
-    if set(spans) != {"dev", "run"}:
+                cached.add(key)
+    ran = {key.split()[0]: span for key, span in spans.items() if key not in cached}
+    if set(ran) != {"dev", "run"}:
         return None
-    return max(0.0, min(spans["dev"][1], spans["run"][1]) - max(spans["dev"][0], spans["run"][0]))
+    return max(0.0, min(ran["dev"][1], ran["run"][1]) - max(ran["dev"][0], ran["run"][0]))
 
 
 def imports_state(output: str) -> str:
