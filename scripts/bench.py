@@ -832,7 +832,8 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                         help="skip scenario 6 (the workspace importing its packages via .repos)")
     parser.add_argument("--json", type=Path, metavar="FILE", help="also write the figures here")
     parser.add_argument("--keep", action="store_true",
-                        help="keep the generated workspace and the build log (path printed)")
+                        help="keep the generated workspace, the build log (path printed) and "
+                             "the workspace's dev and run images")
     parser.add_argument("-v", "--verbose", action="store_true", help="stream the build logs")
     args = parser.parse_args(argv)
     if args.packages < 1 or args.chain < 1 or args.depth < 1:
@@ -936,9 +937,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         }, indent=2) + "\n")
         print(f"figures written to {args.json}")
     if args.keep:
-        print(f"workspace and log kept in {tmp}")
+        print(f"workspace, log and images ({IMAGE}, {DEV_IMAGE}) kept in {tmp}")
     else:
         shutil.rmtree(tmp, ignore_errors=True)
+        docker("image", "rm", "-f", IMAGE, DEV_IMAGE)
     return 1 if failed else 0
 
 

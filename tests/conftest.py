@@ -3,6 +3,7 @@ host's CA bundle. Tests that need Docker are marked `@pytest.mark.docker`."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
@@ -124,6 +125,13 @@ def local_registry(
         yield address
     finally:
         stop(server, timeout=10)
+        # Images named after this registry (a free port of this run) were made by the tests.
+        for image in docker_client.images.list():
+            for tag in image.tags:
+                # (an image a container still uses stays, as `docker image rm` would leave it)
+                if tag.startswith(f"{address}/"):
+                    with contextlib.suppress(docker.errors.APIError):
+                        docker_client.images.remove(tag)
 
 
 def stop(process: subprocess.Popen, *, timeout: float) -> None:
