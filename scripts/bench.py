@@ -506,8 +506,8 @@ def dependency_overlap(timed: Sequence[Tuple[float, str]]) -> Optional[float]:
     first output line of each to its DONE), or None when either came from cache. (With bake a
     stage both targets use is one vertex per target: the one that ran counts.)"""
     names: Dict[str, str] = {}
-    spans: Dict[str, List[float]] = {}  # vertex -> [first line, last line]
-    cached: Set[str] = set()
+    spans: Dict[Tuple[str, str], List[float]] = {}  # (flavour, vertex) -> [first, last line]
+    cached: Set[Tuple[str, str]] = set()
     for at, line in timed:
         if INVOCATION.match(line):
             names = {}
@@ -519,11 +519,11 @@ def dependency_overlap(timed: Sequence[Tuple[float, str]]) -> Optional[float]:
             continue
         number = re.match(r"^#(\d+) ", line)
         if number and number.group(1) in names:
-            key = f"{names[number.group(1)]} #{number.group(1)}"
+            key = (names[number.group(1)], number.group(1))
             spans.setdefault(key, [at, at])[1] = at
             if line.startswith(f"#{number.group(1)} CACHED"):
                 cached.add(key)
-    ran = {key.split()[0]: span for key, span in spans.items() if key not in cached}
+    ran = {key[0]: span for key, span in spans.items() if key not in cached}
     if set(ran) != {"dev", "run"}:
         return None
     return max(0.0, min(ran["dev"][1], ran["run"][1]) - max(ran["dev"][0], ran["run"][0]))

@@ -76,7 +76,8 @@ def test_registry_images_serve_as_cache_on_an_empty_machine(
     """CACHE_FROM with the dev and the run image, as CI jobs default to. The dev image's
     dependency layers come from the registry. (The run image's do only when its stages were
     built before on the pushing machine: with a workspace new to both machines they are built
-    again, a limit of the engine's inline cache noted in issue 13.)"""
+    again, a limit of the engine's inline cache noted in issue 13.) The local_registry fixture
+    removes the images named after the registry."""
     ref = f"{local_registry}/docker-ros-test/cached:latest"
     make_package(tmp_path / "pkg", "pkg")
     (tmp_path / "docker").mkdir()
@@ -86,26 +87,23 @@ def test_registry_images_serve_as_cache_on_an_empty_machine(
     (tmp_path / "docker" / "additional-files" / "run-id").write_text(uuid.uuid4().hex)
     write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE=ref, COMMAND="jq --version",
               CACHE_FROM=f"{ref}-dev,{ref}", TARGET="dev,run", BUILD_NETWORK="host")
-    try:
-        pushed = docker_ros(tmp_path, "push")
-        assert pushed.returncode == 0, pushed.stdout[-4000:]
-        assert f"pushed {ref}" in pushed.stdout and f"pushed {ref}-dev" in pushed.stdout
+    pushed = docker_ros(tmp_path, "push")
+    assert pushed.returncode == 0, pushed.stdout[-4000:]
+    assert f"pushed {ref}" in pushed.stdout and f"pushed {ref}-dev" in pushed.stdout
 
-        # An empty machine: a daemon of its own with no image but the base and no build cache
-        # (host network, on both machines as it is part of the cache keys: what is not cached
-        # installs from the apt sources).
-        rebuilt = docker_ros(tmp_path, "build", env={"DOCKER_HOST": empty_engine})
-        assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
-        dev = rebuilt.stdout.split("==> docker-ros build (amd64) run")[0]
-        installs = {name: cached for name, cached in cached_vertices(dev).items()
-                    if name.startswith(("[dependencies-dev", "[resolved-dev"))}
-        assert len(installs) == 3 and all(installs.values()), installs
-        on_empty = {**os.environ, "DOCKER_HOST": empty_engine}
-        jq = subprocess.run(["docker", "run", "--rm", ref, "jq", "--version"], env=on_empty,
-                            capture_output=True, text=True)
-        assert jq.stdout.startswith("jq-"), jq.stderr
-    finally:
-        subprocess.run(["docker", "image", "rm", "-f", ref, f"{ref}-dev"], capture_output=True)
+    # An empty machine: a daemon of its own with no image but the base and no build cache
+    # (host network, on both machines as it is part of the cache keys: what is not cached
+    # installs from the apt sources).
+    rebuilt = docker_ros(tmp_path, "build", env={"DOCKER_HOST": empty_engine})
+    assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
+    dev = rebuilt.stdout.split("==> docker-ros build (amd64) run")[0]
+    installs = {name: cached for name, cached in cached_vertices(dev).items()
+                if name.startswith(("[dependencies-dev", "[resolved-dev"))}
+    assert len(installs) == 3 and all(installs.values()), installs
+    on_empty = {**os.environ, "DOCKER_HOST": empty_engine}
+    jq = subprocess.run(["docker", "run", "--rm", ref, "jq", "--version"], env=on_empty,
+                        capture_output=True, text=True)
+    assert jq.stdout.startswith("jq-"), jq.stderr
 
 
 @pytest.mark.skipif(not HOST_EXTRA_CAS, reason="this machine's HTTPS is not re-signed by a proxy")
