@@ -36,6 +36,7 @@ HANDLED_BY_TOOL = frozenset({
     "base_image", "build_context", "build_network", "buildx_attestations", "cache_from",
     "extra_ca_certs", "image", "image_name", "image_tag", "dev_image_name", "dev_image_tag",
     "platform", "target", "git_https_password", "git_ssh_private_key", "image_postfix",
+    "enable_lean_run_image",
 })
 # Settings that do not affect building an image (push, slim, CI checkout, host workspace).
 NOT_BUILD_INPUTS = frozenset({
@@ -119,7 +120,8 @@ def definition(
     both plan_build (one `buildx build`) and plan_bake (several targets in one BuildKit run).
     `output`: an --output exporter instead of loading or pushing the image."""
     args = {"BASE_IMAGE": settings.base_image or "", "DOCKER_ROS_TOOLS": tools_image,
-            "DOCKER_ROS_IMPORTS": imports_image}
+            "DOCKER_ROS_IMPORTS": imports_image,
+            "DOCKER_ROS_RUN_RESOLUTION": run_resolution(settings)}
     args.update(build_args(settings, [a for a in dockerfile_args(dockerfile) if a not in args]))
     args.update(sorted(extra_build_args.items()))
     target_def: Dict[str, Any] = {
@@ -140,6 +142,11 @@ def definition(
         target_def["cache-from"] = cache_sources(settings.cache_from, target)
         target_def["cache-to"] = ["type=inline"]
     return target_def
+
+
+def run_resolution(settings: Settings) -> str:
+    """The Dockerfile stage resolving the run image's dependencies."""
+    return "lean-resolution" if settings.enable_lean_run_image else "resolve"
 
 
 def cache_sources(refs: Sequence[str], target: str) -> List[str]:

@@ -133,6 +133,11 @@ class Settings:
     enable_industrial_ci: bool = setting(
         False, "Enable tests (`colcon test` in the dev image; replaces industrial_ci)"
     )
+    enable_lean_run_image: bool = setting(
+        False,
+        "Install only the Debian packages the install space needs at run time in the run image"
+        " (shared libraries, imported Python modules) instead of the `-dev` packages rosdep names",
+    )
     enable_push_as_latest: bool = setting(
         False, "Push images with tag `latest`/`latest-dev` in addition to the configured names"
     )

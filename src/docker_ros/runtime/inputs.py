@@ -11,7 +11,7 @@ from typing import List
 
 from docker_ros.runtime.files import find_special_files, repository_path, walk
 from docker_ros.runtime.packages import IGNORE_MARKERS
-from docker_ros.runtime.workspace import StepError, Workspace, setup_logging
+from docker_ros.runtime.workspace import Workspace, image_main
 
 # What the collect phases of scripts, rosdep, debs, pip, files and custom read: package
 # manifests and ignore markers anywhere, and the files and folder the path settings name.
@@ -50,20 +50,9 @@ def copy_inputs(ws: Workspace, paths: List[Path], destination: Path) -> None:
 
 
 def main(argv: List[str]) -> int:
-    from docker_ros.settings import SettingsError, load_settings
-
-    setup_logging(False)
-    if len(argv) != 1:
-        print("usage: python3 -m docker_ros.runtime.inputs DESTINATION", file=sys.stderr)
-        return 2
-    ws = Workspace(os.environ.get("WORKSPACE", "/docker-ros/ws"))
-    try:
-        settings = load_settings(environ=os.environ, project_dir=Path(ws.target))
-        copy_inputs(ws, resolve_inputs(ws, settings), Path(argv[0]))
-    except (StepError, SettingsError) as exc:
-        print(f"docker-ros resolve: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return image_main(argv, module="inputs", step="resolve", arguments=["DESTINATION"],
+                      action=lambda ws, settings, args: copy_inputs(
+                          ws, resolve_inputs(ws, settings), Path(args[0])))
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ import shlex
 import sys
 import time
 from pathlib import Path
-from typing import Any, Dict, Iterator, Sequence, Tuple
+from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
 
 LOG = logging.getLogger("docker_ros")
 
@@ -159,3 +159,23 @@ def setup_logging(verbose: bool = False) -> None:
         level=logging.DEBUG if verbose else logging.INFO,
         format="%(message)s",
     )
+
+
+def image_main(argv: List[str], *, module: str, step: str, arguments: Sequence[str],
+               action: "Callable[[Workspace, Any, List[str]], object]") -> int:
+    """`python3 -m docker_ros.runtime.<module> ARGUMENTS...` in an image build: the workspace
+    ($WORKSPACE) and its settings (the environment), errors as one `docker-ros <step>:` line."""
+    from docker_ros.settings import SettingsError, load_settings
+
+    setup_logging(False)
+    if len(argv) != len(arguments):
+        print(f"usage: python3 -m docker_ros.runtime.{module} {' '.join(arguments)}",
+              file=sys.stderr)
+        return 2
+    ws = Workspace(os.environ.get("WORKSPACE", "/docker-ros/ws"))
+    try:
+        action(ws, load_settings(environ=os.environ, project_dir=Path(ws.target)), argv)
+    except (StepError, SettingsError, OSError) as exc:
+        print(f"docker-ros {step}: {getattr(exc, 'message', exc)}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,104 @@
+"""The decisions of the lean run image (ENABLE_LEAN_RUN_IMAGE): which packages stay, which
+files are whose, what ldd and a Python source say. The image build itself is tested in
+tests/docker/test_lean.py."""
+
+from pathlib import Path
+
+from docker_ros.build import definition, run_resolution
+from docker_ros.runtime.lean import (
+    canonical,
+    dpkg_index,
+    imported_modules,
+    install_files,
+    is_dev_package,
+    lean_packages,
+    local_names,
+    owners,
+    parse_ldd,
+    providers,
+)
+from docker_ros.settings import load_settings
+
+LDD = """\
+\tlinux-vdso.so.1 (0x00007ffd5b3f6000)
+\tliblean_greet.so => /docker-ros/ws/install/lean_yaml/lib/liblean_greet.so (0x00007f1)
+\tlibyaml-cpp.so.0.7 => /lib/x86_64-linux-gnu/libyaml-cpp.so.0.7 (0x00007f2)
+\tlibgone.so.3 => not found
+\t/lib64/ld-linux-x86-64.so.2 (0x00007f3)
+"""
+
+
+def test_dev_packages_are_dropped_and_needed_ones_added() -> None:
+    declared = ["libroscpp-dev", "python3-rospy", "libyaml-cpp-dev", "ros-std-msgs",
+                "libfoo-dev:amd64"]
+    assert lean_packages(declared, {"libroscpp4d", "libyaml-cpp0.7", "python3-rospy"}) == [
+        "libroscpp4d", "libyaml-cpp0.7", "python3-rospy", "ros-std-msgs"]
+    assert is_dev_package("libc6-dev:arm64") and not is_dev_package("python3-devtools")
+
+
+def test_a_library_only_a_dev_package_ships_is_kept() -> None:
+    assert lean_packages(["libgtest-dev"], {"libgtest-dev"}) == ["libgtest-dev"]
+
+
+def test_parse_ldd_finds_paths_and_missing_libraries() -> None:
+    paths, missing = parse_ldd(LDD)
+    assert paths == ["/docker-ros/ws/install/lean_yaml/lib/liblean_greet.so",
+                     "/lib/x86_64-linux-gnu/libyaml-cpp.so.0.7", "/lib64/ld-linux-x86-64.so.2"]
+    assert missing == ["libgone.so.3"]
+
+
+def test_canonical_spelling_on_a_merged_usr() -> None:
+    assert canonical("/lib/x86_64-linux-gnu/libc.so.6") == "/usr/lib/x86_64-linux-gnu/libc.so.6"
+    assert canonical("/usr/lib/x86_64-linux-gnu//libc.so.6") == \
+        "/usr/lib/x86_64-linux-gnu/libc.so.6"
+    assert canonical("/bin/bash") == "/usr/bin/bash"
+    assert canonical("/library/x") == "/library/x"
+
+
+def test_owners_by_path_or_through_a_symlink(tmp_path: Path) -> None:
+    info = tmp_path / "info"
+    info.mkdir()
+    real = tmp_path / "libyaml-cpp.so.0.7.0"
+    real.write_text("")
+    link = tmp_path / "libyaml-cpp.so.0.7"
+    link.symlink_to(real.name)
+    (info / "libyaml-cpp0.7:amd64.list").write_text(f"/.\n{real}\n")
+    (info / "libc6.list").write_text("/.\n/lib/x86_64-linux-gnu/libc.so.6\n")
+    index = dpkg_index(info)
+    assert owners(str(link), index) == {"libyaml-cpp0.7"}
+    assert owners("/usr/lib/x86_64-linux-gnu/libc.so.6", index) == {"libc6"}
+    found, unowned = providers({str(link): {"bin/node"}, "/usr/local/lib/x.so": {"bin/node"}},
+                               index)
+    assert found == {"libyaml-cpp0.7": {str(link)}}
+    assert unowned == ["/usr/local/lib/x.so"]
+
+
+def test_imported_modules_are_top_level_absolute_names() -> None:
+    source = ("import os.path, yaml as y\nfrom std_msgs.msg import String\n"
+              "from . import sibling\nfrom .pkg import x\n"
+              "def f():\n    try:\n        import psutil\n    except ImportError:\n        pass\n")
+    assert imported_modules(source) == {"os", "yaml", "std_msgs", "psutil"}
+
+
+def test_install_files_sorts_elf_and_python(tmp_path: Path) -> None:
+    (tmp_path / "lib" / "pkg" / "__pycache__").mkdir(parents=True)
+    (tmp_path / "lib" / "pkg" / "node").write_bytes(b"\x7fELF\x02\x01")
+    (tmp_path / "lib" / "pkg" / "listener").write_text("#!/usr/bin/env python3\nimport rospy\n")
+    (tmp_path / "lib" / "pkg" / "mod.py").write_text("import yaml\n")
+    (tmp_path / "lib" / "pkg" / "run.sh").write_text("#!/bin/sh\n")
+    (tmp_path / "lib" / "pkg" / "__pycache__" / "mod.cpython-311.pyc").write_bytes(b"\x7fELF")
+    (tmp_path / "lib" / "pkg" / "link").symlink_to("node")
+    elf, python = install_files(tmp_path)
+    assert elf == [tmp_path / "lib" / "pkg" / "node"]
+    assert python == [tmp_path / "lib" / "pkg" / "listener", tmp_path / "lib" / "pkg" / "mod.py"]
+    assert {"mod", "node", "listener"} <= local_names(tmp_path / "lib" / "pkg" / "listener")
+
+
+def test_the_run_image_is_resolved_by_the_lean_stage_only_when_enabled(tmp_path: Path) -> None:
+    for value, stage in (("true", "lean-resolution"), ("false", "resolve")):
+        settings = load_settings(environ={"ENABLE_LEAN_RUN_IMAGE": value, "BASE_IMAGE": "b",
+                                          "COMMAND": "c"}, project_dir=tmp_path)
+        assert run_resolution(settings) == stage
+        spec = definition(settings, target="run", platform="amd64", tools_image="t", tag="x",
+                          secrets={})
+        assert spec["args"]["DOCKER_ROS_RUN_RESOLUTION"] == stage
