@@ -19,6 +19,9 @@ real CLI (`python -m docker_ros build`, TARGET=dev,run from the workspace's .env
       server (git daemon on the loopback, BUILD_NETWORK=host) plus one package of its own:
       cold build, then one .cpp changed in its own package (to set against 3: the same edit
       with every package in the repository), then the .repos file touched (re-import)
+  7   lean run image (ENABLE_LEAN_RUN_IMAGE, run target, tag `lean`) after scenario 4: its
+      size over the base against the default run image's, every node run in it; then 7b, one
+      .cpp changed in the last package, rebuilt lean (against the physical limit too)
 
 and checks while measuring that the run image runs the changed code. Prints one table;
 --json writes the figures to a file. Timings are wall-clock and as noisy as the machine.
@@ -54,6 +57,8 @@ DEV_IMAGE = "docker-ros-bench/ws:latest-dev"
 IMPORTS_IMAGE = "docker-ros-bench/imports:latest"
 SEPARATE_IMAGE = "docker-ros-bench/separate:latest"
 WARM_IMAGE = "docker-ros-bench/warm-up:latest"
+LEAN_IMAGE = "docker-ros-bench/ws:lean"
+LEAN = ("--target", "run", "--image-tag", "lean", "--set", "ENABLE_LEAN_RUN_IMAGE=true")
 IMPORTS_REPO = "bench_upstream"
 # bake puts the target before the stage: `#12 [dev upstream 2/2] RUN ...`
 UPSTREAM_VERTEX = re.compile(r"^#(\d+) \[(?:\S+ )?upstream .*clone --imports-only")
@@ -748,6 +753,23 @@ class Bench:
         self.check(row, ok, f"{', '.join(packages)} installed in dev and run" if ok else
                    f"not installed: {missing}")
 
+    def lean(self) -> None:
+        """The lean run image of the workspace as scenario 4 left it: every node must run."""
+        docker("image", "rm", "-f", LEAN_IMAGE)
+        row = self.build("7  lean run image (after 4)", invocations=(LEAN,))
+        self.check_lean(row, "changed-last")
+        set_mark(self.root, self.count - 1, "changed-lean")
+        row = self.build("7b lean: one .cpp changed, last pkg", invocations=(LEAN,))
+        self.check_lean(row, "changed-lean")
+
+    def check_lean(self, row: Scenario, mark: str) -> None:
+        nodes = " && ".join(f"{package_name(i)}_node" for i in range(self.count))
+        output = run_output(LEAN_IMAGE, "bash", "-c", nodes)
+        last = f"{package_name(self.count - 1)}[{mark}]"
+        ok = last in output and all(package_name(i) in output for i in range(self.count))
+        self.check(row, ok, f"lean run image, all {self.count} nodes ran"
+                   if ok else f"lean run image: {output[-300:]!r}, expected {last!r}")
+
     def imports(self, root: Path) -> None:
         """The workspace importing packages 0..N-1 through .repos; its own package is N."""
         own = self.count
@@ -877,7 +899,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         bench.baseline()
         bench.change_first()
         bench.add_dependency(resolved[args.add_key])
-        sizes = {"dev": image_mb(DEV_IMAGE), "run": image_mb(IMAGE)}
+        sizes = {"base": image_mb(args.base_image), "dev": image_mb(DEV_IMAGE),
+                 "run": image_mb(IMAGE)}
+        bench.lean()
+        sizes["run (lean)"] = image_mb(LEAN_IMAGE)
         if args.imports:
             daemon, url = git_server(tmp, args.packages, chain=args.chain, depth=args.depth,
                                      key=args.key, run_id=run_id)
@@ -909,7 +934,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         row.ratio_cold = ratio(row.seconds, cold)
         if row.name.startswith(("3", "6b")):
             row.ratio_baseline = ratio(row.seconds, baseline)
-        if row.name.startswith("3 "):
+        if row.name.startswith(("3 ", "7b")):
             row.ratio_limit = ratio(row.seconds, limit)
     total_units = 3 * args.packages
     print()
@@ -924,6 +949,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     print(f"cold build: ours {cold:.1f} s, dev then run separately (docker-ros) {apart:.1f} s: "
           f"{cold / apart:.2f}x; one-file edit (3): {edit.seconds:.1f} s against the "
           f"physical limit {limit:.1f} s: {edit.ratio_limit or 0:.2f}x")
+    print(f"run image over the base: {sizes['run'] - sizes['base']:.0f} MB, lean "
+          f"{sizes['run (lean)'] - sizes['base']:.0f} MB")
     failed = any(r.check == "FAIL" for r in rows)
     for row in rows:
         if row.check == "FAIL":
@@ -937,10 +964,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         }, indent=2) + "\n")
         print(f"figures written to {args.json}")
     if args.keep:
-        print(f"workspace, log and images ({IMAGE}, {DEV_IMAGE}) kept in {tmp}")
+        print(f"workspace, log and images ({IMAGE}, {DEV_IMAGE}, {LEAN_IMAGE}) kept in {tmp}")
     else:
         shutil.rmtree(tmp, ignore_errors=True)
-        docker("image", "rm", "-f", IMAGE, DEV_IMAGE)
+        docker("image", "rm", "-f", IMAGE, DEV_IMAGE, LEAN_IMAGE)
     return 1 if failed else 0
 
 
