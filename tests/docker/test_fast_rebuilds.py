@@ -74,10 +74,10 @@ def test_registry_images_serve_as_cache_on_an_empty_machine(
     ros1_base_image: str, local_registry: str, empty_engine: str, tmp_path: Path
 ) -> None:
     """CACHE_FROM with the dev and the run image, as CI jobs default to. The dev image's
-    dependency layers come from the registry. (The run image's do only when its stages were
-    built before on the pushing machine: with a workspace new to both machines they are built
-    again, a limit of the engine's inline cache noted in issue 13.) The local_registry fixture
-    removes the images named after the registry."""
+    dependency layers come from the registry. (The run image's do not: with Engine 20.10's
+    inline cache only the first target built on an empty machine finds its layers, whichever
+    it is, also in one bake run importing both images; measured for issue 13.) The
+    local_registry fixture removes the images named after the registry."""
     ref = f"{local_registry}/docker-ros-test/cached:latest"
     make_package(tmp_path / "pkg", "pkg")
     (tmp_path / "docker").mkdir()
