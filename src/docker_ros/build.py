@@ -121,7 +121,8 @@ def definition(
     `output`: an --output exporter instead of loading or pushing the image."""
     args = {"BASE_IMAGE": settings.base_image or "", "DOCKER_ROS_TOOLS": tools_image,
             "DOCKER_ROS_IMPORTS": imports_image,
-            "DOCKER_ROS_RUN_RESOLUTION": run_resolution(settings)}
+            "DOCKER_ROS_RUN_RESOLUTION": run_resolution(settings),
+            "DOCKER_ROS_RUN_BASE": run_base(settings)}
     args.update(build_args(settings, [a for a in dockerfile_args(dockerfile) if a not in args]))
     args.update(sorted(extra_build_args.items()))
     target_def: Dict[str, Any] = {
@@ -147,6 +148,13 @@ def definition(
 def run_resolution(settings: Settings) -> str:
     """The Dockerfile stage resolving the run image's dependencies."""
     return "lean-resolution" if settings.enable_lean_run_image else "resolve"
+
+
+def run_base(settings: Settings) -> str:
+    """The Dockerfile stage the run image's dependencies are installed on: with CACHE_FROM a
+    copy of base that shares no stage with the dev image, so that on an empty machine the run
+    image's registry cache serves its dependency layers too (see the Dockerfile's base-run)."""
+    return "base-run" if settings.cache_from else "base"
 
 
 def cache_sources(refs: Sequence[str], target: str) -> List[str]:
@@ -350,11 +358,21 @@ def dockerignore(context: Path) -> str:
     return "\n".join([*lines, *ours]) + "\n"
 
 
+def with_run_base(text: str) -> str:
+    """The Dockerfile with base-run: its base stage again, `ENV DOCKER_ROS_RUN_CHAIN=1` first, so
+    that no step of it is one of base's (see run_base and the Dockerfile's DOCKER_ROS_RUN_BASE).
+    Made here rather than written twice in the Dockerfile."""
+    start = text.index("FROM ${BASE_IMAGE} AS base\n")
+    end = text.index("\n# ----", start)
+    copy = text[start:end].replace(" AS base\n", " AS base-run\nENV DOCKER_ROS_RUN_CHAIN=1\n", 1)
+    return text[:end] + "\n\n" + copy + text[end:]
+
+
 def stage_dockerfile(context: Path, destination: Path) -> Path:
     """Our Dockerfile beside a Dockerfile.dockerignore (BuildKit reads it instead of the
     context's .dockerignore), so the user's repository is never modified."""
     dockerfile = destination / "Dockerfile"
-    shutil.copy2(DOCKERFILE, dockerfile)
+    dockerfile.write_text(with_run_base(DOCKERFILE.read_text()))
     (destination / "Dockerfile.dockerignore").write_text(dockerignore(context))
     return dockerfile
 

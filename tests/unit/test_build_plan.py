@@ -117,7 +117,7 @@ def test_dockerignore_keeps_env_files_out_and_the_users_rules(tmp_path):
     ignore = (staged.parent / "Dockerfile.dockerignore").read_text().splitlines()
     assert ignore[0] == "build/" and ".env" in ignore and "**/.env" in ignore
     assert ".gitlab-ci-local" in ignore
-    assert staged.read_text() == build.DOCKERFILE.read_text()
+    assert staged.read_text() == build.with_run_base(build.DOCKERFILE.read_text())
     assert (tmp_path / ".dockerignore").read_text() == "build/\n"
 
 
@@ -165,3 +165,26 @@ def test_a_failed_step_is_found_in_a_bake_log_too():
     lines = ["#7 [dev source 2/2] RUN --mount=... clone\n", "#9 [run build 1/1] RUN colcon\n",
              "#9 3.1 docker-ros colcon: package a failed to build\n"]
     assert build.failed_step(lines) == ("build", "colcon")
+
+
+def test_with_cache_from_the_run_image_installs_on_a_copy_of_base():
+    assert build.run_base(settings()) == "base"
+    assert build.run_base(settings(CACHE_FROM="r/img:1-dev,r/img:1")) == "base-run"
+    spec = build.definition(settings(CACHE_FROM="r/img:1"), target="run", platform="amd64",
+                            tools_image="t", tag="x", secrets={})
+    assert spec["args"]["DOCKER_ROS_RUN_BASE"] == "base-run"
+
+
+def test_base_run_is_base_with_one_env_first():
+    text = build.DOCKERFILE.read_text()
+    staged = build.with_run_base(text)
+
+    def stage(dockerfile, name):
+        start = dockerfile.index(f"FROM ${{BASE_IMAGE}} AS {name}\n")
+        return dockerfile[start:dockerfile.index("\n# ----", start)]
+
+    copy = stage(staged, "base-run")
+    assert copy == stage(text, "base").replace(" AS base\n",
+                                               " AS base-run\nENV DOCKER_ROS_RUN_CHAIN=1\n")
+    assert "prepare --dependency-types exec" in copy
+    assert staged.replace("\n\n" + copy, "") == text  # the rest as written

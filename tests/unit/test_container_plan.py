@@ -44,9 +44,10 @@ def test_stages_are_the_dockerfiles_step_commands():
             assert stages["run"][1] == [] and stage.commands == (("command",),)
             continue
         parent, commands = stages[name]
-        # dependencies-run mounts the resolution instead of copying it: it starts from base,
-        # and in a container from resolved-run (base + the same files)
-        assert parent == ("base" if name == "dependencies-run" else stage.start), name
+        # dependencies-run mounts the resolution instead of copying it: it starts from base
+        # (or its copy base-run), and in a container from resolved-run (base + the same files)
+        expected = "${DOCKER_ROS_RUN_BASE}" if name == "dependencies-run" else stage.start
+        assert parent == expected, name
         assert commands == list(stage.commands), name
     # every stage with step commands is known
     # upstream imports the .repos files alone: BuildKit only, inside the state clone starts from
