@@ -126,8 +126,10 @@ def local_registry(
     finally:
         stop(server, timeout=10)
         # Images named after this registry (a free port of this run) were made by the tests.
-        for image in docker_client.images.list():
-            for tag in image.tags:
+        # (the raw list: images.list() inspects each image and fails when another user of
+        # the engine removes one meanwhile)
+        for image in docker_client.api.images():
+            for tag in image.get("RepoTags") or []:
                 # (an image a container still uses stays, as `docker image rm` would leave it)
                 if tag.startswith(f"{address}/"):
                     with contextlib.suppress(docker.errors.APIError):
