@@ -47,7 +47,10 @@ def test_ctrl_c_exits_130_tags_nothing_leaves_nothing(ros1_base_image: str,
     env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
     proc = subprocess.Popen([sys.executable, "-m", "docker_ros", "build"], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)  # its own group: Ctrl-C hits it all
+                            start_new_session=True,  # its own group: Ctrl-C hits it all
+                            # as from a terminal, also when the tests run in a background job
+                            # (whose commands start with SIGINT ignored)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert proc.stdout is not None
     seen = []
     deadline = time.monotonic() + 900
