@@ -2,6 +2,7 @@
 files are whose, what ldd and a Python source say. The image build itself is tested in
 tests/docker/test_lean.py."""
 
+import json
 from pathlib import Path
 
 from docker_ros.build import definition, run_resolution
@@ -12,11 +13,13 @@ from docker_ros.runtime.lean import (
     install_files,
     is_dev_package,
     lean_packages,
+    lean_resolution,
     local_names,
     owners,
     parse_ldd,
     providers,
 )
+from docker_ros.runtime.workspace import Workspace
 from docker_ros.settings import load_settings
 
 LDD = """\
@@ -102,3 +105,33 @@ def test_the_run_image_is_resolved_by_the_lean_stage_only_when_enabled(tmp_path:
         spec = definition(settings, target="run", platform="amd64", tools_image="t", tag="x",
                           secrets={})
         assert spec["args"]["DOCKER_ROS_RUN_RESOLUTION"] == stage
+
+
+def test_the_resolution_changes_only_with_the_packages(tmp_path: Path) -> None:
+    """lean_resolution on a real workspace (this machine's dpkg database and python3): the copy
+    holds the resolution with the exec set replaced, the report lies beside it (the run image's
+    dependency layer is keyed by the copy's content), and a new file needing nothing new leaves
+    the copy as it was."""
+    ws = Workspace(tmp_path / "ws")
+    script = ws.install / "pkg" / "lib" / "pkg" / "node.py"
+    script.parent.mkdir(parents=True)
+    script.write_text("import json\nimport no_such_module_anywhere\n")
+    resolved = tmp_path / "resolved"
+    resolved.mkdir()
+    (resolved / "rosdep.json").write_text(json.dumps(
+        {"all": {"apt": ["libfoo-dev"], "pip": []},
+         "exec": {"apt": ["libfoo-dev", "python3-foo"], "pip": ["bar"]}}))
+    (resolved / "debs.json").write_text('{"packages": ["procps"]}')
+    settings = load_settings(environ={"BASE_IMAGE": "b"}, project_dir=tmp_path)
+    report = lean_resolution(ws, settings, resolved, tmp_path / "lean")
+    assert sorted(p.name for p in (tmp_path / "lean").iterdir()) == ["debs.json", "rosdep.json"]
+    plan = json.loads((tmp_path / "lean" / "rosdep.json").read_text())
+    assert plan["exec"]["pip"] == ["bar"] and plan["all"]["apt"] == ["libfoo-dev"]
+    assert "libfoo-dev" not in plan["exec"]["apt"] and "python3-foo" in plan["exec"]["apt"]
+    assert report["dropped"] == ["libfoo-dev"]
+    assert any(m.startswith("no_such_module_anywhere") for m in report["not_found"])  # type: ignore
+    assert json.loads((tmp_path / "lean.json").read_text()) == report
+    before = (tmp_path / "lean" / "rosdep.json").read_text()
+    (script.parent / "other.py").write_text("import json\n")
+    lean_resolution(ws, settings, resolved, tmp_path / "lean")
+    assert (tmp_path / "lean" / "rosdep.json").read_text() == before

@@ -221,7 +221,8 @@ def providers(needs: Mapping[str, Set[str]], index: Mapping[str, Set[str]]
 
 def lean_resolution(ws: Workspace, settings: object, resolved: Path,
                     destination: Path) -> Dict[str, object]:
-    """Copy the resolution with the lean exec apt set; returns the report (also lean.json)."""
+    """Copy the resolution with the lean exec apt set; returns the report (also written to
+    DESTINATION.json)."""
     elf, python = install_files(ws.install)
     env = runtime_env(ws, settings)
     libraries, missing_libraries = library_needs(elf, env, ws.install)
@@ -247,7 +248,10 @@ def lean_resolution(ws: Workspace, settings: object, resolved: Path,
         "not_from_packages": sorted(unowned_libraries + unowned_modules),
         "not_found": sorted(missing_libraries | missing_modules),
     }
-    (destination / "lean.json").write_text(json.dumps(report, indent=2) + "\n")
+    # the report beside the resolution, not in it: the run image's dependency layer is keyed by
+    # the resolution's content, which must change only when the packages do
+    destination.with_name(destination.name + ".json").write_text(
+        json.dumps(report, indent=2) + "\n")
     LOG.info("%s: %d ELF and %d Python files in install/; exec apt packages: %d declared, "
              "%d lean", STEP, len(elf), len(python), len(declared), len(exec_set["apt"]))
     LOG.info("%s: dropped: %s", STEP, " ".join(report["dropped"]) or "(none)")  # type: ignore
