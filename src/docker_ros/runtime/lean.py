@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Dict, Iterable, List, Mapping, Sequence, Set, Tuple
 
 from docker_ros.runtime.process import probe
-from docker_ros.runtime.rosenv import ros_setup_files, sourced_env
+from docker_ros.runtime.rosenv import sourced_env, workspace_setup_files
 from docker_ros.runtime.workspace import LOG, StepError, Workspace, image_main
 
 STEP = "lean"
@@ -143,14 +143,11 @@ def local_names(path: Path) -> Set[str]:
 
 
 def runtime_env(ws: Workspace, settings: object) -> Dict[str, str]:
-    """The run image's environment (ROS, then install/), without our own PYTHONPATH entry;
-    LD_LIBRARY_PATH also names every install/ folder holding shared libraries."""
-    files = ros_setup_files(settings)
-    if (ws.install / "setup.bash").is_file():
-        files.append(ws.install / "setup.bash")
+    """The run image's environment (ROS, then install/), without our own PYTHONPATH entry."""
     base = dict(os.environ)
     base.pop("PYTHONPATH", None)
-    return sourced_env(files, step=STEP, base_env=base)
+    return sourced_env(workspace_setup_files(settings, ws.install, step=STEP), step=STEP,
+                       base_env=base)
 
 
 def library_needs(elf: Sequence[Path], env: Mapping[str, str], install: Path
@@ -239,14 +236,17 @@ def lean_resolution(ws: Workspace, settings: object, resolved: Path,
     declared = list(exec_set.get("apt") or [])
     exec_set["apt"] = lean_packages(declared, set(for_libraries) | set(for_modules))
     plan_file.write_text(json.dumps(plan, indent=2, sort_keys=True) + "\n")
+    dropped = sorted(set(declared) - set(exec_set["apt"]))
+    unowned = sorted(unowned_libraries + unowned_modules)
+    missing = sorted(missing_libraries | missing_modules)
     report: Dict[str, object] = {
         "declared": declared,
         "lean": exec_set["apt"],
-        "dropped": sorted(set(declared) - set(exec_set["apt"])),
+        "dropped": dropped,
         "for_libraries": {p: sorted(v) for p, v in sorted(for_libraries.items())},
         "for_modules": {p: sorted(v) for p, v in sorted(for_modules.items())},
-        "not_from_packages": sorted(unowned_libraries + unowned_modules),
-        "not_found": sorted(missing_libraries | missing_modules),
+        "not_from_packages": unowned,
+        "not_found": missing,
     }
     # the report beside the resolution, not in it: the run image's dependency layer is keyed by
     # the resolution's content, which must change only when the packages do
@@ -254,12 +254,12 @@ def lean_resolution(ws: Workspace, settings: object, resolved: Path,
         json.dumps(report, indent=2) + "\n")
     LOG.info("%s: %d ELF and %d Python files in install/; exec apt packages: %d declared, "
              "%d lean", STEP, len(elf), len(python), len(declared), len(exec_set["apt"]))
-    LOG.info("%s: dropped: %s", STEP, " ".join(report["dropped"]) or "(none)")  # type: ignore
+    LOG.info("%s: dropped: %s", STEP, " ".join(dropped) or "(none)")
     LOG.info("%s: for libraries: %s", STEP, " ".join(sorted(for_libraries)) or "(none)")
     LOG.info("%s: for Python modules: %s", STEP, " ".join(sorted(for_modules)) or "(none)")
-    for what in report["not_from_packages"]:  # type: ignore
+    for what in unowned:
         LOG.info("%s: %s is not from a Debian package (left to pip, files and hooks)", STEP, what)
-    for what in report["not_found"]:  # type: ignore
+    for what in missing:
         LOG.warning("%s: not found in the dev image either: %s", STEP, what)
     return report
 

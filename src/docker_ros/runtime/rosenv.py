@@ -83,6 +83,18 @@ def ros_setup_files(
     return files
 
 
+def workspace_setup_files(settings: object, install: Path, *, step: str) -> List[Path]:
+    """The run-time environment's setup files: ROS, the base image's workspace, then the
+    workspace's install space (each only when it exists)."""
+    files = ros_setup_files(settings)
+    local = install / "setup.bash"
+    if local.is_file():
+        files.append(local)
+    else:
+        LOG.info("%s: %s does not exist (workspace not built?), not sourced", step, local)
+    return files
+
+
 def sourced_env(
     files: Sequence[Path], *, step: str, base_env: Optional[Mapping[str, str]] = None
 ) -> Dict[str, str]:

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import List
 
 from docker_ros.runtime.process import run
-from docker_ros.runtime.rosenv import ros_setup_files, sourced_env
+from docker_ros.runtime.rosenv import sourced_env, workspace_setup_files
 from docker_ros.runtime.workspace import StepError, Workspace, dry, phases, step_log
 from docker_ros.settings import Settings
 
@@ -17,13 +17,7 @@ LOG = logging.getLogger(__name__)
 
 def setup_files(ws: Workspace, settings: Settings) -> List[Path]:
     """ROS, the base image's workspace, then this workspace: each only when it exists."""
-    files = ros_setup_files(settings)
-    local = ws.install / "setup.bash"
-    if local.is_file():
-        files.append(local)
-    else:
-        LOG.info("%s: %s does not exist (workspace not built?), not sourced", STEP, local)
-    return files
+    return workspace_setup_files(settings, ws.install, step=STEP)
 
 
 def main(
