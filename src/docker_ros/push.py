@@ -12,6 +12,8 @@ from docker_ros.runtime.workspace import format_argv
 from docker_ros.settings import Settings
 
 LOCAL_REGISTRIES = ("localhost", "127.0.0.1")
+# Commands whose failure changes nothing: removing a list the local store does not hold.
+TOLERATED = {("docker", "manifest", "rm")}
 
 
 def also_ref(ref: str, tag: str, target: str) -> str:
@@ -46,12 +48,17 @@ def pushed_names(settings: Settings, target: str) -> List[str]:
 
 
 def manifest_commands(names: Sequence[str], arch_refs: Sequence[str]) -> List[List[str]]:
-    """One manifest list per name over the per-architecture images (already in the registry)."""
+    """One manifest list per name over the per-architecture images (already in the registry).
+
+    The docker CLI keeps lists in a local store (`~/.docker/manifests`) and, when it finds an
+    image there, takes its digest from there instead of the registry: a list left by an earlier
+    run of the same name made a push fail with "manifest blob unknown". So each list is removed
+    from the store first (a missing one is fine, see TOLERATED) and purged after its push."""
     commands: List[List[str]] = []
     for name in names:
-        commands.append(["docker", "manifest", "create", *insecure(name), "--amend", name,
-                         *arch_refs])
-        commands.append(["docker", "manifest", "push", *insecure(name), name])
+        commands.append(["docker", "manifest", "rm", name])
+        commands.append(["docker", "manifest", "create", *insecure(name), name, *arch_refs])
+        commands.append(["docker", "manifest", "push", *insecure(name), "--purge", name])
     return commands
 
 
@@ -161,7 +168,7 @@ def execute(argv: List[str], auth: Optional[Dict[str, str]]) -> None:
     except engine.EngineError as exc:
         raise BuildError(str(exc)) from None
     proc = subprocess.run(argv, capture_output=True, text=True)
-    if proc.returncode != 0:
+    if proc.returncode != 0 and tuple(argv[:3]) not in TOLERATED:
         reason = (proc.stderr.strip() or proc.stdout.strip()).splitlines()
         raise BuildError(f"{format_argv(argv)} failed with exit code {proc.returncode}: "
                          f"{reason[-1] if reason else 'no reason given'}")

@@ -41,9 +41,10 @@ def test_several_platforms_push_arch_images_and_one_manifest_list():
     assert plan_push(s, s.target) == [
         ["docker", "push", "127.0.0.1:5000/img:v1-amd64"],
         ["docker", "push", "127.0.0.1:5000/img:v1-arm64"],
-        ["docker", "manifest", "create", "--insecure", "--amend", "127.0.0.1:5000/img:v1",
+        ["docker", "manifest", "rm", "127.0.0.1:5000/img:v1"],
+        ["docker", "manifest", "create", "--insecure", "127.0.0.1:5000/img:v1",
          "127.0.0.1:5000/img:v1-amd64", "127.0.0.1:5000/img:v1-arm64"],
-        ["docker", "manifest", "push", "--insecure", "127.0.0.1:5000/img:v1"],
+        ["docker", "manifest", "push", "--insecure", "--purge", "127.0.0.1:5000/img:v1"],
     ]
 
 
@@ -67,12 +68,12 @@ def test_manifest_joins_the_arch_images_of_every_platform_under_every_name():
                  ENABLE_PUSH_AS_LATEST="true")
     commands = plan_manifest(s, s.target)
     arch = ["127.0.0.1:5000/img:v1-dev-amd64", "127.0.0.1:5000/img:v1-dev-arm64"]
-    assert commands[:2] == [
-        ["docker", "manifest", "create", "--insecure", "--amend", "127.0.0.1:5000/img:v1-dev",
-         *arch],
-        ["docker", "manifest", "push", "--insecure", "127.0.0.1:5000/img:v1-dev"],
+    assert commands[:3] == [
+        ["docker", "manifest", "rm", "127.0.0.1:5000/img:v1-dev"],
+        ["docker", "manifest", "create", "--insecure", "127.0.0.1:5000/img:v1-dev", *arch],
+        ["docker", "manifest", "push", "--insecure", "--purge", "127.0.0.1:5000/img:v1-dev"],
     ]
-    created = [c[5] for c in commands if c[2] == "create"]
+    created = [c[4] for c in commands if c[2] == "create"]
     assert created == ["127.0.0.1:5000/img:v1-dev", "127.0.0.1:5000/img:latest-dev",
                        "127.0.0.1:5000/img:v1", "127.0.0.1:5000/img:latest"]
 
