@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import io
 import os
 import queue
 import re
 import shutil
 import subprocess
 import sys
+import tarfile
 import threading
 import time
 from pathlib import Path
 from typing import Dict, List, Optional
+
+import docker
 
 from docker_ros.build import image_exists  # noqa: F401  (re-exported for the tests)
 
@@ -38,6 +42,19 @@ def write_env(project: Path, **values: str) -> None:
 def copy_example(destination: Path) -> Path:
     shutil.copytree(EXAMPLE, destination)
     return destination
+
+
+def import_one_file_image(client: docker.DockerClient, ref: str, content: str) -> None:
+    """Import an image of one file (hello.txt holding content) as ref, of this machine's
+    architecture: something to push that needs no build."""
+    repository, tag = ref.rsplit(":", 1)
+    payload = io.BytesIO()
+    with tarfile.open(fileobj=payload, mode="w") as tar:
+        data = content.encode()
+        info = tarfile.TarInfo("hello.txt")
+        info.size = len(data)
+        tar.addfile(info, io.BytesIO(data))
+    client.api.import_image_from_data(payload.getvalue(), repository=repository, tag=tag)
 
 
 def remove_image(ref: str) -> None:

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-import io
 import json
 import os
-import tarfile
 import urllib.request
 import uuid
 from pathlib import Path
 
 import docker
 import pytest
+
+from tests.docker.buildhelp import import_one_file_image
 
 pytestmark = pytest.mark.docker
 
@@ -93,13 +93,7 @@ def test_local_registry_pushes_and_pulls(
     repository = f"{local_registry}/docker-ros-test/tiny"
     tag = uuid.uuid4().hex[:12]
     ref = f"{repository}:{tag}"
-    payload = io.BytesIO()
-    with tarfile.open(fileobj=payload, mode="w") as tar:
-        content = f"pushed as {ref}\n".encode()
-        info = tarfile.TarInfo("hello.txt")
-        info.size = len(content)
-        tar.addfile(info, io.BytesIO(content))
-    docker_client.api.import_image_from_data(payload.getvalue(), repository=repository, tag=tag)
+    import_one_file_image(docker_client, ref, f"pushed as {ref}\n")
     image_id = docker_client.images.get(ref).id
     try:
         for line in docker_client.images.push(repository, tag=tag, stream=True, decode=True):
