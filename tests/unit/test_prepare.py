@@ -77,3 +77,17 @@ def test_tool_packages_prefer_ros_repo_then_debian():
     assert debian == ["colcon", "python3-colcon-ros", "vcstool"]
     with pytest.raises(StepError, match="no apt package provides 'vcs'"):
         plan_tool_packages(["vcs"], [])
+
+
+def test_image_installs_skip_dpkg_syncs_host_installs_do_not():
+    from docker_ros.runtime.apt import install_options
+
+    unsafe = ["-o", "Dpkg::Options::=--force-unsafe-io"]
+    assert install_options("image")[-2:] == unsafe
+    assert "Dpkg::Options::=--force-unsafe-io" not in install_options("host")
+    assert install_options("host") == ["-y", "--no-install-recommends"]
+    # prepare runs in images only: every package install of its ROS plan skips the syncs
+    installs = [c for c in plan(distro="jazzy") if c[:2] == ["apt-get", "install"]
+                and "--no-install-recommends" in c]
+    assert installs and all(c[2:6] == ["-y", "--no-install-recommends", *unsafe]
+                            for c in installs)

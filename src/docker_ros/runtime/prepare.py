@@ -7,11 +7,14 @@ import shutil
 from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence
 
-from docker_ros.runtime.apt import apt_env
+from docker_ros.runtime.apt import apt_env, install_options
 from docker_ros.runtime.process import run
 from docker_ros.runtime.rosenv import BASE_IMAGE_WS, ROS1_DISTROS
 from docker_ros.runtime.workspace import LOG, StepError, Workspace, step_log
 from docker_ros.settings import Settings
+
+# prepare runs in image builds only
+IMAGE_INSTALL = install_options("image")
 
 ROS_APT_SOURCE_URL = (
     "https://github.com/ros-infrastructure/ros-apt-source/releases/download/"
@@ -82,12 +85,12 @@ def plan_ros_installation(
     deb = f"/tmp/{package}.deb"
     return [
         ["apt-get", "update"],
-        ["apt-get", "install", "-y", "--no-install-recommends", "ca-certificates", "curl"],
+        ["apt-get", "install", *IMAGE_INSTALL, "ca-certificates", "curl"],
         ["curl", "-fsSL", "-o", deb, url],
         ["apt-get", "install", "-y", deb],
         ["rm", "-f", deb],
         ["apt-get", "update"],
-        ["apt-get", "install", "-y", "--no-install-recommends",
+        ["apt-get", "install", *IMAGE_INSTALL,
          *ros_package_names(distro, rmw_implementation)],
     ]
 
@@ -189,7 +192,7 @@ def main(
             if shutil.which("g++") is None:
                 LOG.info("prepare: installing the build toolchain of the dev image")
                 run(["apt-get", "update"], step="prepare", dry_run=dry_run, env=apt_env())
-                run(["apt-get", "install", "-y", "--no-install-recommends", *DEV_TOOLS],
+                run(["apt-get", "install", *IMAGE_INSTALL, *DEV_TOOLS],
                     step="prepare", dry_run=dry_run, env=apt_env())
             return
         missing = [tool for tool in TOOLS if shutil.which(tool) is None]
@@ -199,5 +202,5 @@ def main(
             candidates = [p for tool in missing for p in TOOLS[tool]]
             available = apt_available([*candidates, *DEBIAN_COLCON_EXTRAS])
             packages = plan_tool_packages(missing, available)
-            run(["apt-get", "install", "-y", "--no-install-recommends", *packages],
+            run(["apt-get", "install", *IMAGE_INSTALL, *packages],
                 step="prepare", dry_run=dry_run, env=apt_env())
