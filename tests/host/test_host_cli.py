@@ -73,3 +73,31 @@ def test_cli_collect_without_repository_says_where_it_must_be(tmp_path):
     proc = steps_cli("rosdep", "--workspace", str(tmp_path / "ws"), "--phase", "collect")
     assert proc.returncode == 1
     assert f"docker-ros rosdep: {tmp_path / 'ws' / 'src' / 'target'} does not exist" in proc.stderr
+
+
+def test_cli_runs_several_steps_in_order_and_names_the_one_that_failed(project, tmp_path):
+    (project.repo / "docker" / "additional-files").mkdir(parents=True)
+    (project.repo / "docker" / "additional-files" / "a.txt").write_text("a")
+    (project.repo / "docker" / "additional-debs.txt").write_text("jq\n")
+    dest = tmp_path / "dest"
+    proc = steps_cli("debs", "files", "--workspace", str(project.ws.root), "--phase", "collect",
+                     "--destination", str(dest))
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.index("Finished <<< debs") < proc.stderr.index("Starting >>> files")
+    assert (project.ws.state / "debs.json").is_file()
+    (project.repo / "docker" / "custom.sh").write_text("exit 4\n")
+    proc = steps_cli("files", "custom", "debs", "--workspace", str(project.ws.root),
+                     "--destination", str(dest))
+    assert proc.returncode == 4
+    assert (dest / "a.txt").read_text() == "a"  # files ran, with its own option
+    assert proc.stderr.strip().splitlines()[-1].startswith("docker-ros custom: ")
+    assert "Starting >>> debs" not in proc.stderr  # the failure stopped the rest
+
+
+def test_each_step_of_a_call_gets_only_its_own_options():
+    from docker_ros.steps.__main__ import step_options
+
+    given = {"mark_ignored": "true", "dependency_types": "exec"}
+    assert step_options("clone", given) == {}
+    assert step_options("blacklist", given) == {"mark_ignored": "true"}
+    assert step_options("rosdep", given) == {"dependency_types": "exec"}

@@ -7,11 +7,28 @@ from pathlib import Path
 from docker_ros import build, container
 from docker_ros.settings import load_settings
 from docker_ros.steps import STEPS
+from docker_ros.steps.__main__ import STEP_OPTIONS
 
 
 def settings(**environ):
     return load_settings(environ={"BASE_IMAGE": "base:1", "COMMAND": "run me", "IMAGE": "r/i:v1",
                                   **environ}, project_dir=Path("/tmp/My_Robot"))
+
+
+def one_per_step(words):
+    """`a b --opt x --flag` (several steps in one call) as the calls of each step alone, each
+    with its own options (STEP_OPTIONS) and the common ones (--phase)."""
+    steps = [w for w in words if not w.startswith("-") and w in STEPS]
+    rest = words[len(steps):]
+    options, index = [], 0
+    while index < len(rest):
+        takes_value = index + 1 < len(rest) and not rest[index + 1].startswith("-")
+        options.append(tuple(rest[index:index + 1 + takes_value]))
+        index += 1 + takes_value
+    def own(step, option):
+        name = option[0][2:].replace("-", "_")
+        return name not in STEP_OPTIONS or step in STEP_OPTIONS[name]
+    return [(step, *[w for o in options if own(step, o) for w in o]) for step in steps]
 
 
 def dockerfile_stages():
@@ -25,15 +42,9 @@ def dockerfile_stages():
             current = start.group(2)
             stages[current] = (start.group(1), [])
             continue
-        loop = re.search(r"for step in ([a-z ]+); do\s+python3 -m docker_ros.steps \"\$step\" "
-                         r"([-a-z ]+?) \|\|", line)
-        if current and loop:
-            for step in loop.group(1).split():
-                stages[current][1].append((step, *loop.group(2).split()))
-            continue
         for args in re.findall(r"python3 -m docker_ros\.steps ([-a-z ]+?)\s*(?:&&|$)", line):
             if current and not args.startswith("prepare"):
-                stages[current][1].append(tuple(args.split()))
+                stages[current][1].extend(one_per_step(args.split()))
     return stages
 
 
