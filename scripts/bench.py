@@ -43,7 +43,7 @@ import textwrap
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Set, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO / "src") not in sys.path:
@@ -507,12 +507,13 @@ def dependency_layers(output: str) -> str:
 
 
 def dependency_overlap(timed: Sequence[Tuple[float, str]]) -> Optional[float]:
-    """Seconds during which the dependencies-dev and dependencies-run RUNs both ran (from the
-    first output line of each to its DONE), or None when either came from cache. (With bake a
+    """Seconds during which the dependencies-dev and dependencies-run RUNs both ran, or None
+    when either came from cache. Each RUN's span ends when its `DONE <s>` line arrived and
+    began that many seconds earlier: buildx's plain output holds back the log lines of a vertex
+    while another one prints, so their arrival times do not tell when it started. (With bake a
     stage both targets use is one vertex per target: the one that ran counts.)"""
     names: Dict[str, str] = {}
-    spans: Dict[Tuple[str, str], List[float]] = {}  # (flavour, vertex) -> [first, last line]
-    cached: Set[Tuple[str, str]] = set()
+    spans: Dict[str, Tuple[float, float]] = {}  # flavour -> (start, end)
     for at, line in timed:
         if INVOCATION.match(line):
             names = {}
@@ -522,16 +523,12 @@ def dependency_overlap(timed: Sequence[Tuple[float, str]]) -> Optional[float]:
             if flavour:
                 names[match.group(1)] = flavour.group(1)
             continue
-        number = re.match(r"^#(\d+) ", line)
-        if number and number.group(1) in names:
-            key = (names[number.group(1)], number.group(1))
-            spans.setdefault(key, [at, at])[1] = at
-            if line.startswith(f"#{number.group(1)} CACHED"):
-                cached.add(key)
-    ran = {key[0]: span for key, span in spans.items() if key not in cached}
-    if set(ran) != {"dev", "run"}:
+        done = re.match(r"^#(\d+) DONE ([\d.]+)s", line)
+        if done and done.group(1) in names:
+            spans[names[done.group(1)]] = (at - float(done.group(2)), at)
+    if set(spans) != {"dev", "run"}:
         return None
-    return max(0.0, min(ran["dev"][1], ran["run"][1]) - max(ran["dev"][0], ran["run"][0]))
+    return max(0.0, min(spans["dev"][1], spans["run"][1]) - max(spans["dev"][0], spans["run"][0]))
 
 
 def imports_state(output: str) -> str:
