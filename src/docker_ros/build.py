@@ -19,6 +19,8 @@ import docker_ros
 from docker_ros import engine
 from docker_ros.engine import image_exists, image_size
 from docker_ros.runtime.files import walk
+from docker_ros.runtime.inputs import resolve_inputs
+from docker_ros.runtime.workspace import StepError, Workspace
 from docker_ros.settings import FIELDS, Settings, as_env, env_name
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
@@ -122,7 +124,7 @@ def definition(
     args = {"BASE_IMAGE": settings.base_image or "", "DOCKER_ROS_TOOLS": tools_image,
             "DOCKER_ROS_IMPORTS": imports_image,
             "DOCKER_ROS_RUN_RESOLUTION": run_resolution(settings),
-            "DOCKER_ROS_RUN_BASE": run_base(settings)}
+            "DOCKER_ROS_RUN_BASE": run_base(settings), **source_stages(settings)}
     args.update(build_args(settings, [a for a in dockerfile_args(dockerfile) if a not in args]))
     args.update(sorted(extra_build_args.items()))
     target_def: Dict[str, Any] = {
@@ -385,11 +387,12 @@ def ensure_tools_image(platform: str) -> str:
                              platform)
 
 
-def scratch_image(context: Path, folder: str, ref: str, platform: str) -> str:
-    """ref: FROM scratch with context/folder at /folder, built unless it exists already."""
+def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str = "") -> str:
+    """ref: FROM scratch with context/folder at /folder (or its contents at into), built
+    unless it exists already."""
     if image_exists(ref):
         return ref
-    (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} /{folder}\n")
+    (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} {into or '/' + folder}\n")
     argv = ["docker", "buildx", "build", "--quiet", "--load", "--platform",
             f"linux/{platform}", "--tag", ref, str(context)]
     proc = subprocess.run(argv, capture_output=True, text=True)
@@ -417,21 +420,63 @@ def import_inputs(settings: Settings, repository: Path) -> List[str]:
     return found
 
 
+def reads_whole_context(settings: Settings, repository: Path) -> bool:
+    """Whether the image's source stage (clone, blacklist) must start from the whole build
+    context: with a before-dependency-identification hook, which may change any file, or a
+    .dockerignore, whose patterns skeleton_files (read here) would not apply."""
+    return ((repository / settings.before_dependency_identification_script).is_file()
+            or (repository / ".dockerignore").is_file())
+
+
+def skeleton_files(settings: Settings, repository: Path) -> Optional[List[str]]:
+    """The repository's files the source stage reads when no hook runs (the .repos files and
+    what resolving reads, runtime.inputs), relative paths; None when it must read them all
+    (reads_whole_context, or a setting the in-image step will report)."""
+    if reads_whole_context(settings, repository):
+        return None
+    with tempfile.TemporaryDirectory(prefix="docker-ros-skeleton-") as tmp:
+        ws = Workspace(tmp)
+        ws.src.mkdir()
+        ws.target.symlink_to(repository.resolve(), target_is_directory=True)
+        try:
+            found = resolve_inputs(ws, settings)
+        except StepError:
+            return None
+        inputs = {p.relative_to(ws.target).as_posix() for p in found if ws.target in p.parents}
+    return sorted(inputs | set(import_inputs(settings, repository)))
+
+
+def source_stages(settings: Settings) -> Dict[str, str]:
+    """The build arguments choosing where the source stage starts and what the dev image's
+    sources come from: the skeleton (only the files clone and blacklist read, so a source edit
+    runs neither, nor resolve) and the checkout with the source stage's ignore markers, unless
+    the source stage must read the whole context (reads_whole_context)."""
+    if reads_whole_context(settings, Path(settings.build_context)):
+        return {"DOCKER_ROS_SOURCE_START": "checkout", "DOCKER_ROS_TREE": "source"}
+    return {"DOCKER_ROS_SOURCE_START": "skeleton", "DOCKER_ROS_TREE": "marked"}
+
+
 def ensure_imports_image(settings: Settings, platform: str) -> str:
-    """A FROM-scratch image with the repository's .repos files at /repository, tagged by their
-    content: its layer (and the import on it) stays the same while they do."""
+    """A FROM-scratch image with the repository's .repos files at /repository and its
+    skeleton_files at /inputs, tagged by their content. Each is COPY'd by the stage that
+    needs it (content-addressed): the import stays cached while the .repos files do, and the
+    source stage while the skeleton does."""
     repository = Path(settings.build_context)
     with tempfile.TemporaryDirectory(prefix="docker-ros-imports-") as tmp:
         digest = hashlib.sha256()
-        root = Path(tmp) / "repository"
-        root.mkdir()
-        for rel in import_inputs(settings, repository):
-            content = (repository / rel).read_bytes()
-            digest.update(rel.encode() + b"\0" + content + b"\0")
-            (root / rel).parent.mkdir(parents=True, exist_ok=True)
-            (root / rel).write_bytes(content)
+        folders = {"repository": import_inputs(settings, repository),
+                   "inputs": skeleton_files(settings, repository) or []}
+        for folder, files in folders.items():
+            root = Path(tmp) / "context" / folder
+            root.mkdir(parents=True)
+            for rel in files:
+                source = repository / rel
+                digest.update(f"{folder}/{rel}".encode() + b"\0" + source.read_bytes() + b"\0")
+                (root / rel).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(source, root / rel)
+                digest.update(oct(source.stat().st_mode).encode())
         ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{platform}"
-        return scratch_image(Path(tmp), "repository", ref, platform)
+        return scratch_image(Path(tmp), "context", ref, platform, into="/")
 
 
 def ca_bundle(path: Path, destination: Path) -> Path:

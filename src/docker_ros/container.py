@@ -80,7 +80,7 @@ STEP_STAGE = {
     "colcon": "build", "command": "run",
 }
 # --until a step that ends a stage: that stage (custom: the dev image, sources in place).
-UNTIL_STAGE = {"blacklist": "source", "custom": "dev", "colcon": "build", "command": "run"}
+UNTIL_STAGE = {"blacklist": "tree", "custom": "dev", "colcon": "build", "command": "run"}
 PREPARE_DEV: Command = ("prepare", "--dependency-types", "all")
 
 

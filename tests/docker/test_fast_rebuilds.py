@@ -49,6 +49,11 @@ def test_one_file_change_recompiles_one_package(ros1_base_image: str, tmp_path: 
     second = docker_ros(tmp_path, "build", "--target", "run")
     assert second.returncode == 0, second.stdout[-4000:]
     assert list(compiled_objects(second.stdout)) == ["pkg_b"], compiled_objects(second.stdout)
+    # the source stage starts from the skeleton (manifests, list files): a .cpp edit runs
+    # neither clone nor blacklist nor resolve
+    states = cached_vertices(second.stdout)
+    source_runs = {n: c for n, c in states.items() if n.startswith(("[source ", "[resolve "))}
+    assert len(source_runs) == 2 and all(source_runs.values()), source_runs
 
     ran = subprocess.run(["docker", "run", "--rm", "docker-ros-test/fast:1"],
                          capture_output=True, text=True, timeout=120)

@@ -188,3 +188,29 @@ def test_base_run_is_base_with_one_env_first():
                                                " AS base-run\nENV DOCKER_ROS_RUN_CHAIN=1\n")
     assert "prepare --dependency-types exec" in copy
     assert staged.replace("\n\n" + copy, "") == text  # the rest as written
+
+
+def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path):
+    from docker_ros.build import skeleton_files, source_stages
+
+    (tmp_path / "pkg" / "src").mkdir(parents=True)
+    (tmp_path / "pkg" / "package.xml").write_text("<package/>")
+    (tmp_path / "pkg" / "src" / "main.cpp").write_text("int main() {}")
+    (tmp_path / "docker" / "additional-files").mkdir(parents=True)
+    (tmp_path / "docker" / "additional-debs.txt").write_text("jq\n")
+    (tmp_path / "docker" / "additional-files" / "a.conf").write_text("a")
+    (tmp_path / ".repos").write_text("repositories: {}\n")
+    settings = load_settings(environ={"BASE_IMAGE": "b:1", "COMMAND": "c",
+                                      "BUILD_CONTEXT": str(tmp_path)}, project_dir=tmp_path)
+    assert skeleton_files(settings, tmp_path) == [
+        ".repos", "docker/additional-debs.txt", "docker/additional-files/a.conf",
+        "pkg/package.xml"]
+    assert source_stages(settings)["DOCKER_ROS_SOURCE_START"] == "skeleton"
+    # a hook may change any file, and .dockerignore patterns are BuildKit's to apply: the
+    # source stage then reads the whole build context
+    for name in ("docker/before_dependency_identification.sh", ".dockerignore"):
+        (tmp_path / name).write_text("true\n")
+        assert skeleton_files(settings, tmp_path) is None
+        assert source_stages(settings) == {"DOCKER_ROS_SOURCE_START": "checkout",
+                                           "DOCKER_ROS_TREE": "source"}
+        (tmp_path / name).unlink()
