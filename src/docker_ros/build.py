@@ -33,6 +33,7 @@ TOOLS_PATTERNS = (
     "docker/*.sh",
 )
 SECRETS = ("git_https_password", "git_ssh_private_key")
+SCRATCH_FOLDER = ".gitlab-ci-local"  # gitlab-ci-local's copies of the repository
 # Settings that shape the build through the tool itself rather than a Dockerfile ARG.
 HANDLED_BY_TOOL = frozenset({
     "base_image", "build_context", "build_network", "buildx_attestations", "cache_from",
@@ -356,8 +357,14 @@ def dockerignore(context: Path) -> str:
     does gitlab-ci-local's scratch folder (copies of the repository made inside it)."""
     user = context / ".dockerignore"
     lines = user.read_text().splitlines() if user.is_file() else []
-    ours = ["# added by docker-ros", ".env", "**/.env", ".gitlab-ci-local"]
+    ours = ["# added by docker-ros", ".env", "**/.env", SCRATCH_FOLDER]
     return "\n".join([*lines, *ours]) + "\n"
+
+
+def left_out(rel: str) -> bool:
+    """Whether our own .dockerignore lines (dockerignore) leave the relative path out."""
+    parts = rel.split("/")
+    return parts[-1] == ".env" or parts[0] == SCRATCH_FOLDER
 
 
 def with_run_base(text: str) -> str:
@@ -443,7 +450,7 @@ def skeleton_files(settings: Settings, repository: Path) -> Optional[List[str]]:
         except StepError:
             return None
         inputs = {p.relative_to(ws.target).as_posix() for p in found if ws.target in p.parents}
-    return sorted(inputs | set(import_inputs(settings, repository)))
+    return sorted(r for r in inputs | set(import_inputs(settings, repository)) if not left_out(r))
 
 
 def source_stages(settings: Settings) -> Dict[str, str]:

@@ -206,6 +206,9 @@ def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path)
         ".repos", "docker/additional-debs.txt", "docker/additional-files/a.conf",
         "pkg/package.xml"]
     assert source_stages(settings)["DOCKER_ROS_SOURCE_START"] == "skeleton"
+    # what the build context leaves out (credentials in .env files) stays out of it too
+    (tmp_path / "docker" / "additional-files" / ".env").write_text("GIT_HTTPS_PASSWORD=x")
+    assert "docker/additional-files/.env" not in skeleton_files(settings, tmp_path)
     # a hook may change any file, and .dockerignore patterns are BuildKit's to apply: the
     # source stage then reads the whole build context
     for name in ("docker/before_dependency_identification.sh", ".dockerignore"):
