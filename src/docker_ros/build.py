@@ -474,6 +474,8 @@ def ensure_imports_image(settings: Settings, platform: str) -> str:
         folders = {"repository": import_inputs(settings, repository),
                    "inputs": skeleton_files(settings, repository) or []}
         for folder, files in folders.items():
+            # the layout is part of the tag: an image of another version holds other folders
+            digest.update(f"/{folder}/\0".encode())
             root = Path(tmp) / "context" / folder
             root.mkdir(parents=True)
             for rel in files:
