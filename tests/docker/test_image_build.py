@@ -96,7 +96,7 @@ def test_rebuild_after_source_edit_installs_nothing_and_ships_the_change(example
     assert result.returncode == 0, result.stdout[-5000:]
     # The dependency installation layer is reused from cache: nothing is installed again.
     installs = {name: cached for name, cached in cached_vertices(result.stdout).items()
-                if "rosdep --phase apply" in name}
+                if "rosdep debs pip files custom --phase apply" in name}
     assert installs and all(installs.values()), installs
     assert "apt-get install" not in result.stdout
     out = run_until(example["run"], "I heard: edited message", 60)
