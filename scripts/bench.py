@@ -755,8 +755,8 @@ class Bench:
             if proc.returncode != 0:
                 raise BenchError(f"floor bake failed: {proc.stderr[-2000:]}")
         docker("image", "rm", "-f", f"{FLOOR_IMAGE}-dev", f"{FLOOR_IMAGE}-run")
-        row = Scenario("F  BuildKit floor (2 cached targets)", sorted(times[1:])[1], load1=load)
-        self.check(row, True, "runs: " + ", ".join(f"{s:.2f} s" for s in times))
+        row = Scenario("F  BuildKit floor (2 cached targets)", sorted(times[1:])[1], load1=load,
+                       detail="runs: " + ", ".join(f"{s:.2f} s" for s in times))
         self.say(f"floor: {row.seconds:.2f} s ({row.detail})")
         self.rows.append(row)
 

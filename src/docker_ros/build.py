@@ -438,7 +438,8 @@ def reads_whole_context(settings: Settings, repository: Path) -> bool:
 def skeleton_files(settings: Settings, repository: Path) -> Optional[List[str]]:
     """The repository's files the source stage reads when no hook runs (the .repos files and
     what resolving reads, runtime.inputs), relative paths; None when it must read them all
-    (reads_whole_context, or a setting the in-image step will report)."""
+    (reads_whole_context), or when a path setting is wrong: then the skeleton is empty and the
+    source stage's own step reports the setting, as it would on the whole context."""
     if reads_whole_context(settings, repository):
         return None
     with tempfile.TemporaryDirectory(prefix="docker-ros-skeleton-") as tmp:
@@ -479,11 +480,12 @@ def ensure_imports_image(settings: Settings, platform: str) -> str:
             root = Path(tmp) / "context" / folder
             root.mkdir(parents=True)
             for rel in files:
-                source = repository / rel
-                digest.update(f"{folder}/{rel}".encode() + b"\0" + source.read_bytes() + b"\0")
-                (root / rel).parent.mkdir(parents=True, exist_ok=True)
-                shutil.copy2(source, root / rel)
-                digest.update(oct(source.stat().st_mode).encode())
+                source, copy = repository / rel, root / rel
+                content = source.read_bytes()
+                copy.parent.mkdir(parents=True, exist_ok=True)
+                copy.write_bytes(content)
+                shutil.copymode(source, copy)  # hooks keep their executable bit
+                digest.update(f"{folder}/{rel}\0{copy.stat().st_mode:o}\0".encode() + content)
         ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{platform}"
         return scratch_image(Path(tmp), "context", ref, platform, into="/")
 

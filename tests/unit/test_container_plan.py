@@ -7,7 +7,7 @@ from pathlib import Path
 from docker_ros import build, container
 from docker_ros.settings import load_settings
 from docker_ros.steps import STEPS
-from docker_ros.steps.__main__ import STEP_OPTIONS
+from docker_ros.steps.__main__ import STEP_OPTIONS, step_options
 
 
 def settings(**environ):
@@ -25,10 +25,11 @@ def one_per_step(words):
         takes_value = index + 1 < len(rest) and not rest[index + 1].startswith("-")
         options.append(tuple(rest[index:index + 1 + takes_value]))
         index += 1 + takes_value
-    def own(step, option):
-        name = option[0][2:].replace("-", "_")
-        return name not in STEP_OPTIONS or step in STEP_OPTIONS[name]
-    return [(step, *[w for o in options if own(step, o) for w in o]) for step in steps]
+    names = {o: o[0][2:].replace("-", "_") for o in options}
+    per_step = {names[o]: o for o in options if names[o] in STEP_OPTIONS}
+    return [(step, *[w for o in options
+                     if names[o] not in per_step or names[o] in step_options(step, per_step)
+                     for w in o]) for step in steps]
 
 
 def dockerfile_stages():
