@@ -125,7 +125,8 @@ def definition(
     args = {"BASE_IMAGE": settings.base_image or "", "DOCKER_ROS_TOOLS": tools_image,
             "DOCKER_ROS_IMPORTS": imports_image,
             "DOCKER_ROS_RUN_RESOLUTION": run_resolution(settings),
-            "DOCKER_ROS_RUN_BASE": run_base(settings), **source_stages(settings)}
+            "DOCKER_ROS_RUN_BASE": run_base(settings),
+            "DOCKER_ROS_SYSTEM": system_stage(settings), **source_stages(settings)}
     args.update(build_args(settings, [a for a in dockerfile_args(dockerfile) if a not in args]))
     args.update(sorted(extra_build_args.items()))
     target_def: Dict[str, Any] = {
@@ -153,11 +154,26 @@ def run_resolution(settings: Settings) -> str:
     return "lean-resolution" if settings.enable_lean_run_image else "resolve"
 
 
+def has_identification_hook(settings: Settings) -> bool:
+    return (Path(settings.build_context) / settings.before_dependency_identification_script
+            ).is_file()
+
+
+def system_stage(settings: Settings) -> str:
+    """The Dockerfile stage resolution and the dev image's installs start from: the base, or
+    with a before-dependency-identification hook the base with what the hook changed in the
+    system (hooked-system), which docker-ros's installs see too. Without a hook the stages
+    share nothing with the source stage, which a source edit then leaves cached."""
+    return "hooked-system" if has_identification_hook(settings) else "base"
+
+
 def run_base(settings: Settings) -> str:
     """The Dockerfile stage the run image's dependencies are installed on: with CACHE_FROM a
     copy of base that shares no stage with the dev image, so that on an empty machine the run
-    image's registry cache serves its dependency layers too (see the Dockerfile's base-run)."""
-    return "base-run" if settings.cache_from else "base"
+    image's registry cache serves its dependency layers too (see the Dockerfile's base-run);
+    either with the hook's system changes when there is one (system_stage)."""
+    stage = "base-run" if settings.cache_from else "base"
+    return stage.replace("base", "hooked-system") if system_stage(settings) != "base" else stage
 
 
 def cache_sources(refs: Sequence[str], target: str) -> List[str]:

@@ -15,9 +15,10 @@ import tempfile
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Set
 
+from docker_ros.runtime import system
 from docker_ros.runtime.apt import apt_install
 from docker_ros.runtime.files import file_sha256, find_special_files, remove_tree, repository_path
-from docker_ros.runtime.process import is_root, run, run_script, run_tee
+from docker_ros.runtime.process import hook_context, is_root, run, run_script, run_tee
 from docker_ros.runtime.rosenv import SECRETS_DIR, read_secret
 from docker_ros.runtime.workspace import StepError, Workspace, dry, format_argv, phases, step_log
 from docker_ros.settings import Settings
@@ -267,8 +268,14 @@ def run_hook(ws: Workspace, settings: Settings, *, dry_run: bool) -> None:
             "%s: no %s, no hook to run", STEP, settings.before_dependency_identification_script
         )
         return
+    # In an image, what the hook changes in the system is kept for the resolve and install
+    # stages (runtime.system), as in docker-ros, where the hook and the installs share a stage.
+    in_image = hook_context() == "image" and not dry_run
+    since = system.mark()
     run_script(["bash", str(script)], script, step=STEP, dry_run=dry_run, cwd=ws.root,
                what=str(script))
+    if in_image:
+        system.report(STEP, system.capture(since))
 
 
 def import_argv(repos_file: Path, dest: Path, *, skip_existing: bool) -> List[str]:

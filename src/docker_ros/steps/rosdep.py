@@ -279,7 +279,11 @@ def rosdep_database(
     runs, in a temporary folder (nothing of it in a layer). Without: rosdep's usual database,
     made with `rosdep init`/`rosdep update` when missing (a dry run uses a temporary one)."""
     temporary = dry_run or hook_context() == "image"
-    if rules is None and (not dry_run or all(rosdep_ready())):
+    # In an image with sources lists (the base's, or a hook's) but no database made from them:
+    # a temporary one, which still resolves rules files' keys when the rosdistro index is out
+    # of reach (the system's `rosdep update` fails then).
+    own = rules is not None or (hook_context() == "image" and rosdep_ready() == (True, False))
+    if not own and (not dry_run or all(rosdep_ready())):
         if not prepare_rosdep(distro, dry_run=dry_run):
             raise StepError(STEP, "rosdep database not ready")  # only dry runs get here
         yield None
