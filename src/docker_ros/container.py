@@ -29,6 +29,7 @@ import docker
 from docker_ros import build, engine
 from docker_ros.runtime.workspace import StepError
 from docker_ros.settings import Settings, as_env, env_name
+from docker_ros.steps import BY_NAME, PHASED, STEPS
 
 Command = Tuple[str, ...]  # the arguments after `python3 -m docker_ros.steps`
 STEP_MODULE = ("python3", "-m", "docker_ros.steps")
@@ -38,7 +39,8 @@ TARGET_DIR = "/docker-ros/ws/src/target"
 # As every RUN of the Dockerfile: trust EXTRA_CA_CERTS for this command only, then the step.
 CA_WRAPPER = ("bash", "-c", f'source {LIB}/docker_ros/docker/ca-certs.sh && exec "$@"', "bash")
 STATE_LABEL = "docker-ros.state"
-INSTALL_STEPS = ("scripts", "rosdep", "debs", "pip", "files", "custom")
+# the steps the dependency stages install with (their apply phases)
+INSTALL_STEPS = tuple(s for s in PHASED if BY_NAME[s].stage == "dependencies-dev")
 # Build arguments of the Dockerfile that are ids of cache mounts, not settings.
 NOT_SETTINGS = ("BASE_IMAGE", "DOCKER_ROS_TOOLS", "DOCKER_ROS_CACHE_ID", "DOCKER_ROS_APT_CACHE_ID")
 
@@ -66,7 +68,7 @@ STAGES = {
     "source": Stage("source", "checkout", (("clone",), ("blacklist", "--mark-ignored")), True),
     "resolve": Stage(
         "resolve", "resolve-inputs",
-        tuple((step, "--phase", "collect") for step in INSTALL_STEPS + ("command",)), True,
+        tuple((step, "--phase", "collect") for step in PHASED), True,
     ),
     "dependencies-run": Stage("dependencies-run", "resolved-run", _installs("exec"), False),
     "dependencies-dev": Stage("dependencies-dev", "resolved-dev", _installs("all"), False),
@@ -74,11 +76,8 @@ STAGES = {
     # not a RUN: the run image's default command, run by the step as on the host
     "run": Stage("run", "run", (("command",),), False),
 }
-# Where a step runs when it runs alone: its install phase for the dev image.
-STEP_STAGE = {
-    "clone": "source", "blacklist": "source", **{s: "dependencies-dev" for s in INSTALL_STEPS},
-    "colcon": "build", "command": "run",
-}
+# Where a step runs when it runs alone (its install phase for the dev image).
+STEP_STAGE = {step: BY_NAME[step].stage for step in STEPS}
 # --until a step that ends a stage: that stage (custom: the dev image, sources in place).
 UNTIL_STAGE = {"blacklist": "tree", "custom": "dev", "colcon": "build", "command": "run"}
 PREPARE_DEV: Command = ("prepare", "--dependency-types", "all")

@@ -37,7 +37,7 @@ from docker_ros.settings import (
     require,
     required_for_build,
 )
-from docker_ros.steps import STEPS
+from docker_ros.steps import BY_NAME, STEPS
 
 Flag = Tuple[str, object, str]  # name, default, help
 DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change nothing")
@@ -53,18 +53,6 @@ SHELL_ON_FAILURE: Flag = (
     "terminal: tag that state <IMAGE>-failed-<step> and print how to enter it)",
 )
 
-STEP_HELP = {
-    "clone": "Run the identification hook, import .repos files with vcstool",
-    "blacklist": "Leave BLACKLISTED_PACKAGES_FILE's packages out of build and deps",
-    "scripts": "Run the before-dependency-installation hook script(s)",
-    "rosdep": "Resolve package.xml dependencies with rosdep and install them",
-    "debs": "Install the apt packages listed in ADDITIONAL_DEBS_FILE",
-    "pip": "Install the pip requirements listed in ADDITIONAL_PIP_FILE",
-    "files": "Copy ADDITIONAL_FILES_DIR (images: /docker-ros/additional-files)",
-    "custom": "Run the after-dependency-installation script(s)",
-    "colcon": "Build the workspace with colcon (underlay: /opt/ws_base_image)",
-    "command": "Run COMMAND in the built workspace's environment",
-}
 DEV_STEPS = STEPS[: STEPS.index("custom") + 1]
 
 
@@ -78,20 +66,6 @@ IMAGE_SETTINGS = (
     "build_network", "extra_ca_certs", "build_context",
 )
 HOST_SETTINGS = ("workspace", "build_context")
-# Each step's own variables (the SPEC's table), flags of its task.
-STEP_SETTINGS: Dict[str, Tuple[str, ...]] = {
-    "clone": ("vcs_import_file", "enable_recursive_vcs_import", "git_https_server",
-              "git_https_user", "before_dependency_identification_script"),
-    "blacklist": ("blacklisted_packages_file", "enable_recursive_blacklisted_packages"),
-    "scripts": ("before_dependency_installation_script",),
-    "rosdep": ("ros_distro", "rosdep_rules_file"),
-    "debs": ("additional_debs_file", "enable_recursive_additional_debs"),
-    "pip": ("additional_pip_file", "enable_recursive_additional_pip"),
-    "files": ("additional_files_dir",),
-    "custom": ("after_dependency_installation_script",),
-    "colcon": ("cmake_args", "ros_distro"),
-    "command": ("command",),
-}
 PUSH_SETTINGS = (
     "registry", "registry_user", "enable_push_as_latest", "enable_singlearch_push", "enable_slim",
 )
@@ -249,11 +223,11 @@ def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -
 
 def make_step_task(step: str) -> Task:
     number = f"{STEPS.index(step) + 1}/{len(STEPS)}"
-    summary = (f"[step {number}] {STEP_HELP[step]}\n\nRuns on this machine, in WORKSPACE; "
+    summary = (f"[step {number}] {BY_NAME[step].help}\n\nRuns on this machine, in WORKSPACE; "
                "with --in-container in a container of the image state before the step.")
 
     @settings_task(step, summary, [DRY_RUN, IN_CONTAINER, SHELL_ON_FAILURE],
-                   uses=STEP_SETTINGS[step] + HOST_SETTINGS + ("base_image", "image"))
+                   uses=BY_NAME[step].settings + HOST_SETTINGS + ("base_image", "image"))
     def step_task(c: Context, settings: Settings, *, dry_run: bool, in_container: bool,
                   shell_on_failure: bool) -> None:
         if in_container:

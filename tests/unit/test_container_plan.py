@@ -6,8 +6,7 @@ from pathlib import Path
 
 from docker_ros import build, container
 from docker_ros.settings import load_settings
-from docker_ros.steps import STEPS
-from docker_ros.steps.__main__ import STEP_OPTIONS, step_options
+from docker_ros.steps import BY_NAME, OPTIONS, STEPS, step_options
 
 
 def settings(**environ):
@@ -17,7 +16,7 @@ def settings(**environ):
 
 def one_per_step(words):
     """`a b --opt x --flag` (several steps in one call) as the calls of each step alone, each
-    with its own options (STEP_OPTIONS) and the common ones (--phase)."""
+    with its own options (its declaration's) and the common ones (--phase)."""
     steps = [w for w in words if not w.startswith("-") and w in STEPS]
     rest = words[len(steps):]
     options, index = [], 0
@@ -26,7 +25,7 @@ def one_per_step(words):
         options.append(tuple(rest[index:index + 1 + takes_value]))
         index += 1 + takes_value
     names = {o: o[0][2:].replace("-", "_") for o in options}
-    per_step = {names[o]: o for o in options if names[o] in STEP_OPTIONS}
+    per_step = {names[o]: o for o in options if names[o] in {x.name for x in OPTIONS}}
     return [(step, *[w for o in options
                      if names[o] not in per_step or names[o] in step_options(step, per_step)
                      for w in o]) for step in steps]
@@ -67,6 +66,24 @@ def test_stages_are_the_dockerfiles_step_commands():
     # upstream imports the .repos files alone: BuildKit only, inside the state clone starts from
     with_steps = {n for n, (_, c) in stages.items() if c} - {"upstream"}
     assert with_steps == set(container.STAGES) - {"run"}
+
+
+def test_the_dockerfile_calls_each_step_where_its_declaration_says():
+    """A step's declaration (docker_ros.steps) names its stage and options: the Dockerfile's
+    step calls run it there (the resolve stage collects the phased ones), with no option of
+    another step's."""
+    stages = dockerfile_stages()
+    for step in STEPS:
+        declared = BY_NAME[step]
+        calls = [c for _, commands in stages.values() for c in commands if c[0] == step]
+        assert calls, f"the Dockerfile never runs {step}"
+        assert any(c for c in stages[declared.stage][1] if c[0] == step) or (
+            declared.stage == "run"), step
+        for call in calls:
+            options = {w[2:].replace("-", "_") for w in call if w.startswith("--")}
+            assert options - {"phase"} <= set(declared.options), (step, call)
+        if declared.phases:
+            assert (step, "--phase", "collect") in stages["resolve"][1], step
 
 
 def test_every_step_has_a_home_and_a_start_stage():

@@ -60,7 +60,7 @@ def changed_since(since: float, root: str = "/", skip: Sequence[str] = SKIPPED
 def referenced_rules(sources: Path = ROSDEP_SOURCES) -> List[str]:
     """Local rules files (`yaml file:///...`) the rosdep sources lists name: the resolve stage
     needs them even when the hook did not write them (a file of the repository, say)."""
-    found = []
+    found: List[str] = []
     if not sources.is_dir():
         return found
     for listing in sorted(sources.glob("*.list")):

@@ -6,29 +6,13 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import List, Optional
 
 from docker_ros.runtime.workspace import PHASES, StepError, Workspace, setup_logging
 from docker_ros.settings import SettingsError, load_settings
-from docker_ros.steps import IMAGE_STEPS, STEPS, run_step
+from docker_ros.steps import IMAGE_STEPS, OPTIONS, STEPS, run_step, step_options
 
 DEFAULT_WORKSPACE = "/docker-ros/ws"
-
-
-# The steps each option is for: with several steps in one call, each gets only its own options,
-# as if it ran alone. (--phase, --workspace and --dry-run are every step's.)
-STEP_OPTIONS = {
-    "dependency_types": ("rosdep", "prepare"),
-    "destination": ("files",),
-    "stamp_changed": ("colcon",),
-    "mark_ignored": ("blacklist",),
-    "imports_only": ("clone",),
-}
-
-
-def step_options(step: str, given: Dict[str, str]) -> Dict[str, str]:
-    """The given options (name -> value) that are step's."""
-    return {name: value for name, value in given.items() if step in STEP_OPTIONS[name]}
 
 
 def parser() -> argparse.ArgumentParser:
@@ -54,34 +38,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--dry-run", action="store_true", help="print the commands and file changes, change nothing"
     )
-    p.add_argument(
-        "--dependency-types",
-        choices=("all", "exec"),
-        default=None,
-        help="rosdep apply: all dependencies (dev) or exec only (run)",
-    )
-    p.add_argument(
-        "--destination",
-        default=None,
-        help="files apply: target folder (default /docker-ros/additional-files)",
-    )
-    p.add_argument(
-        "--stamp-changed",
-        action="store_true",
-        help="colcon: give sources whose content changed since the last build the current time "
-        "(image builds, where build/ is a cache mount and COPY keeps old times)",
-    )
-    p.add_argument(
-        "--mark-ignored",
-        action="store_true",
-        help="blacklist: put a COLCON_IGNORE file into each blacklisted package (the image's "
-        "copy of the sources; never the user's repository)",
-    )
-    p.add_argument(
-        "--imports-only",
-        action="store_true",
-        help="clone: import the .repos files present, no hook (the image's upstream stage)",
-    )
+    for option in OPTIONS:
+        flag = "--" + option.name.replace("_", "-")
+        if option.takes_value:
+            p.add_argument(flag, choices=option.choices or None, default=None, help=option.help)
+        else:
+            p.add_argument(flag, action="store_true", help=option.help)
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return p
 
@@ -90,12 +52,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser().parse_args(argv)
     setup_logging(args.verbose)
     ws = Workspace(args.workspace)
-    given = {name: value for name, value in (
-        ("dependency_types", args.dependency_types), ("destination", args.destination),
-        ("stamp_changed", "true" if args.stamp_changed else None),
-        ("mark_ignored", "true" if args.mark_ignored else None),
-        ("imports_only", "true" if args.imports_only else None),
-    ) if value}
+    given = {o.name: getattr(args, o.name) for o in OPTIONS if getattr(args, o.name)}
     step = args.steps[0]
     try:
         settings = load_settings(environ=os.environ, project_dir=Path(ws.target))
