@@ -180,3 +180,11 @@ def test_printed_docker_run_lines_quote_what_needs_it():
                                      ["python3", "-m", "docker_ros.steps", "x"], tty=True)
     assert line == ("docker run --rm -it -v '/a b:/docker-ros/ws/src/target' r/i:v1-failed-x "
                     "python3 -m docker_ros.steps x")
+
+
+def test_every_declared_step_has_its_module_with_main():
+    from docker_ros.steps import step_main
+
+    for name in BY_NAME:
+        assert callable(step_main(name)), name
+        assert step_main(name).__module__ == BY_NAME[name].module

@@ -1,5 +1,6 @@
 """The ten pipeline steps. Standard library only, Python 3.8+: this package runs inside images."""
 
+import importlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Dict, Mapping, Tuple
 
@@ -29,6 +30,11 @@ class Step:
     stage: str  # the Dockerfile stage where it runs (when it runs alone: `--in-container`)
     options: Tuple[str, ...] = ()  # names of OPTIONS it takes
     phases: bool = False  # resolution (collect) and installation (apply) run apart in images
+    package: str = "docker_ros.steps"  # where its module is
+
+    @property
+    def module(self) -> str:
+        return f"{self.package}.{self.name}"
 
 
 OPTIONS = (
@@ -75,7 +81,7 @@ DECLARED = (
 )
 # Image-only preparation of the base (not a pipeline step; no host task).
 PREPARE = Step("prepare", "Install python3, tini, git, vcstool, rosdep, colcon (and ROS)", (),
-               "base", options=("dependency_types",))
+               "base", options=("dependency_types",), package="docker_ros.runtime")
 
 STEPS = tuple(step.name for step in DECLARED)
 IMAGE_STEPS = (PREPARE.name,)
@@ -90,36 +96,10 @@ def step_options(step: str, given: "Mapping[str, object]") -> "Dict[str, object]
     return {name: value for name, value in given.items() if name in BY_NAME[step].options}
 
 
-def step_mains() -> "Dict[str, Callable[..., None]]":
-    """Each step's entry function, by name (imported on first use: the modules import this
-    package for its names)."""
-    from docker_ros.runtime import prepare
-    from docker_ros.steps import (
-        blacklist,
-        clone,
-        colcon,
-        command,
-        custom,
-        debs,
-        files,
-        pip,
-        rosdep,
-        scripts,
-    )
-
-    return {
-        "clone": clone.main,
-        "blacklist": blacklist.main,
-        "scripts": scripts.main,
-        "rosdep": rosdep.main,
-        "debs": debs.main,
-        "pip": pip.main,
-        "files": files.main,
-        "custom": custom.main,
-        "colcon": colcon.main,
-        "command": command.main,
-        "prepare": prepare.main,
-    }
+def step_main(name: str) -> "Callable[..., None]":
+    """A step's entry function: `main` of its declared module (imported on first use: the
+    modules import this package's names)."""
+    return importlib.import_module(BY_NAME[name].module).main
 
 
 def run_step(
@@ -132,9 +112,8 @@ def run_step(
     **options: object,
 ) -> None:
     """Run one step by name: `<its module>.main(ws, settings, ...)`."""
-    mains = step_mains()
-    if name not in mains:
+    if name not in BY_NAME:
         from docker_ros.runtime.workspace import StepError
 
         raise StepError(name, f"unknown step {name!r}; steps: {', '.join(STEPS)}")
-    mains[name](ws, settings, phase=phase, dry_run=dry_run, **options)
+    step_main(name)(ws, settings, phase=phase, dry_run=dry_run, **options)
