@@ -42,7 +42,8 @@ def run(
             text=True,
         )
     except FileNotFoundError:
-        raise StepError(step, f"command not found: {argv[0]} (needed for: {shown})", 127) from None
+        raise StepError(step, f"command not found: {argv[0]} (needed for: {shown})"
+                        f"{host_tool_hint(argv[0])}", 127) from None
     if proc.returncode != 0:
         detail = ""
         if capture and proc.stderr and proc.stderr.strip():
@@ -70,8 +71,20 @@ def probe(
         return subprocess.run(list(argv), env=None if env is None else dict(env),
                               capture_output=True, text=text)
     except FileNotFoundError:
-        raise StepError(step, f"command not found: {argv[0]}" + (f" ({hint})" if hint else ""),
-                        127) from None
+        raise StepError(step, f"command not found: {argv[0]}" + (f" ({hint})" if hint else "")
+                        + host_tool_hint(argv[0]), 127) from None
+
+
+# The tools of the host-mode steps: the `host` extra of docker-ros (images get them in prepare).
+HOST_TOOLS = ("vcs", "rosdep", "colcon")
+HOST_EXTRA = "pip install 'docker-ros[host]'"
+
+
+def host_tool_hint(program: str) -> str:
+    """What to do when one of the host-mode steps' tools is missing on the host ('' otherwise)."""
+    if program in HOST_TOOLS and hook_context() == "host":
+        return f"; on the host the steps need vcstool, rosdep and colcon: {HOST_EXTRA}"
+    return ""
 
 
 def hook_context(environ: Optional[Mapping[str, str]] = None) -> str:
@@ -129,8 +142,8 @@ def run_tee(
         )
     except FileNotFoundError:
         raise StepError(
-            step, f"command not found: {argv[0]} (needed for: {format_argv(argv)})", 127
-        ) from None
+            step, f"command not found: {argv[0]} (needed for: {format_argv(argv)})"
+            f"{host_tool_hint(argv[0])}", 127) from None
     assert proc.stdout is not None
     with proc.stdout:
         for line in proc.stdout:
