@@ -52,9 +52,10 @@ def pytest_collection_modifyitems(items: list) -> None:
 def foreign_cache_record(
     ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[str]:
-    """A BuildKit cache record that stands for another project's, made before any docker test:
-    tests/docker/test_zz_engine_untouched.py checks that the suite left it alone (the engine is
-    shared; the tool and its tests remove only what they made). Yields its description marker."""
+    """A BuildKit cache record that stands for another project's, made before any docker test
+    and checked after the last one (this fixture's teardown, whatever ran and in which order):
+    the suite must leave it alone, as the engine is shared and the tool and its tests remove
+    only what they made. A missing record is an error of the run. Yields its description."""
     marker = f"/docker-ros-test-foreign-{uuid.uuid4().hex[:12]}"
     context = tmp_path_factory.mktemp("foreign")
     (context / "Dockerfile").write_text(
@@ -63,24 +64,34 @@ def foreign_cache_record(
     built = subprocess.run(["docker", "buildx", "build", "--output", "type=cacheonly",
                             str(context)], capture_output=True, text=True)
     assert built.returncode == 0, built.stderr
-    assert cache_record_id(marker), "the foreign cache record was not created"
+    assert cache_mount_id(marker), "the foreign cache record was not created"
     yield marker
-    record = cache_record_id(marker)
-    if record:
+    gone = not cache_mount_id(marker)
+    # (the cache mount and the layer of the RUN that used it: both are this fixture's)
+    for record in cache_record_ids(marker):
         subprocess.run(["docker", "buildx", "prune", "-f", "--filter", f"id={record}"],
                        capture_output=True)
+    if gone:
+        pytest.fail("a BuildKit cache record this suite did not create is gone: something pruned "
+                    "the shared engine's build cache (never `docker builder prune -a`)")
 
 
-def cache_record_id(marker: str) -> str:
-    """ID of the BuildKit cache record whose description holds marker ('' if none)."""
+def cache_record_ids(marker: str) -> dict:
+    """IDs of the BuildKit cache records whose description holds marker -> their description."""
     du = subprocess.run(["docker", "buildx", "du", "--verbose"], capture_output=True, text=True)
-    record = ""
+    found, record = {}, ""
     for line in du.stdout.splitlines():
         if line.startswith("ID:"):
             record = line.split()[-1]
-        elif marker in line:
-            return record
-    return ""
+        elif line.startswith("Description:") and marker in line:
+            found[record] = line.split(":", 1)[1].strip()
+    return found
+
+
+def cache_mount_id(marker: str) -> str:
+    """ID of the cache mount record (`RUN --mount=type=cache`) at marker ('' if none)."""
+    return next((record for record, description in cache_record_ids(marker).items()
+                 if description.startswith(f"cached mount {marker} ")), "")
 
 
 @pytest.fixture(scope="session")

@@ -126,8 +126,9 @@ def reap(child: subprocess.Popen, status: Optional[int]) -> Optional[int]:
         if pid == 0:
             return status
         if pid == child.pid and status is None:
-            status = os.waitstatus_to_exitcode(code) if hasattr(os, "waitstatus_to_exitcode") \
-                else (code >> 8 if code & 0x7F == 0 else -(code & 0x7F))
+            status = (os.waitstatus_to_exitcode(code)  # novermin (3.9+, guarded by hasattr)
+                      if hasattr(os, "waitstatus_to_exitcode")
+                      else (code >> 8 if code & 0x7F == 0 else -(code & 0x7F)))
             if status < 0:  # as a shell reports a signal death
                 status = 128 - status
 

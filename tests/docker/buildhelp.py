@@ -44,6 +44,16 @@ def copy_example(destination: Path) -> Path:
     return destination
 
 
+def own_copy(project: Path, destination: Path, image: str) -> Path:
+    """A copy of a module fixture's project for a test that edits it, its images tagged `image`:
+    the module's other tests keep the project and images they expect, whatever the order."""
+    shutil.copytree(project, destination, symlinks=True)
+    env = destination / ".env"
+    kept = [line for line in env.read_text().splitlines() if not line.startswith("IMAGE=")]
+    env.write_text("\n".join([*kept, f"IMAGE={image}"]) + "\n")
+    return destination
+
+
 def import_one_file_image(client: docker.DockerClient, ref: str, content: str) -> None:
     """Import an image of one file (hello.txt holding content) as ref, of this machine's
     architecture: something to push that needs no build."""

@@ -13,6 +13,7 @@ from tests.docker.buildhelp import (
     copy_example,
     docker_ros,
     image_exists,
+    own_copy,
     remove_image,
     run_until,
     sh,
@@ -88,19 +89,25 @@ def test_dev_image_has_sources_and_builds_them(example: dict) -> None:
     assert "1 package finished" in check.stdout
 
 
-def test_rebuild_after_source_edit_installs_nothing_and_ships_the_change(example: dict) -> None:
-    project = example["project"]
+def test_rebuild_after_source_edit_installs_nothing_and_ships_the_change(
+    example: dict, tmp_path: Path
+) -> None:
+    edited_image = "docker-ros-test/example-edited:latest"
+    project = own_copy(example["project"], tmp_path / "example", edited_image)
     talker = project / "docker_ros_example" / "src" / "talker.cpp"
     talker.write_text(talker.read_text().replace("hello from docker-ros", "edited message"))
-    result = docker_ros(project, "build", "--target", "run")
-    assert result.returncode == 0, result.stdout[-5000:]
-    # The dependency installation layer is reused from cache: nothing is installed again.
-    installs = {name: cached for name, cached in cached_vertices(result.stdout).items()
-                if "rosdep debs pip files custom --phase apply" in name}
-    assert installs and all(installs.values()), installs
-    assert "apt-get install" not in result.stdout
-    out = run_until(example["run"], "I heard: edited message", 60)
-    assert "I heard: edited message" in out, out[-3000:]
+    try:
+        result = docker_ros(project, "build", "--target", "run")
+        assert result.returncode == 0, result.stdout[-5000:]
+        # The dependency installation layer is reused from cache: nothing is installed again.
+        installs = {name: cached for name, cached in cached_vertices(result.stdout).items()
+                    if "rosdep debs pip files custom --phase apply" in name}
+        assert installs and all(installs.values()), installs
+        assert "apt-get install" not in result.stdout
+        out = run_until(edited_image, "I heard: edited message", 60)
+        assert "I heard: edited message" in out, out[-3000:]
+    finally:
+        remove_image(edited_image)
 
 
 def test_no_change_rebuild_is_fully_cached(example: dict) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 import textwrap
+from pathlib import Path
 from typing import Iterator
 
 import pytest
@@ -16,6 +17,7 @@ from tests.docker.buildhelp import (
     cached_vertices,
     copy_example,
     docker_ros,
+    own_copy,
     remove_image,
     run_until,
     sh,
@@ -119,10 +121,16 @@ def test_lean_run_image_runs_every_node(lean: dict) -> None:
     assert "I heard: hello from docker-ros" in heard, heard[-3000:]
 
 
-def test_a_source_edit_reuses_the_lean_dependency_layer(lean: dict) -> None:
-    greet = lean["project"] / "lean_yaml/src/greet.cpp"
+def test_a_source_edit_reuses_the_lean_dependency_layer(lean: dict, tmp_path: Path) -> None:
+    edited = f"{IMAGE}-edited"
+    project = own_copy(lean["project"], tmp_path / "ws", edited)
+    greet = project / "lean_yaml/src/greet.cpp"
     greet.write_text(greet.read_text().replace("says hi", "says hello"))
-    rebuilt = docker_ros(lean["project"], "build")
+    try:
+        rebuilt = docker_ros(project, "build")
+        said = sh(edited, "lean_yaml_node").stdout.strip()
+    finally:
+        remove_image(edited)
     assert rebuilt.returncode == 0, rebuilt.stdout[-5000:]
     vertices = cached_vertices(rebuilt.stdout)
     stages = {name.split()[0][1:]: cached for name, cached in vertices.items()}
@@ -131,4 +139,4 @@ def test_a_source_edit_reuses_the_lean_dependency_layer(lean: dict) -> None:
     # the analysis runs again, finds the same packages: the install layer comes from cache
     assert lean_steps == {"lean-resolve": False, "lean-resolution": True,
                           "dependencies-run": True}, lean_steps
-    assert sh(IMAGE, "lean_yaml_node").stdout.strip() == "lean yaml says hello"
+    assert said == "lean yaml says hello"

@@ -1,17 +1,26 @@
 """A real repository in image builds (issue 11): C++ packages imported through .repos from a
 local git server stay cached and uncompiled on source edits, blacklisted packages are invisible
 to colcon in the dev image, the repository's own rosdep rules are used, hooks know they run in
-an image. One workspace, built once for dev+run, then rebuilt twice."""
+an image. One workspace, built once for dev+run; the source-edit test builds a copy of its own
+(its own images), then rebuilds it twice."""
 
 from __future__ import annotations
 
 import subprocess
 import uuid
+from pathlib import Path
 from typing import Dict, Iterator
 
 import pytest
 
-from tests.docker.buildhelp import cached_vertices, docker_ros, remove_image, sh, write_env
+from tests.docker.buildhelp import (
+    cached_vertices,
+    docker_ros,
+    own_copy,
+    remove_image,
+    sh,
+    write_env,
+)
 from tests.docker.test_fast_rebuilds import compiled_objects
 from tests.rosfixtures import (
     git_http_server,
@@ -84,8 +93,19 @@ def test_own_rosdep_rules_and_hook_context_in_the_image(workspace: dict) -> None
     assert sh(IMAGE, "cat /docker-ros-context").stdout.strip() == "image"
 
 
-def test_source_edit_keeps_imports_cached_and_uncompiled(workspace: dict) -> None:
-    repo, env = workspace["repo"], workspace["env"]
+def test_source_edit_keeps_imports_cached_and_uncompiled(workspace: dict, tmp_path: Path) -> None:
+    edited = f"{IMAGE}-edited"
+    repo, env = own_copy(workspace["repo"], tmp_path / "repo", edited), workspace["env"]
+    try:
+        edit_and_reimport(repo, env, edited)
+    finally:
+        remove_image(edited)
+
+
+def edit_and_reimport(repo: Path, env: Dict[str, str], image: str) -> None:
+    # The copy's colcon build/ cache is its own (per folder and image): fill it first.
+    first = docker_ros(repo, "build", "--target", "run", env=env)
+    assert first.returncode == 0, first.stdout[-5000:]
     source = repo / "app" / "main.cpp"
     source.write_text(source.read_text().replace('"app', '"app edited'))
     edited = docker_ros(repo, "build", "--target", "run", env=env)
@@ -100,6 +120,6 @@ def test_source_edit_keeps_imports_cached_and_uncompiled(workspace: dict) -> Non
     assert reimported.returncode == 0, reimported.stdout[-5000:]
     assert list(upstream_vertex(reimported.stdout).values()) == [False]
     assert compiled_objects(reimported.stdout) == {}, compiled_objects(reimported.stdout)
-    ran = subprocess.run(["docker", "run", "--rm", IMAGE], capture_output=True, text=True,
+    ran = subprocess.run(["docker", "run", "--rm", image], capture_output=True, text=True,
                          timeout=120)
     assert ran.stdout.split()[:3] == ["app", "edited", "up_a"], ran

@@ -130,20 +130,21 @@ def test_probed_ros_tools_still_run_in_the_slim_image(ros1: dict) -> None:
 
 
 def test_slim_image_lacks_what_the_command_never_used(ros1: dict) -> None:
+    # bash builtins only (the slim image has no ls or test binary); exit 0 unless bash fails
     probe = "for f in /usr/bin/apt /usr/bin/perl /usr/bin/gcc /usr/bin/ls; do " \
-            "[ -e $f ] && echo $f; done; true"
-    assert "/usr/bin/apt" in sh(ros1["run"], probe).stdout.split()
-    assert sh(ros1["slim"], probe).stdout.split() == []
+            "if [ -e $f ]; then echo $f; fi; done"
+    run, slim = sh(ros1["run"], probe), sh(ros1["slim"], probe)
+    assert run.returncode == 0 and slim.returncode == 0, run.stderr + slim.stderr
+    assert "/usr/bin/apt" in run.stdout.split()
+    assert slim.stdout.split() == []
 
 
 def test_no_change_rebuild_reuses_the_slim_image(ros1: dict) -> None:
     before = inspect(ros1["slim"])["Id"]
-    began = time.monotonic()
     result = docker_ros(ros1["project"], "slim", env={"ENABLE_SLIM": "true"})
     assert result.returncode == 0, result.stdout[-3000:]
     assert f"slim: {ros1['slim']} is up to date" in result.stdout
-    assert inspect(ros1["slim"])["Id"] == before
-    assert time.monotonic() - began < 30
+    assert inspect(ros1["slim"])["Id"] == before  # (how fast: scripts/bench.py)
 
 
 # ----------------------------------------------------------------------------------- ROS 2

@@ -2,6 +2,7 @@
 
 import ast
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -70,6 +71,27 @@ def test_same_check_fails_for_a_third_party_import(tmp_path):
     assert "yaml" in [m for m in modules if m.split(".")[0] not in stdlib]
 
 
+def vermin(paths):
+    """vermin (PyPI), which knows in which Python version each stdlib module, function and
+    argument appeared (the parse above knows only syntax), checking paths against 3.8."""
+    argv = [sys.executable, "-c", "import sys, vermin; sys.exit(vermin.main())", "--no-tips",
+            "--violations", "--target=3.8-", *map(str, paths)]
+    return subprocess.run(argv, capture_output=True, text=True)
+
+
+def test_uses_no_stdlib_api_newer_than_38():
+    """Where a newer API is used behind a check (hasattr), the line says `# novermin`."""
+    checked = vermin(CHECKED)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+
+
+def test_same_check_fails_for_a_39_api(tmp_path):
+    newer = tmp_path / "newer.py"
+    newer.write_text("import functools\n\n@functools.cache\ndef f():\n    return 1\n")
+    checked = vermin([newer])
+    assert checked.returncode != 0 and "'functools.cache' member requires !2, 3.9" in checked.stdout
+
+
 def python38():
     """A real Python 3.8 (pyenv's or the system's), or None."""
     pyenv = Path.home() / ".pyenv" / "versions"
@@ -88,10 +110,15 @@ def python38():
     return None
 
 
-@pytest.mark.skipif(python38() is None, reason="no Python 3.8 interpreter on this machine")
 def test_runs_on_python_38(tmp_path):
-    """Import every step module and run the step CLI (a dry run) under a real Python 3.8."""
+    """Import every step module and run the step CLI (a dry run) under a real Python 3.8: pyenv's
+    on this project's machines (no registry here offers a 3.8 build to install). Elsewhere the
+    vermin check above stands in for it; in CI a missing 3.8 is a failure, never a skip."""
     python = python38()
+    if python is None:
+        if os.environ.get("CI"):
+            pytest.fail("no Python 3.8 interpreter (pyenv's 3.8 or python3.8 on PATH) in CI")
+        pytest.skip("no Python 3.8 interpreter on this machine (vermin checked the code)")
     code = f"import sys; sys.path.insert(0, {str(SRC)!r})\n" + IMPORT_ALL
     subprocess.run([python, "-I", "-S", "-c", code], check=True, capture_output=True)
     ws = tmp_path / "ws"
