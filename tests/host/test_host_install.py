@@ -2,8 +2,10 @@
 
 import json
 import logging
+import os
 import shutil
 import subprocess
+from typing import Iterator
 
 import pytest
 
@@ -19,8 +21,9 @@ needs_root = pytest.mark.skipif(
 )
 
 RULES = {
-    "jq_key": {"debian": ["jq"], "ubuntu": ["jq"]},
-    "tree_key": {"debian": ["tree"], "ubuntu": ["tree"]},
+    # toys no host package depends on (the install tests remove them first: toys_absent)
+    "cmatrix_key": {"debian": ["cmatrix"], "ubuntu": ["cmatrix"]},
+    "sl_key": {"debian": ["sl"], "ubuntu": ["sl"]},
     "six_key": {"debian": {"pip": {"packages": ["six"]}}, "ubuntu": {"pip": {"packages": ["six"]}}},
     "ubuntu_only": {"ubuntu": ["foo"]},
 }
@@ -48,13 +51,46 @@ def dpkg_installed(name: str) -> bool:
     return proc.stdout.strip() == "install ok installed"
 
 
+def apt(*args: str) -> None:
+    """apt-get, waiting for a lock another apt on this machine may hold."""
+    subprocess.run(["apt-get", "-o", "DPkg::Lock::Timeout=300", "-y", "-q", *args], check=True,
+                   capture_output=True, env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
+
+
+@pytest.fixture
+def toys_absent() -> Iterator[None]:
+    """cmatrix and sl not installed when the test starts (else an install step that installs
+    nothing would pass); afterwards each is installed again, or removed, as it was before.
+    `dpkg --remove` refuses (and so fails the test) rather than remove a package needing them;
+    its refusal leaves them selected for removal: selected for install again."""
+    names = ("cmatrix", "sl")
+    before = {name for name in names if dpkg_installed(name)}
+    if before:
+        removed = subprocess.run(["dpkg", "--remove", *sorted(before)], capture_output=True,
+                                 text=True)
+        if removed.returncode:
+            subprocess.run(["dpkg", "--set-selections"], check=True, capture_output=True,
+                           input="".join(f"{name} install\n" for name in before), text=True)
+            pytest.fail(f"cannot remove {', '.join(sorted(before))}: {removed.stderr.strip()}")
+    assert not any(dpkg_installed(name) for name in names)
+    try:
+        yield
+    finally:
+        now = {name for name in names if dpkg_installed(name)}
+        if before - now:
+            apt("install", "--no-install-recommends", *sorted(before - now))
+        if now - before:
+            subprocess.run(["dpkg", "--remove", *sorted(now - before)], check=True,
+                           capture_output=True)
+
+
 @pytest.fixture
 def ros_packages(project):
     make_package(
         project.repo / "app",
         "app",
-        depends=["jq_key", "lib"],
-        test_depends=["tree_key"],
+        depends=["cmatrix_key", "lib"],
+        test_depends=["sl_key"],
         build_type="ament_cmake",
     )
     make_package(project.repo / "lib", "lib", build_depends=["six_key"], build_type="ament_cmake")
@@ -74,8 +110,8 @@ def test_rosdep_collect_resolves_all_and_exec_sets(ros_packages, offline_rosdep)
     rosdep.main(ws, ros_packages.settings(), phase="collect")
 
     assert ws.read_state("rosdep.json") == {
-        "all": {"apt": ["jq", "tree"], "pip": ["six"]},
-        "exec": {"apt": ["jq"], "pip": []},
+        "all": {"apt": ["cmatrix", "sl"], "pip": ["six"]},
+        "exec": {"apt": ["cmatrix"], "pip": []},
     }
     first = (ws.state / "rosdep.json").read_bytes()
     rosdep.main(ws, ros_packages.settings(), phase="collect")
@@ -85,7 +121,8 @@ def test_rosdep_collect_resolves_all_and_exec_sets(ros_packages, offline_rosdep)
 
 def test_rosdep_unresolvable_key_names_key_and_package(project, offline_rosdep):
     make_package(
-        project.repo / "a", "pkg_a", depends=["jq_key", "no_such_key"], build_type="ament_cmake"
+        project.repo / "a", "pkg_a", depends=["cmatrix_key", "no_such_key"],
+        build_type="ament_cmake",
     )
     make_package(
         project.repo / "b",
@@ -103,7 +140,9 @@ def test_rosdep_unresolvable_key_names_key_and_package(project, offline_rosdep):
 
 
 @needs_root
-def test_rosdep_apply_installs_from_state_only(ros_packages, offline_rosdep, venv_python, environ):
+def test_rosdep_apply_installs_from_state_only(
+    ros_packages, offline_rosdep, venv_python, environ, toys_absent
+):
     ws = ros_packages.ws
     rosdep.main(ws, ros_packages.settings(), phase="collect")
     # The install stage of an image has the state dir, not the sources.
@@ -112,28 +151,29 @@ def test_rosdep_apply_installs_from_state_only(ros_packages, offline_rosdep, ven
 
     rosdep.main(ws, ros_packages.settings(), phase="apply", dependency_types="all")
 
-    assert dpkg_installed("jq") and dpkg_installed("tree")
+    assert dpkg_installed("cmatrix") and dpkg_installed("sl")
     subprocess.run([str(venv_python), "-c", "import six"], check=True)
 
 
 def test_rosdep_dry_run_prints_exec_install(ros_packages, offline_rosdep, capsys):
     rosdep.main(ros_packages.ws, ros_packages.settings(), dry_run=True, dependency_types="exec")
     out = capsys.readouterr().out
-    assert "apt-get install -y --no-install-recommends jq\n" in out
-    assert "tree" not in out
+    assert "apt-get install -y --no-install-recommends cmatrix\n" in out
+    assert not [line for line in out.splitlines() if "sl" in line.split()]
     assert not ros_packages.ws.state.exists()
 
 
 @needs_root
-def test_debs_installs_each_entry(project, capsys):
+def test_debs_installs_each_entry(project, capsys, toys_absent):
     (project.repo / "docker").mkdir()
-    (project.repo / "docker" / "additional-debs.txt").write_text("# tools\ntree   \n\njq # json\n")
+    (project.repo / "docker" / "additional-debs.txt").write_text(
+        "# tools\nsl   \n\ncmatrix # matrix\n")
     debs.main(project.ws, project.settings())
-    assert project.ws.read_state("debs.json") == {"packages": ["jq", "tree"]}
-    assert dpkg_installed("tree")
+    assert project.ws.read_state("debs.json") == {"packages": ["cmatrix", "sl"]}
+    assert dpkg_installed("cmatrix") and dpkg_installed("sl")
 
     debs.main(project.ws, project.settings(), phase="apply", dry_run=True)
-    assert "apt-get install -y --no-install-recommends jq tree" in capsys.readouterr().out
+    assert "apt-get install -y --no-install-recommends cmatrix sl" in capsys.readouterr().out
 
 
 def test_debs_recursive_and_missing(project, caplog):
@@ -142,9 +182,9 @@ def test_debs_recursive_and_missing(project, caplog):
     assert project.ws.read_state("debs.json") == {"packages": []}
     assert "no docker/additional-debs.txt found" in caplog.text
     (project.repo / "sub").mkdir()
-    (project.repo / "sub" / "additional-debs.txt").write_text("jq\n")
+    (project.repo / "sub" / "additional-debs.txt").write_text("cmatrix\n")
     debs.main(project.ws, project.settings(enable_recursive_additional_debs="yes"), phase="collect")
-    assert project.ws.read_state("debs.json") == {"packages": ["jq"]}
+    assert project.ws.read_state("debs.json") == {"packages": ["cmatrix"]}
 
 
 def test_pip_requirements_are_arguments_not_shell(
