@@ -1,16 +1,26 @@
-"""package.xml parsing, conditions (checked against catkin_pkg) and key selection."""
+"""Package discovery and package.xml parsing by catkin_pkg (as rosdep and colcon), conditions
+evaluated for the ROS version and distribution, and key selection."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
-from catkin_pkg.condition import evaluate_condition as catkin_evaluate
 
 from docker_ros.runtime.packages import (
     blacklisted_dependents,
     condition_context,
-    evaluate_condition,
     find_package_dirs,
+    find_packages,
+    package_search_dirs,
     parse_package_xml,
     select_keys,
 )
+from docker_ros.runtime.process import HOST_EXTRA
+from docker_ros.runtime.workspace import StepError, Workspace
+
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 FORMAT3 = """<?xml version="1.0"?>
 <?xml-model href="http://download.ros.org/schema/package_format3.xsd"?>
@@ -53,98 +63,60 @@ FORMAT1 = """<package>
 </package>
 """
 
-CONDITIONS = [
-    "$ROS_VERSION == 2",
-    "$ROS_VERSION != 2",
-    "$ROS_VERSION == 1 or $ROS_VERSION == 2",
-    "$ROS_VERSION == 2 and $ROS_DISTRO == humble",
-    "$ROS_VERSION == 1 or $ROS_VERSION == 2 and $ROS_DISTRO == foxy",
-    "($ROS_VERSION == 1 or $ROS_VERSION == 2) and $ROS_DISTRO == foxy",
-    "$ROS_DISTRO >= humble",
-    "$ROS_DISTRO < foxy",
-    "$UNSET == ''",
-    '$ROS_DISTRO == "humble"',
-    "humble == $ROS_DISTRO",
-    "$ROS_PYTHON_VERSION <= 2",
-    "$A-B == x",
-]
-CONTEXTS = [
-    {"ROS_VERSION": "2", "ROS_DISTRO": "humble", "ROS_PYTHON_VERSION": "3"},
-    {"ROS_VERSION": "1", "ROS_DISTRO": "noetic", "ROS_PYTHON_VERSION": "3"},
-    {"ROS_VERSION": "2", "ROS_DISTRO": "foxy"},
-    {},
-]
+
+def manifest(name, **depends):
+    """A valid format 3 package.xml with the given dependency tags."""
+    return (
+        f"<package format='3'><name>{name}</name><version>1.0.0</version>"
+        "<description>d</description><maintainer email='m@example.com'>m</maintainer>"
+        "<license>MIT</license>"
+        + "".join(f"<{tag}>{key}</{tag}>" for tag, keys in depends.items() for key in keys)
+        + "</package>"
+    )
 
 
-@pytest.mark.parametrize("condition", CONDITIONS)
-@pytest.mark.parametrize("context", CONTEXTS)
-def test_conditions_evaluate_like_catkin_pkg(condition, context):
-    try:
-        expected = catkin_evaluate(condition, context)
-    except ValueError:
-        with pytest.raises(ValueError):
-            evaluate_condition(condition, context)
-        return
-    assert evaluate_condition(condition, context) is expected
-
-
-@pytest.mark.parametrize("bad", ["$ROS_VERSION ==", "(ROS == 1", "a b", "== 2", "1 == 2 )"])
-def test_bad_conditions_are_errors(bad):
-    with pytest.raises(ValueError):
-        evaluate_condition(bad, {})
+def pkg(name, **depends):
+    return parse_package_xml(manifest(name, **depends), {})
 
 
 def test_format3_with_conditions_for_ros2():
-    ctx = condition_context("humble", {"X": "y"})
-    package = parse_package_xml(FORMAT3, ctx)
+    package = parse_package_xml(FORMAT3, condition_context("humble", {"X": "y"}))
     assert package.name == "talker" and package.format == 3
     assert package.build_type == "ament_cmake"
-    assert package.depends["buildtool_depend"] == ("ament_cmake",)
-    assert package.depends["exec_depend"] == ("python3-yaml", "newer")
-    assert package.depends["depend"] == ("std_msgs",)
+    assert package.depends["buildtool_depends"] == ("ament_cmake",)
+    # `depend` is a build, build export and exec dependency (catkin_pkg's lists)
+    assert package.depends["exec_depends"] == ("python3-yaml", "newer", "std_msgs")
+    assert "std_msgs" in package.depends["build_depends"]
+    assert package.depends["doc_depends"] == ("doxygen",)
 
 
 def test_format3_for_ros1_without_distro():
     # Debian's ROS 1: no ROS_DISTRO; ROS_VERSION defaults to 1.
     package = parse_package_xml(FORMAT3, condition_context(None, {}))
-    assert package.depends["buildtool_depend"] == ("catkin",)
+    assert package.depends["buildtool_depends"] == ("catkin",)
     assert package.build_type == "catkin"
-    assert "newer" not in package.depends["exec_depend"]
+    assert "newer" not in package.depends["exec_depends"]
 
 
 def test_format1_run_depend():
     package = parse_package_xml(FORMAT1, {})
     assert package.format == 1 and package.build_type == "catkin"
-    assert package.depends["run_depend"] == ("roscpp", "rospy")
+    assert package.depends["exec_depends"] == ("roscpp", "rospy")
     assert select_keys([package], "exec") == {"roscpp": ["old_pkg"], "rospy": ["old_pkg"]}
     assert sorted(select_keys([package], "all")) == ["catkin", "roscpp", "rospy", "rostest"]
 
 
-def test_matches_catkin_pkg_parser():
-    from catkin_pkg.package import parse_package_string
-
-    ctx = condition_context("humble", {"X": "y"})
-    theirs = parse_package_string(FORMAT3)
-    theirs.evaluate_conditions(ctx)
-    ours = parse_package_xml(FORMAT3, ctx)
-    exec_theirs = sorted(d.name for d in theirs.exec_depends if d.evaluated_condition)
-    exec_ours = sorted(ours.depends["exec_depend"] + ours.depends["depend"])
-    assert exec_ours == exec_theirs
-
-
-@pytest.mark.parametrize("text", ["<package><name>x</name>", "<manifest/>", "<package/>"])
-def test_invalid_package_xml(text):
-    with pytest.raises(ValueError):
+@pytest.mark.parametrize(("text", "reason"), [
+    ("<package><name>x</name>", "invalid XML"),
+    ("<manifest/>", "package"),
+    (manifest("x").replace("<version>1.0.0</version>", ""), '"version"'),
+    (manifest("x", exec_depend=["a"]).replace("<exec_depend>",
+                                              "<exec_depend condition='$ROS_VERSION =='>"),
+     "condition"),
+])
+def test_invalid_package_xml_is_a_value_error_with_the_reason(text, reason):
+    with pytest.raises(ValueError, match=reason):
         parse_package_xml(text, {})
-
-
-def pkg(name, **depends):
-    text = (
-        f"<package format='3'><name>{name}</name>"
-        + "".join(f"<{tag}>{key}</{tag}>" for tag, keys in depends.items() for key in keys)
-        + "</package>"
-    )
-    return parse_package_xml(text, {})
 
 
 def test_select_keys_exec_all_blacklist_and_local_packages():
@@ -182,11 +154,75 @@ def test_select_keys_exec_all_blacklist_and_local_packages():
         select_keys(packages, "build")
 
 
-def test_find_package_dirs_respects_ignore_markers_and_nesting(tmp_path):
-    for path in ["a", "b/inner", "ignored/c", "x/build/d", "e/.git/f"]:
-        (tmp_path / path).mkdir(parents=True)
-        (tmp_path / path / "package.xml").write_text("<package/>")
-    (tmp_path / "b" / "package.xml").write_text("<package/>")  # b/inner is inside package b
-    (tmp_path / "ignored" / "COLCON_IGNORE").write_text("")
+def package_tree(root: Path) -> None:
+    """Packages where colcon looks and where it does not."""
+    for path in ["a", "b/inner", "ignored/c", "x/build/d", "e/.git/f", ".hidden/g",
+                 "colcon/install/h"]:
+        (root / path).mkdir(parents=True)
+        (root / path / "package.xml").write_text(manifest(path.split("/")[-1]))
+    (root / "b" / "package.xml").write_text(manifest("b"))  # b/inner is inside package b
+    (root / "ignored" / "COLCON_IGNORE").write_text("")
+    (root / "colcon" / "install" / "COLCON_IGNORE").write_text("")  # colcon writes one there
+
+
+def test_find_package_dirs_follows_colcon_rules(tmp_path):
+    package_tree(tmp_path)
+    (tmp_path / "link_to_a").symlink_to(tmp_path / "a", target_is_directory=True)
+    (tmp_path / "loop").symlink_to(tmp_path, target_is_directory=True)
     found = [p.relative_to(tmp_path).as_posix() for p in find_package_dirs(tmp_path)]
-    assert found == ["a", "b"]
+    # a folder named build is searched (only colcon's own carry an ignore marker), hidden ones
+    # are not; each real folder once
+    assert found == ["a", "b", "x/build/d"]
+
+
+@pytest.mark.host
+def test_find_package_dirs_finds_what_colcon_lists(tmp_path):
+    root = tmp_path / "src"
+    package_tree(root)
+    (root / "link_to_a").symlink_to(root / "a", target_is_directory=True)
+    (root / "loop").symlink_to(root, target_is_directory=True)
+    listed = subprocess.run(["colcon", "--log-base", os.devnull, "list", "--paths-only",
+                             "--base-paths", str(root)], capture_output=True, text=True,
+                            check=True, cwd=tmp_path).stdout.split()
+    assert [str(p) for p in find_package_dirs(root)] == sorted(listed)
+
+
+def test_what_runs_before_prepare_sees_every_manifest_discovery_reads(tmp_path):
+    package_tree(tmp_path)
+    (tmp_path / "loop").symlink_to(tmp_path, target_is_directory=True)
+    searched = set(package_search_dirs(tmp_path))
+    assert set(find_package_dirs(tmp_path)) <= searched
+    assert tmp_path / "ignored" in searched  # the marker itself is read, too
+    assert not any(part.startswith(".") for p in searched for part in p.parts[-1:])
+
+
+def test_invalid_manifest_names_the_file_and_the_reason(tmp_path):
+    ws = Workspace(tmp_path / "ws")
+    (ws.target / "good").mkdir(parents=True)
+    (ws.target / "good" / "package.xml").write_text(manifest("good"))
+    (ws.target / "bad").mkdir()
+    (ws.target / "bad" / "package.xml").write_text(manifest("bad").replace(
+        "<license>MIT</license>", ""))
+    with pytest.raises(StepError) as err:
+        find_packages(ws, object(), step="rosdep", environ={})
+    assert err.value.message == ("src/target/bad/package.xml: The package node must contain at "
+                                 "least one \"license\" tag")
+
+
+def test_without_catkin_pkg_the_error_names_the_host_extra(tmp_path):
+    """A real interpreter without catkin_pkg (-I -S: no site-packages), as a host without the
+    `host` extra."""
+    ws = Workspace(tmp_path / "ws")
+    (ws.target / "a").mkdir(parents=True)
+    (ws.target / "a" / "package.xml").write_text(manifest("a"))
+    code = (f"import sys; sys.path.insert(0, {str(SRC)!r})\n"
+            "from docker_ros.runtime.packages import find_packages\n"
+            "from docker_ros.runtime.workspace import StepError, Workspace\n"
+            "try:\n"
+            f"    find_packages(Workspace({str(ws.root)!r}), object(), step='blacklist')\n"
+            "except StepError as exc:\n"
+            "    print(exc.message)\n")
+    out = subprocess.run([sys.executable, "-I", "-S", "-c", code], capture_output=True,
+                         text=True, check=True).stdout
+    assert out.strip() == ("the Python module catkin_pkg (part of rosdep) is missing; on the "
+                           f"host the steps need vcstool, rosdep and colcon: {HOST_EXTRA}")

@@ -13,9 +13,11 @@ from docker_ros.runtime.workspace import LOG, SKIP_DIRS, StepError, Workspace, d
 
 
 def walk(
-    root: Path, *, prune: Optional[Callable[[Path, List[str]], bool]] = None
+    root: Path, *, prune: Optional[Callable[[Path, List[str]], bool]] = None,
+    skip: Callable[[str], bool] = SKIP_DIRS.__contains__,
 ) -> Iterator[Path]:
-    """Every directory below root (root first), skipping VCS/build dirs; follows symlinks once.
+    """Every directory below root (root first), skipping VCS/build dirs (or the folder names
+    `skip` says); follows symlinks once.
 
     `prune(directory, entries)` returning True stops the descent below that directory
     (the directory itself is still yielded)."""
@@ -26,7 +28,7 @@ def walk(
             dirnames[:] = []
             continue
         seen.add(real)
-        dirnames[:] = sorted(d for d in dirnames if d not in SKIP_DIRS)
+        dirnames[:] = sorted(d for d in dirnames if not skip(d))
         if prune is not None and prune(Path(dirpath), dirnames + filenames):
             dirnames[:] = []
         yield Path(dirpath)

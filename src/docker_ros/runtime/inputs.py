@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import List
 
 from docker_ros.runtime.files import find_special_files, repository_path, walk
-from docker_ros.runtime.packages import IGNORE_MARKERS
-from docker_ros.runtime.workspace import Workspace, image_main
+from docker_ros.runtime.packages import package_search_dirs
+from docker_ros.runtime.workspace import IGNORE_MARKERS, Workspace, image_main
 
 # What the collect phases of scripts, rosdep, debs, pip, files and custom read: package
 # manifests and ignore markers anywhere, and the files and folder the path settings name.
@@ -27,7 +27,7 @@ STATE_FILES = ("blacklist.json",)
 def resolve_inputs(ws: Workspace, settings: object) -> List[Path]:
     """Every file below ws.root that resolving the dependencies may read."""
     found: List[Path] = []
-    for directory in walk(ws.src):
+    for directory in package_search_dirs(ws.src):  # (where catkin_pkg's discovery looks)
         found += [directory / n for n in MANIFESTS if (directory / n).is_file()]
     for name in LIST_SETTINGS:
         found += find_special_files(ws, settings, name, step="resolve", required=False)

@@ -1,34 +1,42 @@
-"""ROS package discovery: package.xml parsing (formats 1-3, conditions) and dependency keys."""
+"""ROS package discovery and the dependency keys rosdep resolves. Packages are found as colcon
+finds them; their manifests are parsed (validated) and their REP-149 conditions evaluated by
+catkin_pkg, as rosdep and colcon-ros do. rosdep and colcon bring catkin_pkg, so it is there
+wherever the steps that read manifests run (blacklist, rosdep, colcon: in images after
+`prepare`, on the host with the `host` extra). This module itself imports only the standard
+library: it ships into images, and what runs before `prepare` imports it (package_search_dirs,
+for the files resolving reads)."""
 
 import logging
 import os
-import re
-import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Dict, Iterable, List, Mapping, NamedTuple, Optional, Sequence, Set, Tuple
+from typing import (
+    Any,
+    Dict,
+    Iterable,
+    Iterator,
+    List,
+    Mapping,
+    NamedTuple,
+    Optional,
+    Sequence,
+    Set,
+    Tuple,
+)
 
 from docker_ros.runtime.files import walk
+from docker_ros.runtime.process import HOST_EXTRA
 from docker_ros.runtime.rosenv import BASE_IMAGE_WS, ros_distro, ros_version
 from docker_ros.runtime.workspace import IGNORE_MARKERS, StepError, Workspace
 
 LOG = logging.getLogger(__name__)
 
-DEPENDENCY_TAGS = (
-    "depend",
-    "build_depend",
-    "buildtool_depend",
-    "build_export_depend",
-    "buildtool_export_depend",
-    "exec_depend",
-    "run_depend",
-    "test_depend",
-    "doc_depend",
-)
-# As rosdep: every type except documentation for a dev image ...
+# catkin_pkg's dependency lists (`depend` is in build, build_export and exec; format 1's
+# `run_depend` in build_export and exec). As rosdep: every type but documentation for a dev
+# image, and rosdep's `-t exec` for a run image.
 DEPENDENCY_SETS: Dict[str, Tuple[str, ...]] = {
-    "all": tuple(t for t in DEPENDENCY_TAGS if t != "doc_depend"),
-    # ... and what rosdep's `-t exec` means (catkin_pkg's exec_depends) for a run image.
-    "exec": ("depend", "exec_depend", "run_depend"),
+    "all": ("build_depends", "buildtool_depends", "build_export_depends",
+            "buildtool_export_depends", "exec_depends", "test_depends"),
+    "exec": ("exec_depends",),
 }
 
 
@@ -37,107 +45,7 @@ class Package(NamedTuple):
     path: Path
     format: int
     build_type: str
-    depends: Mapping[str, Tuple[str, ...]]  # dependency tag -> keys (conditions evaluated)
-
-
-# --- conditions (catkin_pkg's grammar: comparisons joined by `and`/`or`, parentheses) ---
-
-_TOKEN = re.compile(
-    r"""\s*(?:
-        (?P<op>==|!=|>=|<=|>|<)
-      | (?P<paren>[()])
-      | "(?P<dq>[^"]*)"
-      | '(?P<sq>[^']*)'
-      | (?P<var>\$[A-Za-z0-9_]+)
-      | (?P<word>[A-Za-z0-9_-]+)
-    )""",
-    re.VERBOSE,
-)
-
-
-def _tokens(text: str) -> List[Tuple[str, str]]:
-    out: List[Tuple[str, str]] = []
-    pos = 0
-    text = text.rstrip()
-    while pos < len(text):
-        match = _TOKEN.match(text, pos)
-        if not match or match.end() == pos:
-            raise ValueError(f"condition {text!r}: cannot parse at {text[pos:]!r}")
-        pos = match.end()
-        kind = match.lastgroup or ""
-        value = match.group(kind)
-        if kind in ("dq", "sq"):
-            kind = "value"
-        elif kind == "word":
-            kind = value if value in ("and", "or") else "value"
-        out.append((kind, value))
-    return out
-
-
-def evaluate_condition(condition: Optional[str], context: Mapping[str, str]) -> bool:
-    """Evaluate a package.xml `condition` attribute like catkin_pkg (unset variables are "")."""
-    if condition is None:
-        return True
-    tokens = _tokens(condition)
-    if not tokens:
-        raise ValueError(f"condition {condition!r} is empty")
-    pos = 0
-    ops = {
-        "==": lambda a, b: a == b,
-        "!=": lambda a, b: a != b,
-        ">=": lambda a, b: a >= b,
-        "<=": lambda a, b: a <= b,
-        ">": lambda a, b: a > b,
-        "<": lambda a, b: a < b,
-    }
-
-    def peek() -> str:
-        return tokens[pos][0] if pos < len(tokens) else ""
-
-    def take(kind: str) -> str:
-        nonlocal pos
-        if peek() != kind:
-            found = tokens[pos][1] if pos < len(tokens) else "end"
-            raise ValueError(f"condition {condition!r}: expected {kind}, found {found!r}")
-        pos += 1
-        return tokens[pos - 1][1]
-
-    def term() -> str:
-        if peek() == "var":
-            return str(context.get(take("var")[1:], ""))
-        return take("value")
-
-    def atom() -> bool:
-        if peek() == "paren" and tokens[pos][1] == "(":
-            take("paren")
-            value = disjunction()
-            if peek() != "paren" or tokens[pos][1] != ")":
-                raise ValueError(f"condition {condition!r}: missing ')'")
-            take("paren")
-            return value
-        left = term()
-        op = take("op")
-        right = term()
-        return bool(ops[op](left, right))
-
-    def conjunction() -> bool:
-        values = [atom()]
-        while peek() == "and":
-            take("and")
-            values.append(atom())
-        return all(values)
-
-    def disjunction() -> bool:
-        values = [conjunction()]
-        while peek() == "or":
-            take("or")
-            values.append(conjunction())
-        return any(values)
-
-    result = disjunction()
-    if pos != len(tokens):
-        raise ValueError(f"condition {condition!r}: unexpected {tokens[pos][1]!r}")
-    return result
+    depends: Mapping[str, Tuple[str, ...]]  # catkin_pkg list name -> keys (conditions evaluated)
 
 
 def condition_context(
@@ -152,66 +60,81 @@ def condition_context(
     return env
 
 
-# --- package.xml ---
+def catkin_pkg(step: str) -> Any:
+    """catkin_pkg (its package module loaded), or a StepError saying how to get it."""
+    try:
+        import catkin_pkg.package
+    except ImportError:
+        raise StepError(step, "the Python module catkin_pkg (part of rosdep) is missing; on the "
+                        f"host the steps need vcstool, rosdep and colcon: {HOST_EXTRA}") from None
+    return catkin_pkg
+
+
+def one_line(error: Exception) -> str:
+    """catkin_pkg's message on one line, without its header naming the file (the caller does)."""
+    lines = [line.strip() for line in str(error).splitlines()]
+    return "; ".join(line for line in lines if line and not line.startswith("Error(s) in"))
 
 
 def parse_package_xml(
-    text: str, context: Optional[Mapping[str, str]] = None, path: Path = Path(".")
+    text: str, context: Mapping[str, str], path: Path = Path("."), *, step: str = "packages"
 ) -> Package:
-    """Name, format, build type and (condition-filtered) dependency keys of a package.xml."""
+    """Name, format, build type and (condition-filtered) dependency keys of a package.xml, by
+    catkin_pkg. Raises ValueError for an invalid manifest or condition."""
+    package_module = catkin_pkg(step).package
     try:
-        root = ET.fromstring(text)
-    except ET.ParseError as exc:
-        raise ValueError(f"not valid XML: {exc}") from None
-    if root.tag != "package":
-        raise ValueError(f"root element is <{root.tag}>, not <package>")
-    name = (root.findtext("name") or "").strip()
-    if not name:
-        raise ValueError("no <name>")
-    fmt = int(root.get("format", "1"))
-    ctx = context if context is not None else {}
-    depends: Dict[str, List[str]] = {tag: [] for tag in DEPENDENCY_TAGS}
-    for element in root:
-        if element.tag not in depends:
-            continue
-        key = (element.text or "").strip()
-        if key and evaluate_condition(element.get("condition"), ctx):
-            depends[element.tag].append(key)
-    build_type = "catkin" if fmt == 1 else ""
-    export = root.find("export")
-    if export is not None:
-        for element in export.findall("build_type"):
-            if evaluate_condition(element.get("condition"), ctx):
-                build_type = (element.text or "").strip()
-                break
+        package = package_module.parse_package_string(text, str(path / "package.xml"), [])
+        package.evaluate_conditions(dict(context))
+        build_type = package.get_build_type()
+    except (package_module.InvalidPackage, ValueError) as exc:
+        raise ValueError(one_line(exc)) from None
     return Package(
-        name=name,
+        name=package.name,
         path=path,
-        format=fmt,
-        build_type=build_type or "catkin",
-        depends={tag: tuple(keys) for tag, keys in depends.items()},
+        format=int(package.package_format),
+        build_type=build_type,
+        depends={kind: tuple(d.name for d in getattr(package, kind)
+                             if d.evaluated_condition is not False)
+                 for kind in DEPENDENCY_SETS["all"] + ("doc_depends",)},
     )
 
 
-def _is_ignored(entries: Iterable[str]) -> bool:
-    return any(marker in entries for marker in IGNORE_MARKERS)
-
-
 def find_package_dirs(root: Path) -> List[Path]:
-    """Directories with a package.xml, as colcon finds them: not below an ignore marker,
-    not inside another package."""
-    found: List[Path] = []
+    """Folders with a package.xml, as colcon's recursive crawl finds them: symlinks followed,
+    each real folder once, hidden folders skipped, nothing below an ignore marker (COLCON_IGNORE,
+    and colcon-ros's AMENT_IGNORE, CATKIN_IGNORE) or inside a package. Folders named build,
+    install or log are searched (colcon puts a COLCON_IGNORE in its own). (catkin_pkg's
+    find_package_paths has the same rules but enters symlink loops and finds a symlinked
+    package twice.)"""
+    def ignored(entries: Iterable[str]) -> bool:
+        return any(marker in entries for marker in IGNORE_MARKERS)
 
     def prune(directory: Path, entries: List[str]) -> bool:
-        return _is_ignored(entries) or "package.xml" in entries
+        return ignored(entries) or "package.xml" in entries
 
-    for directory in walk(root, prune=prune):
-        entries = os.listdir(str(directory))
-        if _is_ignored(entries):
+    return [directory for directory in walk(root, prune=prune, skip=hidden)
+            if "package.xml" in os.listdir(str(directory))
+            and not ignored(os.listdir(str(directory)))]
+
+
+def hidden(name: str) -> bool:
+    return name.startswith(".")
+
+
+def package_search_dirs(root: Path) -> Iterator[Path]:
+    """Every folder find_package_dirs may find a package in or read an ignore marker from, and
+    more (below markers and packages too, and every path to a real folder, not just the first
+    one): what runs before `prepare` collects the manifests with it. Stops at symlink loops."""
+    for dirpath, dirnames, _ in os.walk(str(root), followlinks=True):
+        path = Path(dirpath)
+        real = os.path.realpath(dirpath)
+        above = [os.path.realpath(str(parent)) for parent in path.parents
+                 if parent == root or root in parent.parents]
+        if real in above:  # a link back to a folder above: a loop
+            dirnames[:] = []
             continue
-        if "package.xml" in entries:
-            found.append(directory)
-    return found
+        dirnames[:] = sorted(d for d in dirnames if not hidden(d))
+        yield path
 
 
 def find_packages(
@@ -221,12 +144,13 @@ def find_packages(
     ws.require_sources(step)
     context = condition_context(ros_distro(settings, environ), environ)
     packages = []
+    catkin_pkg(step)
     for directory in find_package_dirs(ws.src):
         path = directory / "package.xml"
         try:
-            packages.append(parse_package_xml(path.read_text(), context, directory))
+            packages.append(parse_package_xml(path.read_text(), context, directory, step=step))
         except (ValueError, OSError) as exc:
-            raise StepError(step, f"{path}: {exc}") from None
+            raise StepError(step, f"{ws.relative(path)}: {exc}") from None
     duplicates = duplicate_packages(packages)
     if duplicates:
         listed = "; ".join(
