@@ -1,0 +1,99 @@
+"""The bench's report: ratios against the reference rows, the table, the summary lines, JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+from bench.buildlog import Scenario
+
+
+def ratio(value: float, reference: Optional[float]) -> Optional[float]:
+    return value / reference if reference else None
+
+
+def table(rows: Sequence[Scenario], sizes: Dict[str, float], total_units: int) -> str:
+    head = ("scenario", "seconds", "x cold", "x baseline", "x limit", "TUs compiled",
+            "src changed", "dep layers", "deps parallel", "import", "load1", "check")
+    lines: List[Tuple[str, ...]] = [head]
+    for row in rows:
+        lines.append((
+            row.name,
+            f"{row.seconds:.1f}",
+            f"{row.ratio_cold:.2f}" if row.ratio_cold is not None else "-",
+            f"{row.ratio_baseline:.2f}" if row.ratio_baseline is not None else "-",
+            f"{row.ratio_limit:.2f}" if row.ratio_limit is not None else "-",
+            f"{len(row.compiled)}/{row.units or total_units}",
+            row.changed_sources,
+            row.deps_layers,
+            f"{row.deps_overlap:.1f} s" if row.deps_overlap is not None else "-",
+            row.imports,
+            f"{row.load1:.1f}",
+            row.check,
+        ))
+    for target, mb in sizes.items():
+        lines.append((f"5  {target} image size", f"{mb:.0f} MB") + ("",) * (len(head) - 2))
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    rendered = ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in lines]
+    rendered.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(rendered)
+
+
+def add_ratios(rows: Sequence[Scenario]) -> None:
+    """Each row against the cold build, edits against the baseline and the physical limit."""
+    cold = rows[0].seconds
+    baseline = next(r.seconds for r in rows if r.name.startswith("B "))
+    limit = next(r.seconds for r in rows if r.name.startswith("L "))
+    for row in rows:
+        row.ratio_cold = ratio(row.seconds, cold)
+        if row.name.startswith(("3", "6b")):
+            row.ratio_baseline = ratio(row.seconds, baseline)
+        if row.name.startswith(("3 ", "7b")):
+            row.ratio_limit = ratio(row.seconds, limit)
+
+
+def print_report(rows: Sequence[Scenario], sizes: Dict[str, float], packages: int) -> bool:
+    """Print the table and the summary; whether a check failed."""
+    add_ratios(rows)
+    cold = rows[0].seconds
+    limit = next(r.seconds for r in rows if r.name.startswith("L "))
+    floor = next(r.seconds for r in rows if r.name.startswith("F "))
+    apart = next(r.seconds for r in rows if r.name.startswith("D "))
+    edit = next(r for r in rows if r.name.startswith("3 "))
+    total_units = 3 * packages
+    print()
+    print(table(rows, sizes, total_units))
+    print(f"\nTUs: translation units compiled of {total_units} (3 .cpp per package); "
+          "src changed: source files the colcon step took for changed (and re-stamped); "
+          "dep layers: the dependencies-{dev,run} RUN layers; deps parallel: seconds both "
+          "dependency RUNs ran at once; x limit: against L, the physical limit (a warm colcon "
+          "build of that package alone plus writing the install space as a layer); "
+          "x baseline: our whole `docker-ros build` (dev+run images) against a bare "
+          "colcon build from scratch; load1: load average when the scenario started.")
+    print(f"cold build: ours {cold:.1f} s, dev then run separately (docker-ros) {apart:.1f} s: "
+          f"{cold / apart:.2f}x; one-file edit (3): {edit.seconds:.1f} s against the "
+          f"physical limit {limit:.1f} s: {edit.ratio_limit or 0:.2f}x; against the limit plus "
+          f"the BuildKit floor ({limit:.1f} + {floor:.2f} s): "
+          f"{edit.seconds / (limit + floor):.2f}x")
+    print(f"run image over the base: {sizes['run'] - sizes['base']:.0f} MB, lean "
+          f"{sizes['run (lean)'] - sizes['base']:.0f} MB" + (
+              f", slim image {sizes['run (slim)']:.0f} MB" if "run (slim)" in sizes else ""))
+    failed = [row for row in rows if row.check == "FAIL"]
+    for row in failed:
+        print(f"FAIL {row.name}: {row.detail}")
+    return bool(failed)
+
+
+def write_json(path: Path, args: argparse.Namespace, rows: Sequence[Scenario],
+               sizes: Dict[str, float]) -> None:
+    path.write_text(json.dumps({
+        "packages": args.packages, "chain": args.chain, "depth": args.depth,
+        "base_image": args.base_image, "cpus": os.cpu_count(),
+        "scenarios": [asdict(r) for r in rows],
+        "sizes_mb": sizes,
+    }, indent=2) + "\n")
+    print(f"figures written to {path}")
