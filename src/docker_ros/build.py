@@ -18,6 +18,7 @@ from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, T
 import docker_ros
 from docker_ros import engine
 from docker_ros.engine import image_exists, image_size
+from docker_ros.lock import locked_build_args
 from docker_ros.runtime.files import walk
 from docker_ros.runtime.inputs import resolve_inputs
 from docker_ros.runtime.workspace import StepError, Workspace
@@ -39,7 +40,7 @@ HANDLED_BY_TOOL = frozenset({
     "base_image", "build_context", "build_network", "buildx_attestations", "cache_from",
     "extra_ca_certs", "image", "image_name", "image_tag", "dev_image_name", "dev_image_tag",
     "platform", "target", "git_https_password", "git_ssh_private_key", "image_postfix",
-    "enable_lean_run_image",
+    "enable_lean_run_image", "locked",
 })
 # Settings that do not affect building an image (push, slim, CI checkout, host workspace).
 NOT_BUILD_INPUTS = frozenset({
@@ -129,6 +130,7 @@ def definition(
             "DOCKER_ROS_SYSTEM": system_stage(settings), **source_stages(settings)}
     args.update(build_args(settings, [a for a in dockerfile_args(dockerfile) if a not in args]))
     args.update(sorted(extra_build_args.items()))
+    args.update(locked_build_args(settings, target=target, platform=platform))
     target_def: Dict[str, Any] = {
         "context": str(Path(settings.build_context)),
         "dockerfile": str(dockerfile),

@@ -265,6 +265,12 @@ class Settings:
     ros_apt_source_version: str = setting(
         "1.1.0", "Pinned version of the ros-apt-source package used to install ROS", group="ours"
     )
+    locked: bool = setting(
+        False,
+        "Build exactly what docker-ros.lock records (base image digest, imported commits, apt"
+        " and pip versions); a repository that no longer matches the lock stops the build",
+        group="ours",
+    )
     image_postfix: Optional[str] = setting(
         None,
         "Appended to every image tag (docker-ros's CI branch postfix); `none` for no postfix",

@@ -24,6 +24,7 @@ from invoke import Collection, Context, Exit, Task
 from docker_ros import build, engine
 from docker_ros.build import BuiltImage
 from docker_ros.config import config_table, image_problems, path_problems, read_settings
+from docker_ros.runtime.lock import LockError
 from docker_ros.runtime.workspace import StepError, Workspace, format_argv, setup_logging
 from docker_ros.settings import (
     FIELDS,
@@ -124,7 +125,7 @@ def settings_task(
                 return func(c, settings, **kwargs)
             except KeyboardInterrupt:
                 raise Exit(f"docker-ros {name}: interrupted", code=130) from None
-            except (SettingsError, StepError, TaskError) as exc:
+            except (SettingsError, StepError, TaskError, LockError) as exc:
                 code = getattr(exc, "returncode", 1) or 1
                 where = exc.step if isinstance(exc, StepError) else name
                 text = exc.message if isinstance(exc, StepError) else str(exc)

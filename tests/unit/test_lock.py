@@ -1,0 +1,132 @@
+"""The lock's pure logic: parsing apt's and pip's resolution, pins, stale inputs, base image."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from docker_ros.runtime import lock
+
+
+def test_apt_simulation_gives_every_package_with_its_version():
+    lines = [
+        "NOTE: This is only a simulation!",
+        "Inst libfoo1 (1.2-3 Debian:12.5/stable [amd64])",
+        "Inst foo [0.9-1] (1.0-1 Debian:12.5/stable [amd64])",
+        "Conf libfoo1 (1.2-3 Debian:12.5/stable [amd64])",
+    ]
+    assert lock.parse_apt_simulation(lines) == {"libfoo1": "1.2-3", "foo": "1.0-1"}
+
+
+def test_pip_report_gives_versions_and_hashes():
+    report = {"install": [
+        {"metadata": {"name": "Six_Py", "version": "1.16.0"},
+         "download_info": {"archive_info": {"hashes": {"sha256": "ab"}}}},
+        {"metadata": {"name": "toml", "version": "0.10.2"}, "download_info": {}},
+    ]}
+    assert lock.parse_pip_report(report) == {
+        "six-py": {"version": "1.16.0", "sha256": "ab"}, "toml": {"version": "0.10.2"}}
+
+
+def test_apt_pins_hold_dependencies_and_name_what_is_not_locked():
+    locked = {"foo": "1.0-1", "libfoo1": "1.2-3"}
+    assert lock.apt_pins(["foo/bookworm"], locked) == ["foo=1.0-1", "libfoo1=1.2-3"]
+    with pytest.raises(lock.LockError, match=r"apt package\(s\) bar not in docker-ros.lock.*lock"):
+        lock.apt_pins(["foo", "bar=2"], locked)
+
+
+def test_pip_pins_skip_options_and_name_what_is_not_locked():
+    locked = {"six": {"version": "1.16.0"}}
+    assert lock.pip_pins(["--extra-index-url", "Six>=1"], locked) == ["six==1.16.0"]
+    with pytest.raises(lock.LockError, match="pip package\\(s\\) toml "):
+        lock.pip_pins(["toml"], locked)
+
+
+def test_repos_are_pinned_to_locked_commits_and_a_changed_url_is_stale():
+    repos = {"foo": {"type": "git", "url": "file:///r/foo", "version": "main"}}
+    locked = {"src/upstream/foo": {"url": "file:///r/foo", "commit": "a" * 40}}
+    pinned = lock.pin_repos(repos, locked, "src/upstream")
+    assert pinned["foo"]["version"] == "a" * 40
+    assert 'version: "' + "a" * 40 + '"' in lock.dump_repos(pinned)
+    moved = {"foo": {"type": "git", "url": "file:///r/other", "version": "main"}}
+    with pytest.raises(lock.LockError, match="src/upstream/foo"):
+        lock.pin_repos(moved, locked, "src/upstream")
+
+
+def test_stale_inputs_name_each_change():
+    recorded = {"debs": ["a"], "rosdep_keys": ["boost"], "rosdep_rules": "sha256:1",
+                "repos": {"src/upstream/foo": "main"}}
+    current = {"debs": ["a", "b"], "rosdep_keys": ["boost", "eigen"], "rosdep_rules": "sha256:2",
+               "repos": {"src/upstream/foo": "main"}}
+    assert lock.stale_inputs(recorded, current) == [
+        "debs: added b", "rosdep_keys: added eigen", "rosdep_rules: sha256:1 -> sha256:2"]
+    assert lock.stale_inputs(recorded, recorded) == []
+    with pytest.raises(lock.LockError, match="rosdep_keys: added eigen.*run `inv lock`"):
+        lock.check_inputs({"inputs": recorded}, current)
+
+
+def test_lock_text_is_stable_and_loads_back(tmp_path: Path):
+    data = {"targets": {"run/amd64": {"apt": {"b": "1", "a": "2"}}}, "format": 1}
+    text = lock.dump_lock(data)
+    assert text == lock.dump_lock(json.loads(text))
+    assert text.index('"a"') < text.index('"b"')
+    path = tmp_path / lock.LOCK_FILE
+    path.write_text(text)
+    assert lock.locked_target(lock.load_lock(path), "run", "amd64")["apt"] == {"a": "2", "b": "1"}
+    assert lock.lock_digest(text).startswith("sha256:")
+    with pytest.raises(lock.LockError, match="no entry for dev/amd64"):
+        lock.locked_target(lock.load_lock(path), "dev", "amd64")
+    with pytest.raises(lock.LockError, match="not found: run `inv lock`"):
+        lock.load_lock(tmp_path / "missing.lock")
+
+
+def test_base_image_by_digest():
+    record = {"digest": "sha256:" + "f" * 64, "local": False}
+    assert lock.base_image_ref("reg:5000/ros:noetic", record) == "reg:5000/ros@sha256:" + "f" * 64
+    assert lock.base_image_ref("ros", record) == "ros@sha256:" + "f" * 64
+    local = {"digest": "sha256:" + "e" * 64, "local": True}
+    assert lock.base_image_ref("docker-ros/ros1:bookworm", local) == "sha256:" + "e" * 64
+    with pytest.raises(lock.LockError, match="no digest for BASE_IMAGE"):
+        lock.base_image_ref("ros", {})
+
+
+def test_base_image_record_prefers_the_registry_digest_of_its_repository():
+    from docker_ros.lock import base_image_record
+
+    attrs = {"Id": "sha256:" + "1" * 64,
+             "RepoDigests": ["other/x@sha256:" + "2" * 64, "reg:5000/ros@sha256:" + "3" * 64]}
+    assert base_image_record("reg:5000/ros:noetic", attrs) == {
+        "ref": "reg:5000/ros:noetic", "digest": "sha256:" + "3" * 64, "local": False}
+    local = base_image_record("docker-ros/ros1:bookworm", {"Id": "sha256:" + "1" * 64})
+    assert local == {"ref": "docker-ros/ros1:bookworm", "digest": "sha256:" + "1" * 64,
+                     "local": True}
+    with pytest.raises(lock.LockError, match="BASE_IMAGE nothere not found"):
+        base_image_record("nothere", None)
+
+
+def _plan(tmp_path: Path, target: str = "run", **environ):
+    from docker_ros import build
+    from docker_ros.settings import load_settings
+
+    s = load_settings(environ={"BASE_IMAGE": "reg:5000/ros:noetic", "BUILD_CONTEXT": str(tmp_path),
+                               **environ}, project_dir=tmp_path)
+    return build.plan_build(s, target=target, platform="amd64", tools_image="tools:x",
+                            tag="img:t", secrets={})
+
+
+def test_unlocked_builds_are_unchanged_and_a_locked_one_builds_from_the_digest(tmp_path: Path):
+    digest = "sha256:" + "3" * 64
+    (tmp_path / lock.LOCK_FILE).write_text(lock.dump_lock({"format": 1, "targets": {
+        "run/amd64": {"base_image": {"ref": "reg:5000/ros:noetic", "digest": digest,
+                                     "local": False}}}}))
+    default = _plan(tmp_path)
+    assert _plan(tmp_path, LOCKED="false") == default
+    assert "BASE_IMAGE=reg:5000/ros:noetic" in default
+    locked = _plan(tmp_path, LOCKED="true")
+    assert "BASE_IMAGE=reg:5000/ros@" + digest in locked
+    assert [a for a in locked if not a.startswith("BASE_IMAGE=")] == [
+        a for a in default if not a.startswith("BASE_IMAGE=")]
+    with pytest.raises(lock.LockError, match="BASE_IMAGE is other:1, docker-ros.lock has"):
+        _plan(tmp_path, LOCKED="true", BASE_IMAGE="other:1")
+    with pytest.raises(lock.LockError, match="no entry for dev/amd64"):
+        _plan(tmp_path, "dev", LOCKED="true")
