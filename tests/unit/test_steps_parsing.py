@@ -430,16 +430,46 @@ def test_colcon_stamps_only_files_whose_content_changed(tmp_path):
 
 def test_colcon_builds_only_changed_packages_and_dependents_when_nothing_else_changed():
     dirs = {"a": "target/a", "b": "target/b", "sub": "target/a/sub"}
-    same = {"argv": ["colcon", "build"], "environment": "e1", "packages": dirs}
-    select = colcon.incremental_selection
-    assert select(same, dict(same), {"target/a/src/x.cpp"}, dirs) == ["a"]
-    assert select(same, dict(same), {"target/a/sub/x.cpp", "target/b/y"}, dirs) == ["b", "sub"]
-    assert select(same, dict(same), set(), dirs) == []
-    # full builds: the first one, a file outside every package, another environment
-    assert select({}, same, {"target/a/x"}, dirs) is None
-    assert select(same, dict(same), {"target/CMakeLists.txt"}, dirs) is None
-    assert select(same, {**same, "environment": "e2"}, {"target/a/x"}, dirs) is None
-    assert select(same, {**same, "packages": {"a": "target/a"}}, {"target/a/x"}, dirs) is None
+    same = {"argv": ["colcon", "build"], "environment": "e1", "packages": dirs,
+            "platform": "x86_64"}
+
+    def select(previous, current, changed):
+        return colcon.incremental_selection(previous, current, changed, dirs)
+
+    assert select(same, dict(same), {"target/a/src/x.cpp"}) == (["a"], "")
+    assert select(same, dict(same), {"target/a/sub/x.cpp", "target/b/y"}) == (["b", "sub"], "")
+    assert select(same, dict(same), set()) == ([], "")
+    # full builds, each with its reason
+    assert select({}, same, {"target/a/x"}) == (
+        None, "no build state (first build with this cache)")
+    assert select(same, dict(same), {"target/CMakeLists.txt"}) == (
+        None, "target/CMakeLists.txt changed outside every package")
+    assert select(same, {**same, "environment": "e2"}, set())[1] == "the dependencies changed"
+    assert select(same, {**same, "packages": {"a": "target/a"}}, set())[1] == (
+        "the package set changed")
+    assert "CMAKE_ARGS" in select(same, {**same, "argv": ["colcon", "build", "-x"]}, set())[1]
+    assert select(same, {**same, "platform": "aarch64"}, set())[1] == (
+        "the build state is for another platform")
+    # a state written before the platform was recorded
+    assert select({k: v for k, v in same.items() if k != "platform"}, same, set())[0] is None
+
+
+def test_colcon_seeds_an_empty_build_cache_from_a_pulled_state_only(tmp_path):
+    cache, seed = tmp_path / "build", tmp_path / "seed"
+    cache.mkdir()
+    (seed / colcon.INSTALL_COPY).mkdir(parents=True)
+    (seed / colcon.INSTALL_RECORD).write_text("{}")
+    (seed / colcon.INSTALL_COPY / "lib.so").write_text("seed")
+    colcon.seed_build_state(cache, seed)
+    assert (cache / colcon.INSTALL_COPY / "lib.so").read_text() == "seed"
+    (cache / colcon.INSTALL_COPY / "lib.so").write_text("own")
+    colcon.seed_build_state(cache, seed)  # the cache's own state wins
+    assert (cache / colcon.INSTALL_COPY / "lib.so").read_text() == "own"
+    colcon.seed_build_state(tmp_path / "other", tmp_path / "missing")  # nothing to seed from
+    assert not (tmp_path / "other").exists()
+
+
+def test_colcon_dependents_follow_every_dependency_kind():
     pkgs = [Package("a", Path("a"), 2, "ament_cmake", {"depend": ()}),
             Package("b", Path("b"), 2, "ament_cmake", {"build_depend": ("a",)}),
             Package("c", Path("c"), 2, "ament_cmake", {"exec_depend": ("b", "std_msgs")}),

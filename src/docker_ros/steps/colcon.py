@@ -4,6 +4,7 @@ import hashlib
 import json
 import logging
 import os
+import platform
 import re
 import shlex
 import time
@@ -23,6 +24,9 @@ STAMP_FILE = ".docker-ros-source-hashes.json"
 # built from (colcon arguments, packages, environment), for incremental image builds.
 INSTALL_COPY = ".docker-ros-install"
 INSTALL_RECORD = ".docker-ros-install.json"
+# A build state from elsewhere (the registry's, bind-mounted by the Dockerfile; empty locally):
+# it seeds a build/ cache that holds no state of its own.
+BUILD_STATE_SEED = Path("/docker-ros/build-state")
 DPKG_STATUS = Path("/var/lib/dpkg/status")
 LOG = logging.getLogger(__name__)
 _FAILED = re.compile(r"^Failed\s+<<<\s+(\S+)")
@@ -103,17 +107,33 @@ def owner(path: str, package_dirs: Mapping[str, str]) -> Optional[str]:
 
 def incremental_selection(previous: Mapping[str, object], current: Mapping[str, object],
                           changed: Set[str], package_dirs: Mapping[str, str]
-                          ) -> Optional[List[str]]:
+                          ) -> Tuple[Optional[List[str]], str]:
     """The changed packages, for `colcon build --packages-above` (they and their dependents)
-    over the install space of the last build; None when only a full build is right: the first
-    build, other colcon arguments, packages or dependencies, or a changed file outside every
-    package."""
-    if not previous or previous != current:
-        return None
+    over the install space of the last build, or None and why only a full build is right."""
+    if not previous:
+        return None, "no build state (first build with this cache)"
+    differs = [(k, why) for k, why in (
+        ("platform", "the build state is for another platform"),
+        ("argv", "the colcon arguments (CMAKE_ARGS, ignored packages) changed"),
+        ("environment", "the dependencies changed"),
+        ("packages", "the package set changed")) if previous.get(k) != current.get(k)]
+    if differs:
+        return None, differs[0][1]
+    if previous != current:
+        return None, "the build state's record is of another version"
     owners = {owner(path, package_dirs) for path in changed}
     if None in owners:
-        return None
-    return sorted(o for o in owners if o)
+        outside = sorted(p for p in changed if owner(p, package_dirs) is None)
+        return None, f"{outside[0]} changed outside every package"
+    return sorted(o for o in owners if o), ""
+
+
+def seed_build_state(cache: Path, seed: Path) -> None:
+    """A build/ cache without a record of its own starts from the seed's state, if it has one."""
+    if (cache / INSTALL_RECORD).is_file() or not (seed / INSTALL_RECORD).is_file():
+        return
+    LOG.info("%s: the build cache is empty: starting from the pulled build state", STEP)
+    run(["cp", "-a", f"{seed}/.", str(cache)], step=STEP)
 
 
 def dependents(selected: Sequence[str], packages: Sequence[Package]) -> Set[str]:
@@ -174,15 +194,19 @@ def main(
         if not options.get("stamp_changed"):
             build(ws, argv, env)
             return
+        cache = ws.root / "build"
+        seed_build_state(cache, BUILD_STATE_SEED)
         stamps, changed = stamp_changed_sources(ws)
         packages = find_packages(ws, settings, step=STEP)
         package_dirs = {p.name: p.path.relative_to(ws.src).as_posix() for p in packages}
-        current = {"argv": argv, "environment": environment_digest(ws), "packages": package_dirs}
-        cache = ws.root / "build"
+        current = {"argv": argv, "environment": environment_digest(ws), "packages": package_dirs,
+                   "platform": platform.machine()}
         record = cache / INSTALL_RECORD
         previous = json.loads(record.read_text()) if record.is_file() else {}
-        selected = incremental_selection(previous, current, changed, package_dirs)
-        if selected is not None and (cache / INSTALL_COPY).is_dir():
+        selected, why = incremental_selection(previous, current, changed, package_dirs)
+        if selected is not None and not (cache / INSTALL_COPY).is_dir():
+            selected, why = None, "the build state has no install space"
+        if selected is not None:
             restore_install(ws, cache / INSTALL_COPY)
             rebuilt = dependents(selected, packages) - set(ignore)
             if rebuilt:
@@ -192,6 +216,7 @@ def main(
             else:
                 LOG.info("%s: no package changed, the install space is the last build's", STEP)
         else:
+            LOG.info("%s: full build: %s", STEP, why)
             rebuilt = None
             build(ws, argv, env)
         # Only after success: a failed build must find the same files changed next time.
