@@ -130,3 +130,35 @@ def test_unlocked_builds_are_unchanged_and_a_locked_one_builds_from_the_digest(t
         _plan(tmp_path, LOCKED="true", BASE_IMAGE="other:1")
     with pytest.raises(lock.LockError, match="no entry for dev/amd64"):
         _plan(tmp_path, "dev", LOCKED="true")
+
+
+def _locked_ws(tmp_path: Path, debs: str, inputs):
+    from docker_ros.runtime.workspace import Workspace
+    from docker_ros.settings import load_settings
+
+    ws = Workspace(tmp_path / "ws")
+    ws.target.mkdir(parents=True)
+    (ws.target / "debs.txt").write_text(debs)
+    entry = {"inputs": {"debs": inputs}, "apt": {"sl": "5.02-1+b1", "libncurses6": "6.4-4"}}
+    (ws.target / lock.LOCK_FILE).write_text(lock.dump_lock(
+        {"format": 1, "targets": {f"dev/{lock.host_platform()}": entry}}))
+    settings = load_settings(environ={"ADDITIONAL_DEBS_FILE": "debs.txt", "LOCKED": "true"},
+                             project_dir=ws.target)
+    return ws, settings
+
+
+def test_locked_debs_step_installs_the_locked_versions(tmp_path: Path, capsys):
+    from docker_ros.steps import debs
+
+    ws, settings = _locked_ws(tmp_path, "sl\n", ["sl"])
+    debs.main(ws, settings, dry_run=True)
+    assert "--no-install-recommends libncurses6=6.4-4 sl=5.02-1+b1" in capsys.readouterr().out
+
+
+def test_locked_debs_step_stops_on_a_new_line_naming_it(tmp_path: Path):
+    from docker_ros.runtime.workspace import StepError
+    from docker_ros.steps import debs
+
+    ws, settings = _locked_ws(tmp_path, "sl\ncmatrix\n", ["sl"])
+    with pytest.raises(StepError, match="debs: added cmatrix.*run `inv lock`"):
+        debs.main(ws, settings, dry_run=True)

@@ -15,13 +15,18 @@ differ is stale and stops before installing anything."""
 
 import hashlib
 import json
+import os
+import platform
 import re
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
+from docker_ros.runtime.workspace import StepError, Workspace
+
 LOCK_FILE = "docker-ros.lock"
 FORMAT = 1
 INPUT_KINDS = ("debs", "pip", "rosdep_keys", "repos", "rosdep_rules")
+TARGET_ENV = "DOCKER_ROS_LOCK_TARGET"
 # `apt-get install -s`: "Inst name [old] (version suite [arch])"
 APT_INST = re.compile(r"^Inst (\S+) (?:\[[^\]]*\] )?\((\S+) ([^\[)]*)")
 PIP_NAME = re.compile(r"^\s*([A-Za-z0-9][A-Za-z0-9._-]*)")
@@ -207,3 +212,44 @@ def image_repository(ref: str) -> str:
     if ":" in last:
         name = name[: len(name) - len(last)] + last.split(":", 1)[0]
     return name
+
+
+def host_platform() -> str:
+    machine = platform.machine().lower()
+    return {"x86_64": "amd64", "aarch64": "arm64"}.get(machine, machine)
+
+
+def active_entry(ws: Workspace, settings: Any, step: str) -> Optional[Dict[str, Any]]:
+    """The lock entry a step honours: None unless LOCKED; the repository's docker-ros.lock,
+    target DOCKER_ROS_LOCK_TARGET (dev: its packages include the run image's), this platform."""
+    if not getattr(settings, "locked", False):
+        return None
+    target = os.environ.get(TARGET_ENV) or "dev"
+    try:
+        return locked_target(load_lock(ws.target / LOCK_FILE), target, host_platform())
+    except LockError as exc:
+        raise StepError(step, str(exc)) from None
+
+
+def locked_arguments(
+    ws: Workspace, settings: Any, *, step: str, kind: str, inputs: Sequence[str]
+) -> Optional[List[str]]:
+    """What a locked step installs instead of `inputs` (apt: `name=version` of the whole
+    locked closure, pip: `name==version`), after checking `inputs` against the lock's; None
+    when not locked (the step installs its inputs as before)."""
+    entry = active_entry(ws, settings, step)
+    if entry is None:
+        return None
+    recorded = sorted((entry.get("inputs") or {}).get(step) or [])
+    try:
+        changes = stale_inputs({step: recorded}, {step: sorted(inputs)})
+        if changes:
+            raise LockError(
+                f"LOCKED: the repository no longer matches docker-ros.lock ({'; '.join(changes)})"
+                ": run `inv lock`"
+            )
+        if kind == "apt":
+            return apt_pins(inputs, entry.get("apt") or {})
+        return pip_pins(inputs, entry.get("pip") or {})
+    except LockError as exc:
+        raise StepError(step, str(exc)) from None

@@ -4,6 +4,7 @@ from typing import Any, Dict, List, Sequence
 
 from docker_ros.runtime.apt import apt_install
 from docker_ros.runtime.files import collect_list_entries
+from docker_ros.runtime.lock import locked_arguments
 from docker_ros.runtime.workspace import Workspace, phases, step_log
 from docker_ros.settings import Settings
 
@@ -37,6 +38,8 @@ def main(
             if not do_collect:
                 plan = ws.load_plan(STEP, STATE_FILE)
             packages: List[str] = list(plan.get("packages") or [])
+            packages = locked_arguments(ws, settings, step=STEP, kind="apt",
+                                        inputs=packages) or packages
             apt_install(
                 packages,
                 step=STEP,

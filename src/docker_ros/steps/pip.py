@@ -11,6 +11,7 @@ import shlex
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.runtime.files import collect_list_entries, unique
+from docker_ros.runtime.lock import locked_arguments
 from docker_ros.runtime.process import is_root, probe, run, run_tee
 from docker_ros.runtime.workspace import LOG, StepError, Workspace, format_argv, phases, step_log
 from docker_ros.settings import Settings
@@ -150,7 +151,9 @@ def main(
         if do_apply:
             if not do_collect:
                 plan = ws.load_plan(STEP, STATE_FILE)
-            arguments = requirement_arguments(list(plan.get("requirements") or []))
+            requirements = list(plan.get("requirements") or [])
+            arguments = locked_arguments(ws, settings, step=STEP, kind="pip",
+                                         inputs=requirements) or requirement_arguments(requirements)
             pip_install(
                 arguments,
                 step=STEP,
