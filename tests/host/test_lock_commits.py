@@ -3,6 +3,8 @@
 import subprocess
 from pathlib import Path
 
+import pytest
+
 from docker_ros.lock import repository_commits
 from docker_ros.runtime.lock import dump_repos, pin_repos
 
@@ -46,3 +48,33 @@ def test_commits_of_nested_checkouts_and_pinned_import(tmp_path: Path):
                    capture_output=True)
     assert git("rev-parse", "HEAD", cwd=dest / "foo") == first
     assert (dest / "foo" / "a.txt").read_text() == "1\n"
+
+
+def test_locked_clone_step_imports_the_locked_commit_and_unlocked_the_new(tmp_path: Path):
+    from docker_ros.runtime.lock import LOCK_FILE, dump_lock, host_platform
+    from docker_ros.runtime.workspace import StepError, Workspace
+    from docker_ros.settings import load_settings
+    from docker_ros.steps import clone
+
+    remote = tmp_path / "remote" / "foo"
+    first = make_upstream(remote)
+    (remote / "a.txt").write_text("2\n")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qam", "two", cwd=remote)
+    newest = git("rev-parse", "HEAD", cwd=remote)
+
+    def clone_into(name: str, locked: bool, url: str = remote.as_uri()) -> Path:
+        ws = Workspace(tmp_path / name)
+        ws.target.mkdir(parents=True)
+        (ws.target / ".repos").write_text(
+            f"repositories:\n  foo:\n    type: git\n    url: {url}\n    version: main\n")
+        entry = {"repos": {"upstream/foo": {"url": remote.as_uri(), "commit": first}}}
+        (ws.target / LOCK_FILE).write_text(dump_lock(
+            {"format": 1, "targets": {f"dev/{host_platform()}": entry}}))
+        settings = load_settings(environ={"LOCKED": str(locked).lower()}, project_dir=ws.target)
+        clone.main(ws, settings)
+        return ws.upstream / "foo"
+
+    assert git("rev-parse", "HEAD", cwd=clone_into("locked", True)) == first
+    assert git("rev-parse", "HEAD", cwd=clone_into("unlocked", False)) == newest
+    with pytest.raises(StepError, match="upstream/foo .* differs from docker-ros.lock"):
+        clone_into("moved", True, url=(tmp_path / "remote" / "other").as_uri())

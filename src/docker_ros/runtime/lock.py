@@ -253,3 +253,19 @@ def locked_arguments(
         return pip_pins(inputs, entry.get("pip") or {})
     except LockError as exc:
         raise StepError(step, str(exc)) from None
+
+
+def pinned_repos_file(
+    ws: Workspace, step: str, repos_file: Path, repos: Mapping[str, Mapping[str, str]],
+    locked: Mapping[str, Mapping[str, str]],
+) -> Path:
+    """A copy of `repos_file` in the workspace's state folder with every version replaced by its
+    locked commit (entries land in src/upstream, recorded as `upstream/<name>`)."""
+    try:
+        text = dump_repos(pin_repos(repos, locked, "upstream"))
+    except LockError as exc:
+        raise StepError(step, f"{ws.relative(repos_file)}: {exc}") from None
+    pinned = ws.state / f"locked-{hashlib.sha256(str(repos_file).encode()).hexdigest()[:12]}.repos"
+    pinned.parent.mkdir(parents=True, exist_ok=True)
+    pinned.write_text(text)
+    return pinned

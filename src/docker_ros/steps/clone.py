@@ -18,6 +18,7 @@ from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Set
 from docker_ros.runtime import system
 from docker_ros.runtime.apt import apt_install
 from docker_ros.runtime.files import file_sha256, find_special_files, remove_tree, repository_path
+from docker_ros.runtime.lock import active_entry, pinned_repos_file
 from docker_ros.runtime.process import hook_context, is_root, run, run_script, run_tee
 from docker_ros.runtime.rosenv import SECRETS_DIR, read_secret
 from docker_ros.runtime.workspace import StepError, Workspace, dry, format_argv, phases, step_log
@@ -355,6 +356,8 @@ def main(
             ws.upstream.mkdir(parents=True, exist_ok=True)
         seen_paths: Set[str] = set()
         done_hashes: Set[str] = set()
+        entry = active_entry(ws, settings, STEP)
+        locked = dict(entry.get("repos") or {}) if entry is not None else None
         with git_credentials(settings) as env:
             for _round in range(MAX_ROUNDS):
                 new = []
@@ -367,7 +370,8 @@ def main(
                 if not new:
                     break
                 for repos_file in new:
-                    _import_once(ws, repos_file, imported, done_hashes, env, dry_run=dry_run)
+                    _import_once(ws, repos_file, imported, done_hashes, env, dry_run=dry_run,
+                                 locked=locked)
                 if not settings.enable_recursive_vcs_import or dry_run:
                     break
             else:
@@ -388,6 +392,7 @@ def _import_once(
     env: Mapping[str, str],
     *,
     dry_run: bool,
+    locked: Optional[Mapping[str, Mapping[str, str]]] = None,
 ) -> None:
     rel = ws.relative(repos_file)
     digest = file_sha256(repos_file)
@@ -420,6 +425,9 @@ def _import_once(
         )
         return
     LOG.info("%s: importing %d repositories from %s", STEP, len(repos), rel)
+    if locked is not None:  # LOCKED: the commits of docker-ros.lock
+        repos_file = pinned_repos_file(ws, STEP, repos_file, repos, locked)
+        repos = parse_repos(repos_file.read_text())
     import_file(ws, repos_file, repos, skip_existing=not changed, env=env)
     imported[rel] = {"repositories": sorted(repos), "sha256": digest}
     ws.write_state(STATE_FILE, {"imported": imported})
