@@ -162,3 +162,19 @@ def test_locked_debs_step_stops_on_a_new_line_naming_it(tmp_path: Path):
     ws, settings = _locked_ws(tmp_path, "sl\ncmatrix\n", ["sl"])
     with pytest.raises(StepError, match="debs: added cmatrix.*run `inv lock`"):
         debs.main(ws, settings, dry_run=True)
+
+
+def test_locked_rosdep_plan_pins_and_names_a_new_dependency(tmp_path: Path):
+    from docker_ros.runtime.workspace import StepError
+
+    ws, settings = _locked_ws(tmp_path, "", [])
+    data = json.loads((ws.target / lock.LOCK_FILE).read_text())
+    data["targets"][f"dev/{lock.host_platform()}"]["inputs"].update(
+        {"rosdep_apt_all": ["sl"], "rosdep_pip_all": []})
+    (ws.target / lock.LOCK_FILE).write_text(lock.dump_lock(data))
+    plan = {"all": {"apt": ["sl"], "pip": []}}
+    pinned = lock.locked_rosdep_plan(ws, settings, plan, "all", "rosdep")
+    assert pinned["all"] == {"apt": ["libncurses6=6.4-4", "sl=5.02-1+b1"], "pip": []}
+    grown = {"all": {"apt": ["sl", "cmatrix"], "pip": []}}
+    with pytest.raises(StepError, match="rosdep_apt_all: added cmatrix.*run `inv lock`"):
+        lock.locked_rosdep_plan(ws, settings, grown, "all", "rosdep")

@@ -156,10 +156,12 @@ def dump_repos(repos: Mapping[str, Mapping[str, str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def stale_inputs(recorded: Mapping[str, Any], current: Mapping[str, Any]) -> List[str]:
+def stale_inputs(
+    recorded: Mapping[str, Any], current: Mapping[str, Any], kinds: Sequence[str] = INPUT_KINDS
+) -> List[str]:
     """What changed between the lock's inputs and the repository's now: one line each."""
     changes: List[str] = []
-    for kind in INPUT_KINDS:
+    for kind in kinds:
         old, new = recorded.get(kind), current.get(kind)
         if old == new:
             continue
@@ -232,7 +234,7 @@ def active_entry(ws: Workspace, settings: Any, step: str) -> Optional[Dict[str, 
 
 
 def locked_arguments(
-    ws: Workspace, settings: Any, *, step: str, kind: str, inputs: Sequence[str]
+    ws: Workspace, settings: Any, *, step: str, kind: str, inputs: Sequence[str], key: str = ""
 ) -> Optional[List[str]]:
     """What a locked step installs instead of `inputs` (apt: `name=version` of the whole
     locked closure, pip: `name==version`), after checking `inputs` against the lock's; None
@@ -240,9 +242,10 @@ def locked_arguments(
     entry = active_entry(ws, settings, step)
     if entry is None:
         return None
-    recorded = sorted((entry.get("inputs") or {}).get(step) or [])
+    key = key or step
+    recorded = sorted((entry.get("inputs") or {}).get(key) or [])
     try:
-        changes = stale_inputs({step: recorded}, {step: sorted(inputs)})
+        changes = stale_inputs({key: recorded}, {key: sorted(inputs)}, kinds=(key,))
         if changes:
             raise LockError(
                 f"LOCKED: the repository no longer matches docker-ros.lock ({'; '.join(changes)})"
@@ -269,3 +272,20 @@ def pinned_repos_file(
     pinned.parent.mkdir(parents=True, exist_ok=True)
     pinned.write_text(text)
     return pinned
+
+
+def locked_rosdep_plan(
+    ws: Workspace, settings: Any, plan: Mapping[str, Any], dependency_types: str, step: str
+) -> Mapping[str, Any]:
+    """rosdep's plan with the chosen set's apt and pip packages replaced by the lock's pins
+    (inputs `rosdep_apt_<types>` / `rosdep_pip_<types>`); the plan itself unless LOCKED."""
+    chosen = plan.get(dependency_types)
+    if not isinstance(chosen, dict) or not getattr(settings, "locked", False):
+        return plan
+    pinned = {
+        installer: locked_arguments(ws, settings, step=step, kind=installer,
+                                    inputs=list(chosen.get(installer) or []),
+                                    key=f"rosdep_{installer}_{dependency_types}") or []
+        for installer in ("apt", "pip")
+    }
+    return {**plan, dependency_types: {**chosen, **pinned}}

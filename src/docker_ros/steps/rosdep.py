@@ -16,6 +16,7 @@ from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.runtime.apt import apt_install
 from docker_ros.runtime.files import repository_path
+from docker_ros.runtime.lock import locked_rosdep_plan
 from docker_ros.runtime.packages import (
     DEPENDENCY_SETS,
     blacklisted_dependents,
@@ -381,4 +382,5 @@ def main(
             if plan is None:
                 dry(STEP, f"install the resolved {dependency_types!r} dependencies")
                 return
+            plan = locked_rosdep_plan(ws, settings, plan, dependency_types, STEP)
             apply(plan, dependency_types, dry_run=dry_run)
