@@ -78,3 +78,13 @@ def test_locked_clone_step_imports_the_locked_commit_and_unlocked_the_new(tmp_pa
     assert git("rev-parse", "HEAD", cwd=clone_into("unlocked", False)) == newest
     with pytest.raises(StepError, match="upstream/foo .* differs from docker-ros.lock"):
         clone_into("moved", True, url=(tmp_path / "remote" / "other").as_uri())
+
+
+def test_apt_closure_lists_the_package_and_what_apt_pulls_in():
+    from docker_ros.runtime.lock import apt_closure
+
+    closure = apt_closure(["cmatrix"])
+    assert "cmatrix" in closure and all(version for version in closure.values())
+    policy = subprocess.run(["apt-cache", "policy", "cmatrix"], capture_output=True, text=True,
+                            env={"LC_ALL": "C", "PATH": "/usr/bin:/bin"}).stdout
+    assert f"Candidate: {closure['cmatrix']}" in policy

@@ -178,3 +178,19 @@ def test_locked_rosdep_plan_pins_and_names_a_new_dependency(tmp_path: Path):
     grown = {"all": {"apt": ["sl", "cmatrix"], "pip": []}}
     with pytest.raises(StepError, match="rosdep_apt_all: added cmatrix.*run `inv lock`"):
         lock.locked_rosdep_plan(ws, settings, grown, "all", "rosdep")
+
+
+def test_recorded_inputs_are_what_the_collect_phases_wrote(tmp_path: Path):
+    from docker_ros.runtime.workspace import Workspace
+
+    ws = Workspace(tmp_path)
+    ws.write_state("debs.json", {"packages": ["sl", "cmatrix"]})
+    ws.write_state("rosdep.json", {"all": {"apt": ["b", "a"], "pip": []}})
+    rules = tmp_path / "rules.yaml"
+    rules.write_text("boost: {debian: [libboost-all-dev]}\n")
+    inputs = lock.recorded_inputs(ws, rules)
+    assert inputs == {"debs": ["cmatrix", "sl"], "pip": [], "rosdep_apt_all": ["a", "b"],
+                      "rosdep_pip_all": [], "rosdep_rules": lock.file_digest(rules)}
+    rules.write_text("boost: {debian: [libboost-dev]}\n")
+    assert lock.stale_inputs(inputs, lock.recorded_inputs(ws, rules))[0].startswith(
+        "rosdep_rules: sha256:")

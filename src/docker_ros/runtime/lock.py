@@ -21,6 +21,7 @@ import re
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
+from docker_ros.runtime.process import probe
 from docker_ros.runtime.workspace import StepError, Workspace
 
 LOCK_FILE = "docker-ros.lock"
@@ -289,3 +290,36 @@ def locked_rosdep_plan(
         for installer in ("apt", "pip")
     }
     return {**plan, dependency_types: {**chosen, **pinned}}
+
+
+def apt_closure(packages: Sequence[str], *, step: str = "lock") -> Dict[str, str]:
+    """name -> version of the packages and every package apt would install with them, where
+    this runs (`--reinstall`: named packages already installed are listed too)."""
+    if not packages:
+        return {}
+    argv = ["apt-get", "install", "-s", "--reinstall", "--no-install-recommends", *packages]
+    proc = probe(argv, step=step, env={**os.environ, "LC_ALL": "C"})
+    if proc.returncode != 0:
+        raise StepError(step, f"apt cannot resolve {' '.join(packages)}: "
+                        f"{proc.stderr.strip().splitlines()[-1:] or proc.returncode}")
+    return parse_apt_simulation(proc.stdout.splitlines())
+
+
+def recorded_inputs(ws: Workspace, rules_file: Optional[Path]) -> Dict[str, Any]:
+    """The resolution the collect phases wrote (debs.json, pip.json, rosdep.json) and the rules
+    file's digest: what a locked build compares with the lock."""
+    inputs: Dict[str, Any] = {
+        "debs": sorted(_state(ws, "debs.json").get("packages") or []),
+        "pip": sorted(_state(ws, "pip.json").get("requirements") or []),
+        "rosdep_rules": file_digest(rules_file),
+    }
+    for types, chosen in sorted(_state(ws, "rosdep.json").items()):
+        if isinstance(chosen, dict):
+            for installer in ("apt", "pip"):
+                inputs[f"rosdep_{installer}_{types}"] = sorted(chosen.get(installer) or [])
+    return inputs
+
+
+def _state(ws: Workspace, name: str) -> Dict[str, Any]:
+    data = ws.read_state(name)
+    return dict(data) if isinstance(data, dict) else {}
