@@ -2,18 +2,28 @@
 What images run (parsing apt's and pip's resolution, pins, stale inputs) is runtime/lock.py."""
 
 import subprocess
+import tempfile
+from dataclasses import replace
 from pathlib import Path
-from typing import Any, Dict, Mapping, Optional
+from typing import Any, Dict, List, Mapping, Optional
 
 from docker_ros import engine
 from docker_ros.runtime.lock import (
+    FORMAT,
     LOCK_FILE,
     LockError,
+    apt_closure,
     base_image_ref,
+    dump_lock,
+    host_platform,
     image_repository,
     load_lock,
     locked_target,
+    recorded_inputs,
+    stale_inputs,
+    target_key,
 )
+from docker_ros.runtime.workspace import Workspace
 from docker_ros.settings import Settings
 
 
@@ -72,3 +82,49 @@ def locked_build_args(settings: Settings, *, target: str, platform: str) -> Dict
             " run `inv lock`"
         )
     return {"BASE_IMAGE": base_image_ref(settings.base_image or "", record)}
+
+
+def host_entry(settings: Settings) -> Dict[str, Any]:
+    """This machine's lock entry (target dev): the repository imported and resolved afresh in a
+    throw-away workspace (clone, then the collect phases), then what apt would install for it."""
+    from docker_ros.steps import run_step
+
+    unlocked = replace(settings, locked=False)  # resolve afresh, whatever the lock says
+    with tempfile.TemporaryDirectory(prefix="docker-ros-lock-") as tmp:
+        ws = Workspace(tmp)
+        ws.src.mkdir()
+        ws.target.symlink_to(Path(settings.build_context).resolve(), target_is_directory=True)
+        run_step("clone", ws, unlocked, phase="all", dry_run=False)
+        for step in ("rosdep", "debs", "pip"):
+            run_step(step, ws, unlocked, phase="collect", dry_run=False)
+        return _entry(settings, ws)
+
+
+def _entry(settings: Settings, ws: Workspace) -> Dict[str, Any]:
+    inputs = recorded_inputs(ws, Path(settings.build_context) / settings.rosdep_rules_file)
+    apt = sorted({*inputs["debs"], *inputs.get("rosdep_apt_all", [])})
+    entry: Dict[str, Any] = {"inputs": inputs, "repos": repository_commits(ws.upstream),
+                             "apt": apt_closure(apt), "pip": {}}
+    if settings.base_image and engine.inspect_image(settings.base_image) is not None:
+        entry["base_image"] = base_image(settings.base_image)
+    return entry
+
+
+def lock_host(settings: Settings, *, check: bool) -> List[str]:
+    """Write (or with `check`, compare) docker-ros.lock's entry for this machine; the
+    differences from the file's entry, one line each."""
+    path, key = lock_path(settings), target_key("dev", host_platform())
+    current: Dict[str, Any] = (
+        load_lock(path) if path.is_file() else {"format": FORMAT, "targets": {}}
+    )
+    targets: Dict[str, Any] = dict(current.get("targets") or {})
+    old = dict(targets.get(key) or {})
+    new = host_entry(settings)
+    changes = stale_inputs(old.get("inputs") or {}, new["inputs"])
+    changes += [f"repos: {p} {old.get('repos', {}).get(p)} -> {new['repos'].get(p)}"
+                for p in sorted({*old.get("repos", {}), *new["repos"]})
+                if old.get("repos", {}).get(p) != new["repos"].get(p)]
+    if not check:
+        targets[key] = new
+        path.write_text(dump_lock({**current, "targets": targets}))
+    return changes

@@ -285,6 +285,24 @@ def config(c: Context, settings: Settings) -> None:
         raise TaskError("invalid configuration:\n  " + "\n  ".join(messages))
 
 
+@settings_task(
+    "lock", "Write docker-ros.lock for this machine (imported commits, apt versions)\n\n"
+    "Resolves the repository afresh in a throw-away workspace; with --check, writes nothing "
+    "and exits non-zero when the lock differs.",
+    [("check", False, "Compare with docker-ros.lock and print the differences; write nothing")],
+    uses=("build_context", "base_image"),
+)
+def lock_task(c: Context, settings: Settings, *, check: bool) -> None:
+    from docker_ros.lock import lock_host
+
+    started = time.monotonic()
+    changes = lock_host(settings, check=check)
+    print("\n".join(changes) or "docker-ros.lock: up to date")
+    print(f"lock: {time.monotonic() - started:.1f}s")
+    if check and changes:
+        raise TaskError("docker-ros.lock is stale: run `inv lock`")
+
+
 COMPOSITE_HELP = {
     "dev": "Build the dev image (or run clone..custom --host or --in-container)\n\n"
            "--host runs the steps on this machine, in WORKSPACE; --in-container runs them in "
@@ -707,7 +725,7 @@ def collection() -> Collection:
     for step in STEPS:
         ns.add_task(make_step_task(step))
     for task in (config, dev, run, build_task, test_task, slim_task, push_task, manifest_task,
-                 ci_task, dev_shell,
+                 ci_task, dev_shell, lock_task,
                  bootstrap_base_image, example):
         ns.add_task(task)
     return ns

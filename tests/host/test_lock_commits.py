@@ -7,6 +7,9 @@ import pytest
 
 from docker_ros.lock import repository_commits
 from docker_ros.runtime.lock import dump_repos, pin_repos
+from docker_ros.runtime.workspace import Workspace
+
+pytestmark = pytest.mark.host
 
 
 def git(*args: str, cwd: Path) -> str:
@@ -88,3 +91,43 @@ def test_apt_closure_lists_the_package_and_what_apt_pulls_in():
     policy = subprocess.run(["apt-cache", "policy", "cmatrix"], capture_output=True, text=True,
                             env={"LC_ALL": "C", "PATH": "/usr/bin:/bin"}).stdout
     assert f"Candidate: {closure['cmatrix']}" in policy
+
+
+def test_lock_host_writes_checks_and_then_holds_the_locked_build(project, tmp_path: Path):
+    import json
+
+    from docker_ros.lock import lock_host
+    from docker_ros.runtime.lock import LOCK_FILE
+    from docker_ros.runtime.workspace import StepError
+    from docker_ros.steps import clone, debs
+    from tests.rosfixtures import make_git_repo, write_repos
+
+    url = make_git_repo(tmp_path / "remotes" / "lib_a", {"README": "a\n"})
+    write_repos(project.repo / ".repos", {"lib_a": {"url": url, "version": "main"}})
+    (project.repo / "debs.txt").write_text("cmatrix\n")
+    env = {"build_context": str(project.repo), "additional_debs_file": "debs.txt"}
+    settings = project.settings(**env)
+
+    assert lock_host(settings, check=False)  # a first lock: everything is new
+    entry = next(iter(json.loads((project.repo / LOCK_FILE).read_text())["targets"].values()))
+    first = entry["repos"]["upstream/lib_a"]["commit"]
+    assert "cmatrix" in entry["apt"] and entry["inputs"]["debs"] == ["cmatrix"]
+    assert lock_host(settings, check=True) == []
+
+    remote = tmp_path / "remotes" / "lib_a"
+    (remote / "README").write_text("a2\n")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qam", "two", cwd=remote)
+    git("push", "-q", url, "HEAD:main", cwd=remote)
+    (project.repo / "debs.txt").write_text("cmatrix\nsl\n")
+    changes = lock_host(settings, check=True)
+    assert "debs: added sl" in changes
+    assert any(c.startswith("repos: upstream/lib_a ") and first in c for c in changes)
+
+    locked = project.settings(locked="true", **env)
+    with pytest.raises(StepError, match="debs: added sl.*run `inv lock`"):
+        debs.main(project.ws, locked, dry_run=True)
+    fresh = Workspace(tmp_path / "fresh")
+    fresh.src.mkdir(parents=True)
+    fresh.target.symlink_to(project.repo, target_is_directory=True)
+    clone.main(fresh, locked)
+    assert git("rev-parse", "HEAD", cwd=fresh.upstream / "lib_a") == first
