@@ -40,7 +40,7 @@ HANDLED_BY_TOOL = frozenset({
     "base_image", "build_context", "build_network", "buildx_attestations", "cache_from",
     "extra_ca_certs", "image", "image_name", "image_tag", "dev_image_name", "dev_image_tag",
     "platform", "target", "git_https_password", "git_ssh_private_key", "image_postfix",
-    "enable_lean_run_image", "locked",
+    "enable_lean_run_image", "locked", "build_state_from",
 })
 # Settings that do not affect building an image (push, slim, CI checkout, host workspace).
 NOT_BUILD_INPUTS = frozenset({
@@ -91,12 +91,29 @@ def image_ref(settings: Settings, target: str) -> str:
         return f"{settings.dev_image_name}:{settings.dev_image_tag}"
     if target == "slim":
         return f"{settings.slim_image_name}:{settings.slim_image_tag}"
+    if target == "build-state":
+        return f"{settings.image_name}:{settings.image_tag}-build-state"
     return f"{settings.image_name}:{settings.image_tag}"
 
 
 def platform_ref(ref: str, platform: str, platforms: Sequence[str]) -> str:
     """Several platforms: one local tag per architecture (`-amd64`/`-arm64` postfix)."""
     return ref if len(platforms) <= 1 else f"{ref}-{platform}"
+
+
+def build_state_seed(settings: Settings, platform: str, out: IO[str]) -> Dict[str, str]:
+    """The build argument that seeds an empty build cache with BUILD_STATE_FROM, pulled now;
+    none when it cannot be pulled (colcon then builds everything and says why)."""
+    if not settings.build_state_from:
+        return {}
+    ref = platform_ref(settings.build_state_from, platform, settings.platform)
+    start = time.monotonic()
+    if not engine.pull(ref):
+        print(f"build state: {ref} could not be pulled (none pushed yet?)", file=out)
+        return {}
+    print(f"build state: {ref} pulled in {time.monotonic() - start:.1f} s"
+          f" ({image_size(ref) / 1e6:.0f} MB)", file=out)
+    return {"DOCKER_ROS_BUILD_STATE": ref}
 
 
 def build_args(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
@@ -565,11 +582,13 @@ def build_images(
             bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
+        seed = build_state_seed(settings, platform, out) if "run" in targets else {}
         specs = {target: definition(settings, target=target, platform=platform,
                                     tools_image=tools, tag=tag,
                                     secrets=plan_secrets(settings, bundle), push=push,
                                     dockerfile=dockerfile, output=output,
-                                    extra_build_args=extra_build_args, imports_image=imports)
+                                    extra_build_args={**extra_build_args, **seed},
+                                    imports_image=imports)
                  for target, tag in targets.items()}
         if bake and can_bake(settings):
             definition_file = Path(tmp) / "docker-ros.bake.json"

@@ -31,6 +31,8 @@ def latest_ref(ref: str, target: str) -> str:
 def push_targets(settings: Settings) -> List[str]:
     """TARGET, plus slim after run when ENABLE_SLIM (as docker-ros's CI pushes it)."""
     targets = list(settings.target)
+    if "run" in targets and settings.build_state_from:
+        targets.append("build-state")
     return targets + ["slim"] if settings.enable_slim and "run" in targets else targets
 
 
@@ -69,6 +71,10 @@ def plan_push(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
     for target in targets:
         ref = image_ref(settings, target)
         names = pushed_names(settings, target)
+        if target == "build-state":
+            # one per architecture, under the name the next job pulls (BUILD_STATE_FROM)
+            commands += [["docker", "push", platform_ref(ref, p, platforms)] for p in platforms]
+            continue
         if len(platforms) == 1:
             if settings.enable_singlearch_push:
                 # Only `<name>-<arch>`, as docker-ros: the runner of one architecture must not

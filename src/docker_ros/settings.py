@@ -256,6 +256,14 @@ class Settings:
         " branch's); else none",
         group="ours",
     )
+    build_state_from: Optional[str] = setting(
+        None,
+        "Registry image of a build state (`<IMAGE>-build-state`) an empty build cache starts"
+        " from: only changed packages compile on an empty CI runner; set, the build also makes"
+        " the run image's build state, which `push` pushes",
+        default_doc="in CI: the build state the pipeline pushes; else none",
+        group="ours",
+    )
     build_network: Optional[str] = setting(
         None,
         "Network of the build's RUN steps (`host` reaches services on this machine's loopback,"
@@ -524,6 +532,12 @@ def derived_defaults(
         merged = {**values, **{name: value for name, (value, _) in out.items()}}
         out["cache_from"] = (ci_cache_refs(merged),
                              "derived from the CI pipeline (its pushed dev and run images)")
+    merged = {**values, **{name: value for name, (value, _) in out.items()}}
+    if (not values.get("build_state_from") and detect_pipeline(environ) is not None
+            and merged.get("image_name")):
+        out["build_state_from"] = (
+            f"{merged['image_name']}:{merged.get('image_tag', 'latest')}-build-state",
+            "derived from the CI pipeline (the build state it pushes)")
     return out
 
 

@@ -364,8 +364,10 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
         )
     built: List[BuiltImage] = []
     for platform in settings.platform:
+        # BUILD_STATE_FROM: the run image's build state too, for the next job's `push`
+        kinds = ("dev", "run") + (("build-state",) if settings.build_state_from else ())
         tags = {t: build.platform_ref(build.image_ref(settings, t), platform, settings.platform)
-                for t in ("dev", "run") if t in targets}
+                for t in kinds if t in targets or (t == "build-state" and "run" in targets)}
         if dry_run and build.can_bake(settings):
             specs = {t: build.shown_definition(settings, target=t, platform=platform, tag=tag)
                      for t, tag in tags.items()}
