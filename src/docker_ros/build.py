@@ -101,19 +101,27 @@ def platform_ref(ref: str, platform: str, platforms: Sequence[str]) -> str:
     return ref if len(platforms) <= 1 else f"{ref}-{platform}"
 
 
+def target_ref(settings: Settings, target: str, platform: str) -> str:
+    """The local name of a target's image built for one platform. A build state is always
+    per architecture (`-<arch>`): the jobs of several architectures push one each."""
+    ref = image_ref(settings, target)
+    return f"{ref}-{platform}" if target == "build-state" else platform_ref(
+        ref, platform, settings.platform)
+
+
 def build_state_seed(settings: Settings, platform: str, out: IO[str]) -> Dict[str, str]:
-    """The build argument that seeds an empty build cache with BUILD_STATE_FROM, pulled now;
-    none when it cannot be pulled (colcon then builds everything and says why)."""
-    if not settings.build_state_from:
-        return {}
-    ref = platform_ref(settings.build_state_from, platform, settings.platform)
-    start = time.monotonic()
-    if not engine.pull(ref):
+    """The build argument that seeds an empty build cache with the first pullable
+    BUILD_STATE_FROM image of this platform; none when none can be pulled (colcon then builds
+    everything and says why)."""
+    for candidate in settings.build_state_from:
+        ref = f"{candidate}-{platform}"
+        start = time.monotonic()
+        if engine.pull(ref):
+            print(f"build state: {ref} pulled in {time.monotonic() - start:.1f} s"
+                  f" ({image_size(ref) / 1e6:.0f} MB)", file=out)
+            return {"DOCKER_ROS_BUILD_STATE": ref}
         print(f"build state: {ref} could not be pulled (none pushed yet?)", file=out)
-        return {}
-    print(f"build state: {ref} pulled in {time.monotonic() - start:.1f} s"
-          f" ({image_size(ref) / 1e6:.0f} MB)", file=out)
-    return {"DOCKER_ROS_BUILD_STATE": ref}
+    return {}
 
 
 def build_args(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:

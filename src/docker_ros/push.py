@@ -7,7 +7,7 @@ import subprocess
 from typing import Dict, List, Mapping, Optional, Sequence
 
 from docker_ros import engine
-from docker_ros.build import BuildError, image_ref, platform_ref
+from docker_ros.build import BuildError, image_ref, platform_ref, target_ref
 from docker_ros.runtime.workspace import format_argv
 from docker_ros.settings import Settings
 
@@ -73,7 +73,7 @@ def plan_push(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
         names = pushed_names(settings, target)
         if target == "build-state":
             # one per architecture, under the name the next job pulls (BUILD_STATE_FROM)
-            commands += [["docker", "push", platform_ref(ref, p, platforms)] for p in platforms]
+            commands += [["docker", "push", target_ref(settings, target, p)] for p in platforms]
             continue
         if len(platforms) == 1:
             if settings.enable_singlearch_push:
@@ -109,7 +109,8 @@ def plan_outputs(
 ) -> Dict[str, str]:
     """CI outputs naming the pushed images: `images` (all, comma-separated) and per target
     `image`/`dev-image`/`slim-image` (its configured name, or `<name>-<arch>` if only that)."""
-    outputs = {"images": ",".join(pushed)}
+    states = [f"{image_ref(settings, 'build-state')}-{p}" for p in settings.platform]
+    outputs = {"images": ",".join(n for n in pushed if n not in states)}
     for target in targets:
         ref = image_ref(settings, target)
         mine = [n for n in [ref] + [f"{ref}-{p}" for p in settings.platform] if n in pushed]

@@ -256,12 +256,14 @@ class Settings:
         " branch's); else none",
         group="ours",
     )
-    build_state_from: Optional[str] = setting(
-        None,
-        "Registry image of a build state (`<IMAGE>-build-state`) an empty build cache starts"
-        " from: only changed packages compile on an empty CI runner; set, the build also makes"
-        " the run image's build state, which `push` pushes",
-        default_doc="in CI: the build state the pipeline pushes; else none",
+    build_state_from: Tuple[str, ...] = setting(
+        (),
+        "Registry images of a build state (`<IMAGE>-build-state`, comma-separated, the first"
+        " pullable one wins; `-<arch>` is appended) an empty build cache starts from: only"
+        " changed packages compile on an empty CI runner; set, the build also makes the run"
+        " image's build state, which `push` pushes",
+        default_doc="in CI: the build state the pipeline pushes (and the default branch's);"
+        " else none",
         group="ours",
     )
     build_network: Optional[str] = setting(
@@ -535,10 +537,24 @@ def derived_defaults(
     merged = {**values, **{name: value for name, (value, _) in out.items()}}
     if (not values.get("build_state_from") and detect_pipeline(environ) is not None
             and merged.get("image_name")):
-        out["build_state_from"] = (
-            f"{merged['image_name']}:{merged.get('image_tag', 'latest')}-build-state",
-            "derived from the CI pipeline (the build state it pushes)")
+        out["build_state_from"] = (ci_build_state_refs(merged),
+                                   "derived from the CI pipeline (the build state it pushes)")
     return out
+
+
+def unpostfixed_tags(values: Mapping[str, object], tag: str) -> List[str]:
+    """A tag and, when it ends with IMAGE_POSTFIX (off the default branch), the default
+    branch's tag without it."""
+    postfix = str(values.get("image_postfix") or "")
+    return [tag] + ([tag[: -len(postfix)]] if postfix and tag.endswith(postfix) else [])
+
+
+def ci_build_state_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
+    """BUILD_STATE_FROM of a CI job: the build state this pipeline pushes, then the default
+    branch's (a new branch's first job starts from it)."""
+    tag = str(values.get("image_tag", "latest"))
+    return tuple(f"{values['image_name']}:{each}-build-state"
+                 for each in unpostfixed_tags(values, tag))
 
 
 def ci_cache_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
@@ -546,14 +562,12 @@ def ci_cache_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
     (also as `-<arch>`, ENABLE_SINGLEARCH_PUSH's names) and, off the default branch, those of
     the default branch (without IMAGE_POSTFIX). A ref not (yet) in the registry only costs
     BuildKit a failed look-up."""
-    postfix = str(values.get("image_postfix") or "")
     platforms: Tuple[str, ...] = tuple(values.get("platform") or ())  # type: ignore[arg-type]
     refs: List[str] = []
     for kind in ("dev", "run"):
         name = values["image_name" if kind == "run" else "dev_image_name"]
         tag = str(values.get("image_tag", "latest") if kind == "run" else values["dev_image_tag"])
-        tags = [tag] + ([tag[: -len(postfix)]] if postfix and tag.endswith(postfix) else [])
-        for each in tags:
+        for each in unpostfixed_tags(values, tag):
             refs += [f"{name}:{each}"] + [f"{name}:{each}-{p}" for p in platforms]
     return tuple(dict.fromkeys(refs))
 

@@ -366,7 +366,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
     for platform in settings.platform:
         # BUILD_STATE_FROM: the run image's build state too, for the next job's `push`
         kinds = ("dev", "run") + (("build-state",) if settings.build_state_from else ())
-        tags = {t: build.platform_ref(build.image_ref(settings, t), platform, settings.platform)
+        tags = {t: build.target_ref(settings, t, platform)
                 for t in kinds if t in targets or (t == "build-state" and "run" in targets)}
         if dry_run and build.can_bake(settings):
             specs = {t: build.shown_definition(settings, target=t, platform=platform, tag=tag)

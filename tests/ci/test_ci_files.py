@@ -18,7 +18,8 @@ REPO = Path(__file__).resolve().parents[2]
 ACTION = REPO / "action.yml"
 TEMPLATE = REPO / ".gitlab-ci" / "docker-ros.yml"
 EXAMPLES = REPO / "examples" / "ci"
-ORIGINAL = Path("/work/.mirror/ika-rwth-aachen+docker-ros/repo")
+# docker-ros's inputs, variables and jobs with their defaults, as facts of our own (tests/ci/data)
+THEIRS = Path(__file__).resolve().parent / "data"
 SETUP_HINT = "run `bash scripts/setup.sh` first"
 # Settings that are no CI input: the host workspace; IMAGE (IMAGE_NAME/IMAGE_TAG are inputs).
 NOT_INPUTS = {"workspace", "image"}
@@ -50,11 +51,9 @@ def check(*argv: str) -> subprocess.CompletedProcess:
     return subprocess.run(argv, capture_output=True, text=True)
 
 
-def original(path: str) -> str:
-    if not (ORIGINAL / "HEAD").exists():
-        pytest.skip("the original docker-ros is not checked out on this machine")
-    return subprocess.run(["git", "-C", str(ORIGINAL), "show", f"HEAD:{path}"],
-                          capture_output=True, text=True, check=True).stdout
+def theirs(name: str) -> dict:
+    """docker-ros's declarations as recorded in tests/ci/data/docker-ros-<name>.yml."""
+    return yaml.safe_load((THEIRS / f"docker-ros-{name}.yml").read_text())
 
 
 @pytest.mark.parametrize("schema,path", [
@@ -75,7 +74,9 @@ def test_files_match_the_official_schemas(schema: str, path: Path) -> None:
 def test_schema_check_is_real(tmp_path: Path) -> None:
     """docker-ros's own action.yml has boolean defaults, which the schema rejects."""
     bad = tmp_path / "action.yml"
-    bad.write_text(original("action.yml"))
+    action = load(ACTION)
+    action["inputs"]["enable-slim"]["default"] = theirs("action-inputs")["enable-slim"]
+    bad.write_text(yaml.safe_dump(action))
     result = check(tool("check-jsonschema"), "--builtin-schema", "vendor.github-actions",
                    str(bad))
     assert result.returncode != 0 and "is not of type 'string'" in result.stdout
@@ -94,10 +95,9 @@ def test_example_workflows_pass_actionlint(tmp_path: Path) -> None:
 
 def test_action_has_every_docker_ros_input_with_its_default() -> None:
     ours = load(ACTION)["inputs"]
-    theirs = yaml.safe_load(original("action.yml"))["inputs"]
-    for name, spec in theirs.items():
+    for name, default in theirs("action-inputs").items():
         assert name in ours, name
-        expected = OUR_DEFAULTS.get(name, spec.get("default"))
+        expected = OUR_DEFAULTS.get(name, default)
         if isinstance(expected, bool):
             expected = "true" if expected else "false"
         assert ours[name].get("default") == expected, name
@@ -129,9 +129,9 @@ def test_every_setting_reaches_docker_ros_through_env_only() -> None:
 
 def test_template_has_every_docker_ros_variable_with_its_default() -> None:
     ours = load(TEMPLATE)["variables"]
-    theirs = load_original_template()["variables"]
+    variables = theirs("gitlab-variables")
     derived = {"DEV_IMAGE_NAME", "DEV_IMAGE_TAG", "SLIM_IMAGE_NAME", "SLIM_IMAGE_TAG"}
-    for name, default in theirs.items():
+    for name, default in variables.items():
         if name.startswith("_"):
             continue  # docker-ros's internal image names
         assert name in ours, name
@@ -144,10 +144,6 @@ def test_template_has_every_docker_ros_variable_with_its_default() -> None:
     for name in FIELDS:
         if name not in NOT_INPUTS and not name.startswith("enable_checkout"):
             assert name.upper() in ours, name
-
-
-def load_original_template() -> dict:
-    return yaml.load(original(".gitlab-ci/docker-ros.yml"), Loader=GitLabLoader)
 
 
 def test_template_installs_at_docker_ros_git_ref_and_runs_the_tasks() -> None:

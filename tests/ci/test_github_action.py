@@ -62,8 +62,9 @@ def test_action_runs_every_step(runs: dict) -> None:
 
 def test_feature_branch_gets_the_ci_postfix_and_main_also_latest(runs: dict) -> None:
     assert registry_tags(runs["registry"], IMAGE) == [
-        "latest", "latest-dev",
+        "latest", "latest-build-state-amd64", "latest-dev",
         "latest-dev_feature-github-test_ci", "latest_feature-github-test_ci",
+        "latest_feature-github-test_ci-build-state-amd64",
     ]
 
 
@@ -73,6 +74,7 @@ def test_outputs_name_the_pushed_images(runs: dict) -> None:
         "images": f"{name}:latest-dev_feature-github-test_ci,{name}:latest_feature-github-test_ci",
         "dev-image": f"{name}:latest-dev_feature-github-test_ci",
         "image": f"{name}:latest_feature-github-test_ci",
+        "build-state-image": f"{name}:latest_feature-github-test_ci-build-state-amd64",
     }
     # IMAGE_TAG is latest already: ENABLE_PUSH_AS_LATEST adds no second push of it
     assert runs["main"].outputs["docker-ros"]["images"] == f"{name}:latest-dev,{name}:latest"

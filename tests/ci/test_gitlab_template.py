@@ -82,10 +82,11 @@ def test_pipelines_pass(pipelines: dict) -> None:
 
 def test_feature_branch_and_main_push_docker_ros_tags(pipelines: dict) -> None:
     assert registry_tags(pipelines["registry"], IMAGE) == [
-        "latest", "latest-amd64", "latest-dev", "latest-dev-amd64",
+        "latest", "latest-amd64", "latest-build-state-amd64", "latest-dev", "latest-dev-amd64",
         "latest-dev_feature-gitlab-test_ci", "latest-dev_feature-gitlab-test_ci-amd64",
         "latest-slim", "latest-slim-amd64",
         "latest_feature-gitlab-test_ci", "latest_feature-gitlab-test_ci-amd64",
+        "latest_feature-gitlab-test_ci-build-state-amd64",
     ]
     assert manifest_architectures(f"{pipelines['registry']}/{IMAGE}:latest") == ["amd64"]
 

@@ -70,13 +70,16 @@ def test_build_state_from_the_registry_compiles_only_the_changed_package(
         assert pushed.returncode == 0, pushed.stdout[-4000:]
         assert "full build: no build state" in pushed.stdout
         assert f"pushed {state}" in pushed.stdout or state in pushed.stdout
-        saved = subprocess.run(["docker", "save", state], capture_output=True, check=True)
+        saved = subprocess.run(["docker", "save", f"{state}-amd64"], capture_output=True,
+                               check=True)
         assert secret.encode() not in saved.stdout  # never a secret in the build state
         assert b".docker-ros-install.json" in saved.stdout
         remove_images(ref)
 
-        # the next job on an empty runner: one file edited
-        second = runner(repo, tmp_path / "job2", cache_ids, **env)
+        # the next job on an empty runner: one file edited; the first candidate is missing
+        # (a new branch's own state), the second (the default branch's) is taken
+        second = runner(repo, tmp_path / "job2", cache_ids,
+                        **{**env, "BUILD_STATE_FROM": f"{ref}-none-build-state,{state}"})
         source = second / "pkg_b" / "main.cpp"
         source.write_text(source.read_text().replace('"pkg_b', '"pkg_b changed'))
         edited = docker_ros(second, "build")

@@ -14,7 +14,7 @@ from docker_ros.ci import (
     slugify,
 )
 from docker_ros.config import read_settings
-from docker_ros.push import plan_push
+from docker_ros.push import plan_outputs, plan_push, push_targets
 from docker_ros.settings import load_settings
 
 GITHUB = {"GITHUB_ACTIONS": "true", "GITHUB_DEFAULT_BRANCH": "main"}
@@ -155,3 +155,17 @@ def test_ci_jobs_reuse_the_pushed_dev_and_run_images_as_cache_by_default() -> No
     given = load_settings(environ={**env, "CACHE_FROM": "x/y:z"}, project_dir=Path("/tmp/p"))
     assert given.cache_from == ("x/y:z",)
     assert load_settings(environ={}, project_dir=Path("/tmp/p")).cache_from == ()
+
+
+def test_ci_jobs_start_from_the_pushed_build_state_then_the_default_branchs() -> None:
+    env = {**CASES["gitlab-feature"], "CI_REGISTRY_IMAGE": "reg/g/p", "PLATFORM": "amd64,arm64"}
+    feature = load_settings(environ=env, project_dir=Path("/tmp/p"))
+    assert feature.build_state_from == ("reg/g/p:latest_feature-my-thing_ci-build-state",
+                                        "reg/g/p:latest-build-state")
+    # pushed once per architecture, under the names the next job pulls
+    pushed = [c[-1] for c in plan_push(feature, push_targets(feature)) if "build-state" in c[-1]]
+    assert pushed == ["reg/g/p:latest_feature-my-thing_ci-build-state-amd64",
+                      "reg/g/p:latest_feature-my-thing_ci-build-state-arm64"]
+    outputs = plan_outputs(feature, push_targets(feature), pushed)
+    assert outputs["images"] == "" and outputs["build-state-image"] == pushed[0]
+    assert load_settings(environ={}, project_dir=Path("/tmp/p")).build_state_from == ()
