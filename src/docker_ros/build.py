@@ -22,7 +22,7 @@ from docker_ros.lock import locked_build_args
 from docker_ros.runtime.files import walk
 from docker_ros.runtime.inputs import resolve_inputs
 from docker_ros.runtime.workspace import StepError, Workspace
-from docker_ros.settings import FIELDS, Settings, as_env, env_name
+from docker_ros.settings import FIELDS, Settings, as_env, build_secrets, env_name
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
@@ -33,22 +33,8 @@ TOOLS_PATTERNS = (
     "__init__.py", "settings.py", "ci.py", "testing.py", "steps/*.py", "runtime/*.py",
     "docker/*.sh",
 )
-SECRETS = ("git_https_password", "git_ssh_private_key")
+SECRETS = build_secrets()
 SCRATCH_FOLDER = ".gitlab-ci-local"  # gitlab-ci-local's copies of the repository
-# Settings that shape the build through the tool itself rather than a Dockerfile ARG.
-HANDLED_BY_TOOL = frozenset({
-    "base_image", "build_context", "build_network", "buildx_attestations", "cache_from",
-    "extra_ca_certs", "image", "image_name", "image_tag", "dev_image_name", "dev_image_tag",
-    "platform", "target", "git_https_password", "git_ssh_private_key", "image_postfix",
-    "enable_lean_run_image", "locked", "build_state_from",
-})
-# Settings that do not affect building an image (push, slim, CI checkout, host workspace).
-NOT_BUILD_INPUTS = frozenset({
-    "registry", "registry_user", "registry_password", "enable_push_as_latest",
-    "enable_singlearch_push", "enable_slim", "slim_build_args", "additional_slim_build_args",
-    "slim_image_name", "slim_image_tag", "docker_ros_git_ref", "enable_checkout",
-    "enable_checkout_submodules", "enable_checkout_lfs", "enable_industrial_ci", "workspace",
-})
 STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
 STEP_START = re.compile(r"Starting >>> (\w+)")
 STEP_END = re.compile(r"(Finished|Failed  ) <<< (\w+)")

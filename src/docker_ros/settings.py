@@ -30,6 +30,11 @@ class SettingsError(ValueError):
     """One or more configuration values are invalid or missing (message lists all of them)."""
 
 
+BUILD_USES = ("arg", "tool", "none")
+# Task flag groups: image tasks (build, run, slim...), host step tasks, pushing tasks.
+FLAG_GROUPS = ("image", "host", "push")
+
+
 def setting(
     default: Value,
     help: str,
@@ -40,10 +45,16 @@ def setting(
     group: str = "docker-ros",
     path: str = "",
     recursive: str = "",
+    build: str = "arg",
+    flags: Tuple[str, ...] = (),
 ) -> Any:
     """Declare one configuration variable: its env name is the field name upper-cased.
     `path` ("file" or "dir"): a path relative to the repository, which must stay inside it;
-    `recursive`: the setting that switches on recursive discovery of files of that name."""
+    `recursive`: the setting that switches on recursive discovery of files of that name;
+    `build`: how it reaches an image build: "arg" (a Dockerfile ARG of its name), "tool" (the
+    tool turns it into tags, build arguments, secret mounts...), "none" (not a build input);
+    `flags`: the groups of tasks that take it as a flag (FLAG_GROUPS), besides --set."""
+    assert build in BUILD_USES and set(flags) <= set(FLAG_GROUPS), (build, flags)
     meta = {
         "help": help,
         "secret": secret,
@@ -52,6 +63,8 @@ def setting(
         "group": group,
         "path": path,
         "recursive": recursive,
+        "build": build,
+        "flags": flags,
     }
     return field(default=default, metadata=meta)
 
@@ -81,7 +94,7 @@ class Settings:
         path="file", recursive="enable_recursive_after_dependency_installation_script",
     )
     base_image: Optional[str] = setting(
-        None, "Base image `name:tag`", default_doc="*required*"
+        None, "Base image `name:tag`", default_doc="*required*", flags=("image",)
     )
     before_dependency_identification_script: str = setting(
         "docker/before_dependency_identification.sh",
@@ -98,51 +111,61 @@ class Settings:
         "Relative filepath to file containing blacklisted packages",
         path="file", recursive="enable_recursive_blacklisted_packages",
     )
-    build_context: str = setting(".", "Build context of Docker build process (the ROS repository)")
+    build_context: str = setting(
+        ".", "Build context of Docker build process (the ROS repository)",
+        build="tool", flags=("image", "host")
+    )
     buildx_attestations: bool = setting(
-        False, "Value passed to `docker buildx build --provenance` and `--sbom`"
+        False, "Value passed to `docker buildx build --provenance` and `--sbom`", build="tool"
     )
     command: Optional[str] = setting(
         None, "Launch command of run image", default_doc="*required if `run` is a target*"
     )
     cmake_args: str = setting(
-        "-DCMAKE_BUILD_TYPE=Release", "CMake arguments to pass to `colcon build`"
+        "-DCMAKE_BUILD_TYPE=Release", "CMake arguments to pass to `colcon build`", flags=("image",)
     )
     dev_image_name: Optional[str] = setting(
-        None, "Image name of dev image", default_doc="`<IMAGE_NAME>`"
+        None, "Image name of dev image", default_doc="`<IMAGE_NAME>`", build="tool"
     )
     dev_image_tag: Optional[str] = setting(
-        None, "Image tag of dev image", default_doc="`<IMAGE_TAG>-dev`"
+        None, "Image tag of dev image", default_doc="`<IMAGE_TAG>-dev`", build="tool"
     )
     disable_ros_installation: bool = setting(
         False, "Disable automatic installation of `ros-$ROS_DISTRO-ros-core` package"
     )
-    docker_ros_git_ref: str = setting("main", "Git ref of docker-ros to run in CI", group="ci")
+    docker_ros_git_ref: str = setting(
+        "main", "Git ref of docker-ros to run in CI", group="ci",
+        build="none"
+    )
     enable_checkout: bool = setting(
-        True, "Enable checkout action to (re-)download the repository first", group="ci"
+        True, "Enable checkout action to (re-)download the repository first", group="ci",
+        build="none"
     )
     enable_checkout_submodules: str = setting(
         "recursive",
         "Enable submodules for the checkout action",
         choices=("false", "true", "recursive"),
-        group="ci",
+        group="ci", build="none",
     )
     enable_checkout_lfs: bool = setting(
-        True, "Enable Git LFS support for the checkout action", group="ci"
+        True, "Enable Git LFS support for the checkout action", group="ci", build="none"
     )
     enable_industrial_ci: bool = setting(
-        False, "Enable tests (`colcon test` in the dev image; replaces industrial_ci)"
+        False, "Enable tests (`colcon test` in the dev image; replaces industrial_ci)", build="none"
     )
     enable_lean_run_image: bool = setting(
         False,
         "Install only the Debian packages the install space needs at run time in the run image"
         " (shared libraries, imported Python modules) instead of the `-dev` packages rosdep names",
+        build="tool",
     )
     enable_push_as_latest: bool = setting(
-        False, "Push images with tag `latest`/`latest-dev` in addition to the configured names"
+        False, "Push images with tag `latest`/`latest-dev` in addition to the configured names",
+        build="none", flags=("push",)
     )
     enable_singlearch_push: bool = setting(
-        False, "Enable push of single arch images with `-amd64`/`-arm64` postfix"
+        False, "Enable push of single arch images with `-amd64`/`-arm64` postfix",
+        build="none", flags=("push",)
     )
     enable_recursive_additional_debs: bool = setting(
         False, "Enable recursive discovery of files named `additional-debs-file`"
@@ -165,10 +188,10 @@ class Settings:
     enable_slim: bool = setting(
         True,
         "Enable an extra slimmed run image (only if `run` stage is targeted): traced, minified,"
-        " checked to run alike (see Slim images)",
+        " checked to run alike (see Slim images)", build="none", flags=("push",),
     )
     git_https_password: Optional[str] = setting(
-        None, "Password for cloning private Git repositories via HTTPS", secret=True
+        None, "Password for cloning private Git repositories via HTTPS", secret=True, build="tool"
     )
     git_https_server: Optional[str] = setting(
         None, "Server URL (without protocol) for cloning private Git repositories via HTTPS"
@@ -180,50 +203,59 @@ class Settings:
         None, "Known SSH host keys for cloning private Git repositories via SSH"
     )
     git_ssh_private_key: Optional[str] = setting(
-        None, "SSH private key for cloning private Git repositories via SSH", secret=True
+        None, "SSH private key for cloning private Git repositories via SSH", secret=True,
+        build="tool"
     )
     image: Optional[str] = setting(
-        None, "Full run image `name:tag`; sets IMAGE_NAME and IMAGE_TAG (as docker-ros build.sh)"
+        None, "Full run image `name:tag`; sets IMAGE_NAME and IMAGE_TAG (as docker-ros build.sh)",
+        build="tool", flags=("image",)
     )
     image_name: Optional[str] = setting(
         None,
         "Image name of run image",
         default_doc="`ghcr.io/$GITHUB_REPOSITORY` | `$CI_REGISTRY_IMAGE` | repository folder name",
+        build="tool",
     )
-    image_tag: str = setting("latest", "Image tag of run image")
+    image_tag: str = setting("latest", "Image tag of run image", build="tool", flags=("image",))
     platform: Tuple[str, ...] = setting(
         (),
         "Target platform architecture (comma-separated list)",
         choices=PLATFORMS,
-        default_doc="runner architecture",
+        default_doc="runner architecture", build="tool", flags=("image",),
     )
     registry: Optional[str] = setting(
-        None, "Docker registry to push images to", default_doc="`ghcr.io` | `$CI_REGISTRY`"
+        None, "Docker registry to push images to", default_doc="`ghcr.io` | `$CI_REGISTRY`",
+        build="none", flags=("push",)
     )
     registry_password: Optional[str] = setting(
-        None, "Docker registry password", secret=True
+        None, "Docker registry password", secret=True, build="none"
     )
-    registry_user: Optional[str] = setting(None, "Docker registry username")
+    registry_user: Optional[str] = setting(
+        None, "Docker registry username",
+        build="none", flags=("push",)
+    )
     rmw_implementation: str = setting("rmw_fastrtps_cpp", "ROS 2 middleware implementation")
     ros_distro: Optional[str] = setting(
-        None, "ROS Distro", default_doc="*required if ROS is not installed in `base-image`*"
+        None, "ROS Distro", default_doc="*required if ROS is not installed in `base-image`*",
+        flags=("image",)
     )
     slim_build_args: str = setting(
         SLIM_BUILD_ARGS_DEFAULT,
         "Arguments to the slimming step (except target and tag; docker-slim syntax, options"
-        " in Slim images)",
+        " in Slim images)", build="none",
     )
     additional_slim_build_args: str = setting(
-        "", "Arguments appended to SLIM_BUILD_ARGS (e.g. `--exec 'rosnode list' --expect TEXT`)"
+        "", "Arguments appended to SLIM_BUILD_ARGS (e.g. `--exec 'rosnode list' --expect TEXT`)",
+        build="none"
     )
     slim_image_name: Optional[str] = setting(
-        None, "Image name of slim run image", default_doc="`<IMAGE_NAME>`"
+        None, "Image name of slim run image", default_doc="`<IMAGE_NAME>`", build="none"
     )
     slim_image_tag: Optional[str] = setting(
-        None, "Image tag of slim run image", default_doc="`<IMAGE_TAG>-slim`"
+        None, "Image tag of slim run image", default_doc="`<IMAGE_TAG>-slim`", build="none"
     )
     target: Tuple[str, ...] = setting(
-        ("run",), "Target stage of Dockerfile (comma-separated list)", choices=TARGETS
+        ("run",), "Target stage of Dockerfile (comma-separated list)", choices=TARGETS, build="tool"
     )
     vcs_import_file: str = setting(
         ".repos",
@@ -241,12 +273,12 @@ class Settings:
         None,
         "Host workspace of the step tasks and `--host` composites (repository at src/target)",
         default_doc="`~/.cache/docker-ros/ws/<repository folder name>`",
-        group="ours",
+        group="ours", build="none", flags=("host",),
     )
     extra_ca_certs: Optional[str] = setting(
         None,
         "PEM file or directory of PEM files trusted during the build (never left in the image)",
-        group="ours",
+        group="ours", build="tool", flags=("image",),
     )
     cache_from: Tuple[str, ...] = setting(
         (),
@@ -254,7 +286,7 @@ class Settings:
         " give the dev and the run image so that every stage finds its layers)",
         default_doc="in CI: the dev and run images the pipeline pushes (and the default"
         " branch's); else none",
-        group="ours",
+        group="ours", build="tool", flags=("image",),
     )
     build_state_from: Tuple[str, ...] = setting(
         (),
@@ -264,13 +296,13 @@ class Settings:
         " image's build state, which `push` pushes",
         default_doc="in CI: the build state the pipeline pushes (and the default branch's);"
         " else none",
-        group="ours",
+        group="ours", build="tool",
     )
     build_network: Optional[str] = setting(
         None,
         "Network of the build's RUN steps (`host` reaches services on this machine's loopback,"
         " e.g. a local git server)",
-        group="ours",
+        group="ours", build="tool", flags=("image",),
     )
     ros_apt_source_version: str = setting(
         "1.1.0", "Pinned version of the ros-apt-source package used to install ROS", group="ours"
@@ -279,14 +311,14 @@ class Settings:
         False,
         "Build exactly what docker-ros.lock records (base image digest, imported commits, apt"
         " and pip versions); a repository that no longer matches the lock stops the build",
-        group="ours",
+        group="ours", build="tool",
     )
     image_postfix: Optional[str] = setting(
         None,
         "Appended to every image tag (docker-ros's CI branch postfix); `none` for no postfix",
         default_doc="`_<branch-slug>_ci` in CI off the default branch, `-<git tag>` in tag"
         " pipelines, else none",
-        group="ours",
+        group="ours", build="tool",
     )
     sources: Mapping[str, str] = field(default_factory=dict, compare=False, repr=False)
     # Derived, not a setting: tags pushed besides the configured ones (`latest`, a git tag).
@@ -338,6 +370,19 @@ def kind_of(name: str) -> str:
 
 def is_secret(name: str) -> bool:
     return bool(FIELDS[name].metadata["secret"])
+
+
+def settings_where(key: str, value: object) -> Tuple[str, ...]:
+    """The settings, in declaration order, whose declaration has `key` equal to (or, for a
+    tuple, holding) value: e.g. ("build", "tool") or ("flags", "push")."""
+    def matches(held: object) -> bool:
+        return value in held if isinstance(held, tuple) else held == value
+    return tuple(n for n, f in FIELDS.items() if matches(f.metadata[key]))
+
+
+def build_secrets() -> Tuple[str, ...]:
+    """Secrets an image build receives (as secret mounts, never as build arguments)."""
+    return tuple(n for n in settings_where("secret", True) if FIELDS[n].metadata["build"] != "none")
 
 
 def parse_bool(name: str, raw: str) -> bool:

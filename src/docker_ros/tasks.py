@@ -37,6 +37,7 @@ from docker_ros.settings import (
     parse_set,
     require,
     required_for_build,
+    settings_where,
 )
 from docker_ros.steps import BY_NAME, STEPS
 
@@ -61,15 +62,11 @@ class TaskError(Exception):
     """An expected failure outside the steps (bad repository layout, failed build...)."""
 
 
-# Settings every image task takes as flags; any other setting: --set NAME=VALUE.
-IMAGE_SETTINGS = (
-    "base_image", "image", "image_tag", "platform", "ros_distro", "cmake_args", "cache_from",
-    "build_network", "extra_ca_certs", "build_context",
-)
-HOST_SETTINGS = ("workspace", "build_context")
-PUSH_SETTINGS = (
-    "registry", "registry_user", "enable_push_as_latest", "enable_singlearch_push", "enable_slim",
-)
+# Settings every image, host-step or pushing task takes as flags (their declarations' `flags`);
+# any other setting: --set NAME=VALUE.
+IMAGE_SETTINGS = settings_where("flags", "image")
+HOST_SETTINGS = settings_where("flags", "host")
+PUSH_SETTINGS = settings_where("flags", "push")
 SET: Flag = ("set", None, "Any setting, as NAME=VALUE (repeatable), e.g. --set ENABLE_SLIM=false")
 
 
