@@ -78,8 +78,11 @@ STAGES = {
 }
 # Where a step runs when it runs alone (its install phase for the dev image).
 STEP_STAGE = {step: BY_NAME[step].stage for step in STEPS}
-# --until a step that ends a stage: that stage (custom: the dev image, sources in place).
-UNTIL_STAGE = {"blacklist": "tree", "custom": "dev", "colcon": "build", "command": "run"}
+# --until the last step of a stage: the image that stage ends in (the dependencies' last step:
+# the dev image, sources in place).
+ENDS_IN = {"source": "tree", "dependencies-dev": "dev", "build": "build", "run": "run"}
+UNTIL_STAGE = {[s for s in STEPS if STEP_STAGE[s] == stage][-1]: image
+               for stage, image in ENDS_IN.items()}
 PREPARE_DEV: Command = ("prepare", "--dependency-types", "all")
 
 

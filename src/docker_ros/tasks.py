@@ -55,7 +55,7 @@ SHELL_ON_FAILURE: Flag = (
     "terminal: tag that state <IMAGE>-failed-<step> and print how to enter it)",
 )
 
-DEV_STEPS = STEPS[: STEPS.index("custom") + 1]
+DEV_STEPS = tuple(s for s in STEPS if BY_NAME[s].stage in ("source", "dependencies-dev"))
 
 
 class TaskError(Exception):
