@@ -1,7 +1,9 @@
 """clone with real vcstool and local bare git repositories."""
 
+import json
 import logging
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -196,3 +198,58 @@ def test_ssh_key_reaches_git_only_through_a_temporary_file(project, remotes, tmp
         assert oct(key_file.parent.stat().st_mode & 0o777) == "0o700"
         assert "UserKnownHostsFile=" in command
     assert not key_file.exists() and not key_file.parent.exists()
+
+
+FORMS = {
+    # the rosinstall format, which `vcs import` reads too
+    "rosinstall": "- git: {{local-name: lib_a, uri: '{a}', version: main}}\n"
+                  "- git:\n    local-name: lib_c  # a comment\n    uri: {c}\n",
+    # flow-style entries, a quoted URL with a comma, comments
+    "flow": "# heading\nrepositories:\n  lib_a: {{type: git, url: '{a}', version: main}}\n"
+            "  lib_c: {{type: git, url: \"{c}\"}}  # trailing\n",
+}
+
+
+@pytest.mark.parametrize("form", sorted(FORMS))
+def test_real_import_of_each_form(project, tmp_path, form):
+    base = tmp_path / "with,comma"
+    make_git_repo(base / "lib_a", {"README": "a\n"})
+    make_git_repo(base / "lib_c", {"README": "c\n"})
+    # local paths (a file:// URL would escape the comma)
+    urls = {"a": str(base / "lib_a.git"), "c": str(base / "lib_c.git")}
+    (project.repo / ".repos").write_text(FORMS[form].format(**urls))
+
+    clone.main(project.ws, project.settings())
+
+    assert (project.ws.upstream / "lib_a" / "README").read_text() == "a\n"
+    assert (project.ws.upstream / "lib_c" / "README").read_text() == "c\n"
+    state = project.ws.read_state("clone.json")
+    assert state["imported"]["src/target/.repos"]["repositories"] == ["lib_a", "lib_c"]
+
+
+def test_malformed_repos_stops_before_vcs_naming_file_and_line(project):
+    (project.repo / ".repos").write_text("repositories:\n  lib_a: {type: git, url: [\n")
+    with pytest.raises(clone.StepError) as err:
+        clone.main(project.ws, project.settings())
+    assert "src/target/.repos is not a .repos file vcstool can read" in err.value.message
+    assert "line 3" in err.value.message
+    assert not list(project.ws.upstream.iterdir())
+
+
+def test_read_without_vcstool_in_our_interpreter(project, tmp_path):
+    """Our interpreter without site-packages (no vcstool, no PyYAML): the file is read by the
+    python3 that has vcstool, with the same result."""
+    (project.repo / ".repos").write_text(FORMS["rosinstall"].format(a="file:///a", c="file:///c"))
+    src = Path(clone.__file__).resolve().parents[2]
+    code = (f"import sys, json; sys.path.insert(0, {str(src)!r})\n"
+            "from docker_ros.runtime.repos import read_repos\n"
+            "print(json.dumps(read_repos(sys.argv[1], step='clone')))\n"
+            "import importlib.util; print(importlib.util.find_spec('yaml'))")
+    proc = subprocess.run([sys.executable, "-I", "-S", "-c", code,
+                           str(project.repo / ".repos")], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout.splitlines()
+    assert out[1] == "None"  # no yaml in that interpreter
+    assert json.loads(out[0]) == {
+        "lib_a": {"type": "git", "url": "file:///a", "version": "main"},
+        "lib_c": {"type": "git", "url": "file:///c"}}

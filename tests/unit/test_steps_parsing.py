@@ -7,7 +7,9 @@ from pathlib import Path
 import pytest
 
 from docker_ros.runtime.files import read_list_file
+from docker_ros.runtime.lock import dump_repos
 from docker_ros.runtime.packages import Package
+from docker_ros.runtime.repos import interpreters, read_repos
 from docker_ros.runtime.rosenv import (
     parse_env0,
     read_secret,
@@ -188,28 +190,67 @@ repositories:
   "nested/lib b":
     type: git
     url: 'git@host:org/lib_b.git'
-  flow: {type: git, url: https://h/flow.git, version: v1}
+  flow: {type: git, url: "https://h/flow,comma.git", version: v1}
+  number: {type: git, url: https://h/n.git, version: 1.0}
+"""
+ROSINSTALL = """# rosinstall format
+- git: {local-name: lib_a, uri: 'https://h/a,b.git', version: main}
+- git:
+    local-name: nested/lib_b  # comment
+    uri: https://h/b.git
 """
 
 
-def test_parse_repos():
-    assert clone.parse_repos(BLOCK) == {
+def write(tmp_path, text, name="x.repos"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_read_repos_vcs_format(tmp_path):
+    assert read_repos(write(tmp_path, BLOCK), step="clone") == {
         "lib_a": {"type": "git", "url": "https://github.com/org/lib_a.git", "version": "main"},
         "nested/lib b": {"type": "git", "url": "git@host:org/lib_b.git"},
-        "flow": {"type": "git", "url": "https://h/flow.git", "version": "v1"},
+        "flow": {"type": "git", "url": "https://h/flow,comma.git", "version": "v1"},
+        "number": {"type": "git", "url": "https://h/n.git", "version": "1.0"},
+    }
+
+
+def test_read_repos_rosinstall_format(tmp_path):
+    assert read_repos(write(tmp_path, ROSINSTALL), step="clone") == {
+        "lib_a": {"type": "git", "url": "https://h/a,b.git", "version": "main"},
+        "nested/lib_b": {"type": "git", "url": "https://h/b.git"},
     }
 
 
 @pytest.mark.parametrize(
     "text", ["", "# nothing\n", "repositories: {}\n", "repositories:\n", "---\nrepositories:\n\n"]
 )
-def test_empty_repos(text):
-    assert clone.parse_repos(text) == {}
+def test_empty_repos(tmp_path, text):
+    assert read_repos(write(tmp_path, text), step="clone") == {}
 
 
-def test_parse_repos_agrees_with_yaml_on_names():
-    yaml = pytest.importorskip("yaml")
-    assert sorted(clone.parse_repos(BLOCK)) == sorted(yaml.safe_load(BLOCK)["repositories"])
+def test_unreadable_repos_names_the_file_and_line(tmp_path):
+    path = write(tmp_path, "repositories:\n  a: {type: git, url: [\n")
+    with pytest.raises(StepError) as err:
+        read_repos(path, step="clone")
+    assert str(path) in err.value.message and "line 3" in err.value.message
+    with pytest.raises(StepError, match="not a .repos file vcstool can read"):
+        read_repos(write(tmp_path, "just: text\n"), step="clone")
+
+
+def test_dump_repos_reads_back(tmp_path):
+    repos = read_repos(write(tmp_path, BLOCK), step="clone")
+    assert read_repos(write(tmp_path, dump_repos(repos), "y.repos"), step="clone") == repos
+
+
+def test_interpreters_of_the_vcs_script(tmp_path):
+    script = write(tmp_path, "#!/opt/venv/bin/python3.11\nimport re\n", "vcs")
+    assert interpreters(str(script)) == [["/opt/venv/bin/python3.11"], ["python3"]]
+    shim = write(tmp_path, "#!/usr/bin/env bash\nexec x\n", "shim")
+    assert interpreters(str(shim)) == [["python3"]]
+    env = write(tmp_path, "#!/usr/bin/env python3\n", "env")
+    assert interpreters(str(env)) == [["/usr/bin/env", "python3"], ["python3"]]
 
 
 def test_parse_vcs_failures():

@@ -150,7 +150,7 @@ def dump_repos(repos: Mapping[str, Mapping[str, str]]) -> str:
     """A .repos file (YAML that vcstool reads) of the given repositories."""
     lines = ["repositories:"]
     for name, repo in sorted(repos.items()):
-        lines.append(f"  {name}:")
+        lines.append(f"  {json.dumps(name)}:")
         for key in ("type", "url", "version"):
             if repo.get(key):
                 lines.append(f"    {key}: {json.dumps(repo[key])}")

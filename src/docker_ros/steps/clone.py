@@ -20,6 +20,7 @@ from docker_ros.runtime.apt import apt_install
 from docker_ros.runtime.files import file_sha256, find_special_files, remove_tree, repository_path
 from docker_ros.runtime.lock import active_entry, pinned_repos_file
 from docker_ros.runtime.process import hook_context, is_root, run, run_script, run_tee
+from docker_ros.runtime.repos import read_repos
 from docker_ros.runtime.rosenv import SECRETS_DIR, read_secret
 from docker_ros.runtime.workspace import StepError, Workspace, dry, format_argv, phases, step_log
 from docker_ros.settings import Settings
@@ -48,58 +49,7 @@ _FAILURE = re.compile(
 )
 
 
-# --- .repos files (the simple YAML subset vcstool writes; vcstool itself parses for real) ---
-
-
-def _unquote(text: str) -> str:
-    text = text.strip()
-    if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
-        return text[1:-1]
-    return text
-
-
-def _strip_comment(line: str) -> str:
-    return re.sub(r"(^|\s)#.*$", "", line).rstrip()
-
-
-def parse_repos(text: str) -> Dict[str, Dict[str, str]]:
-    """Repositories of a .repos file: name -> {type, url, version} (only what is given)."""
-    repos: Dict[str, Dict[str, str]] = {}
-    in_repositories = False
-    entry_indent: Optional[int] = None
-    current: Optional[Dict[str, str]] = None
-    for raw in text.splitlines():
-        line = _strip_comment(raw)
-        if not line.strip() or line.strip() in ("---", "..."):
-            continue
-        indent = len(line) - len(line.lstrip())
-        body = line.strip()
-        if indent == 0:
-            in_repositories = body.split(":", 1)[0].strip() == "repositories"
-            entry_indent, current = None, None
-            rest = body.split(":", 1)[1].strip() if ":" in body else ""
-            if in_repositories and rest.startswith("{"):
-                # Flow style on one line: `repositories: {a: {url: ...}}` (rare): names only.
-                for name in re.findall(r"[{,]\s*([^:{},]+?)\s*:\s*\{", rest):
-                    repos[_unquote(name)] = {}
-            continue
-        if not in_repositories:
-            continue
-        if entry_indent is None or indent <= entry_indent:
-            entry_indent = indent
-            name, _, rest = body.partition(":")
-            current = repos.setdefault(_unquote(name), {})
-            rest = rest.strip()
-            if rest.startswith("{") and rest.endswith("}"):
-                for item in rest[1:-1].split(","):
-                    key, _, value = item.partition(":")
-                    if key.strip():
-                        current[key.strip()] = _unquote(value)
-        elif current is not None:
-            key, _, value = body.partition(":")
-            if key.strip() in ("type", "url", "version"):
-                current[key.strip()] = _unquote(value)
-    return repos
+# --- vcs output ---
 
 
 def parse_vcs_failures(lines: Sequence[str], dest: Path, names: Sequence[str]) -> Dict[str, str]:
@@ -396,7 +346,7 @@ def _import_once(
 ) -> None:
     rel = ws.relative(repos_file)
     digest = file_sha256(repos_file)
-    repos = parse_repos(repos_file.read_text())
+    repos = read_repos(repos_file, step=STEP)
     record = imported.get(rel) or {}
     if digest in done_hashes:
         LOG.info("%s: %s has the content of a file already imported, skipped", STEP, rel)
@@ -427,7 +377,7 @@ def _import_once(
     LOG.info("%s: importing %d repositories from %s", STEP, len(repos), rel)
     if locked is not None:  # LOCKED: the commits of docker-ros.lock
         repos_file = pinned_repos_file(ws, STEP, repos_file, repos, locked)
-        repos = parse_repos(repos_file.read_text())
+        repos = read_repos(repos_file, step=STEP)
     import_file(ws, repos_file, repos, skip_existing=not changed, env=env)
     imported[rel] = {"repositories": sorted(repos), "sha256": digest}
     ws.write_state(STATE_FILE, {"imported": imported})
