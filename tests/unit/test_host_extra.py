@@ -2,6 +2,7 @@
 one on the host says how to get it; in an image (prepare installs them) the hint would mislead."""
 
 import re
+import sys
 from importlib.metadata import requires
 
 import pytest
@@ -28,6 +29,8 @@ def test_host_tools_are_an_extra_that_the_test_extra_includes() -> None:
 def test_missing_host_tool_names_the_extra(runner, monkeypatch, tmp_path) -> None:
     monkeypatch.delenv("DOCKER_ROS", raising=False)
     monkeypatch.setenv("PATH", str(tmp_path))  # an empty folder: no colcon on this PATH
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "python3"))  # nor beside it
+    monkeypatch.chdir(tmp_path)
     with pytest.raises(StepError) as err:
         runner(["colcon", "build"], step="colcon")
     assert err.value.returncode == 127
@@ -37,6 +40,8 @@ def test_missing_host_tool_names_the_extra(runner, monkeypatch, tmp_path) -> Non
 
 def test_in_an_image_and_for_other_programs_no_extra_hint(monkeypatch, tmp_path) -> None:
     monkeypatch.setenv("PATH", str(tmp_path))
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "python3"))
+    monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("DOCKER_ROS", "1")
     with pytest.raises(StepError) as err:
         run(["colcon", "build"], step="colcon")

@@ -34,7 +34,7 @@ def run(
     sys.stdout.flush()
     try:
         proc = subprocess.run(
-            list(argv),
+            executable_argv(argv),
             cwd=str(cwd) if cwd else None,
             env=full_env,
             stdout=subprocess.PIPE if capture else None,
@@ -68,7 +68,7 @@ def probe(
     """Run a command whose exit code and output the caller judges (a look-up, never raises for
     a non-zero exit); a missing program is a StepError with exit code 127 and the hint."""
     try:
-        return subprocess.run(list(argv), env=None if env is None else dict(env),
+        return subprocess.run(executable_argv(argv), env=None if env is None else dict(env),
                               capture_output=True, text=text)
     except FileNotFoundError:
         raise StepError(step, f"command not found: {argv[0]}" + (f" ({hint})" if hint else "")
@@ -80,10 +80,28 @@ HOST_TOOLS = ("vcs", "rosdep", "colcon")
 HOST_EXTRA = "pip install 'docker-ros[host]'"
 
 
+def tool_path(program: str, executable: Optional[str] = None) -> str:
+    """Where a host-mode tool is: beside our interpreter first (docker-ros installed in a venv
+    that is not activated, or with pipx, has its vcs, rosdep and colcon there, not on PATH),
+    else `program` itself (found on PATH)."""
+    executable = sys.executable if executable is None else executable
+    if program in HOST_TOOLS and executable:
+        beside = os.path.join(os.path.dirname(executable), program)
+        if os.path.isfile(beside) and os.access(beside, os.X_OK):
+            return beside
+    return program
+
+
+def executable_argv(argv: Sequence[str]) -> List[str]:
+    """argv as run: a host-mode tool by its tool_path (logs and errors keep the short name)."""
+    return [tool_path(argv[0]), *argv[1:]] if argv else []
+
+
 def host_tool_hint(program: str) -> str:
     """What to do when one of the host-mode steps' tools is missing on the host ('' otherwise)."""
     if program in HOST_TOOLS and hook_context() == "host":
-        return f"; on the host the steps need vcstool, rosdep and colcon: {HOST_EXTRA}"
+        return (f"; on the host the steps need vcstool, rosdep and colcon (looked for beside "
+                f"{sys.executable} and on PATH): {HOST_EXTRA}")
     return ""
 
 
@@ -132,7 +150,7 @@ def run_tee(
     lines: List[str] = []
     try:
         proc = subprocess.Popen(
-            list(argv),
+            executable_argv(argv),
             cwd=str(cwd) if cwd else None,
             env=None if env is None else dict(env),
             stdout=subprocess.PIPE,

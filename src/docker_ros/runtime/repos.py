@@ -11,6 +11,7 @@ import subprocess
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional
 
+from docker_ros.runtime.process import tool_path
 from docker_ros.runtime.workspace import StepError
 
 Repos = Dict[str, Dict[str, str]]
@@ -89,7 +90,7 @@ def interpreters(vcs: Optional[str]) -> List[List[str]]:
 
 
 def _read_elsewhere(path: Path, *, step: str) -> Repos:
-    for interpreter in interpreters(shutil.which("vcs")):
+    for interpreter in interpreters(shutil.which(tool_path("vcs"))):
         try:
             proc = subprocess.run([*interpreter, "-c", READER, str(path)],
                                   capture_output=True, text=True)
