@@ -263,3 +263,73 @@ def test_state_json_is_sorted_and_stable(project):
     text = (project.ws.state / "debs.json").read_text()
     assert json.loads(text) == {"packages": ["awk", "zsh"]}
     assert text == json.dumps({"packages": ["awk", "zsh"]}, indent=2, sort_keys=True) + "\n"
+
+
+def make_wheel(directory, name: str, version: str) -> None:
+    """A real (pure-Python) wheel of a module `name` whose VERSION is `version`."""
+    import base64
+    import hashlib
+    import zipfile
+
+    dist = f"{name}-{version}.dist-info"
+    files = {
+        f"{name}.py": f"VERSION = {version!r}\n",
+        f"{dist}/METADATA": f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n",
+        f"{dist}/WHEEL": "Wheel-Version: 1.0\nGenerator: docker-ros-tests\n"
+                         "Root-Is-Purelib: true\nTag: py3-none-any\n",
+    }
+    record = []
+    for path, text in files.items():
+        digest = base64.urlsafe_b64encode(hashlib.sha256(text.encode()).digest()).rstrip(b"=")
+        record.append(f"{path},sha256={digest.decode()},{len(text.encode())}")
+    files[f"{dist}/RECORD"] = "\n".join(record + [f"{dist}/RECORD,,"]) + "\n"
+    with zipfile.ZipFile(directory / f"{name}-{version}-py3-none-any.whl", "w") as wheel:
+        for path, text in files.items():
+            wheel.writestr(path, text)
+
+
+def test_pip_reads_requirement_files_as_pip_does(
+    project, venv_python, environ, monkeypatch, tmp_path
+):
+    """Continuations, comments, nested -r/-c files relative to the file naming them (the step
+    runs elsewhere), ${VARIABLES} expanded by pip, never written into the plan: a real pip
+    install from local wheels."""
+    wheels = tmp_path / "wheels"
+    wheels.mkdir()
+    for name, version in [("drt_alpha", "1.0"), ("drt_beta", "2.0"), ("drt_gamma", "1.0"),
+                          ("drt_gamma", "2.0")]:
+        make_wheel(wheels, name, version)
+    docker = project.repo / "docker"
+    (docker / "nested").mkdir(parents=True)
+    (docker / "additional-pip-requirements.txt").write_text(
+        "--no-index\n--find-links ${DRT_WHEELS}  # expanded by pip\n-r nested/more.txt\n"
+        "drt_alpha \\\n  >=1.0\n")
+    (docker / "nested" / "more.txt").write_text("drt_beta==2.0 # pinned\ndrt_gamma\n"
+                                                "-c pins.txt\n")
+    (docker / "nested" / "pins.txt").write_text("drt_gamma<2\n")
+    environ({"DOCKER_ROS_PYTHON": str(venv_python), "DRT_WHEELS": str(wheels)})
+    monkeypatch.chdir(tmp_path)  # not the folder of any requirement file
+
+    pip.main(project.ws, project.settings())
+
+    assert project.ws.read_state("pip.json") == {
+        "requirements": ["--no-index", "--find-links ${DRT_WHEELS}", "drt_beta==2.0",
+                         "drt_gamma", "drt_alpha   >=1.0"],
+        "constraints": ["drt_gamma<2"],
+    }
+    versions = subprocess.run(
+        [str(venv_python), "-c", "import drt_alpha, drt_beta, drt_gamma; "
+         "print(drt_alpha.VERSION, drt_beta.VERSION, drt_gamma.VERSION)"],
+        capture_output=True, text=True, check=True).stdout.split()
+    assert versions == ["1.0", "2.0", "1.0"]  # gamma held below 2 by the nested constraint
+
+
+def test_pip_names_a_missing_nested_file(project, tmp_path, monkeypatch):
+    (project.repo / "docker").mkdir()
+    (project.repo / "docker" / "additional-pip-requirements.txt").write_text("-r more.txt\n")
+    (tmp_path / "more.txt").write_text("six\n")  # in the working directory: not the one
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(StepError) as err:
+        pip.main(project.ws, project.settings(), phase="collect")
+    assert "additional-pip-requirements.txt:1: `-r more.txt`: " in err.value.message
+    assert "docker/more.txt not found" in err.value.message

@@ -202,10 +202,17 @@ def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path)
     (tmp_path / "docker" / "additional-debs.txt").write_text("jq\n")
     (tmp_path / "docker" / "additional-files" / "a.conf").write_text("a")
     (tmp_path / ".repos").write_text("repositories: {}\n")
+    # a requirement file's nested -r/-c files (relative to it), not a missing one
+    (tmp_path / "common").mkdir()
+    (tmp_path / "docker" / "additional-pip-requirements.txt").write_text(
+        "-r ../common/req.txt\n-r gone.txt\n")
+    (tmp_path / "common" / "req.txt").write_text("-c pins.txt\n")
+    (tmp_path / "common" / "pins.txt").write_text("a<2\n")
     settings = load_settings(environ={"BASE_IMAGE": "b:1", "COMMAND": "c",
                                       "BUILD_CONTEXT": str(tmp_path)}, project_dir=tmp_path)
     assert skeleton_files(settings, tmp_path) == [
-        ".repos", "docker/additional-debs.txt", "docker/additional-files/a.conf",
+        ".repos", "common/pins.txt", "common/req.txt", "docker/additional-debs.txt",
+        "docker/additional-files/a.conf", "docker/additional-pip-requirements.txt",
         "pkg/package.xml"]
     assert source_stages(settings)["DOCKER_ROS_SOURCE_START"] == "skeleton"
     # what the build context leaves out (credentials in .env files) stays out of it too

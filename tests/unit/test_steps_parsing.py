@@ -10,6 +10,7 @@ from docker_ros.runtime.files import read_list_file
 from docker_ros.runtime.lock import dump_repos
 from docker_ros.runtime.packages import Package
 from docker_ros.runtime.repos import interpreters, read_repos
+from docker_ros.runtime.requirements import nested_file, read_requirement_file
 from docker_ros.runtime.rosenv import (
     parse_env0,
     read_secret,
@@ -110,28 +111,100 @@ def test_resolve_argv():
 # --- pip ---
 
 
-def test_requirement_arguments_one_item_each():
-    entries = [
+MAIN_REQUIREMENTS = """# heading
+pkg>=1.2  # trailing comment
+pkg[extra1,extra2]==2.0
+pkg-b; python_version > "3"
+name @ https://host/pkg.whl
+--extra-index-url https://mirror/simple
+long-name \\
+    >=1.0 \\
+    ; python_version >= "3"
+pkg-c==1.0 --hash=sha256:abc
+git+https://host/x.git#egg=x
+-r sub/more.txt
+--requirement=sub/other.txt
+token-${PIP_TOKEN}-pkg
+"""
+NESTED = {
+    "sub/more.txt": "more-a\n-c pins/c.txt\n",
+    "sub/other.txt": "other-a==1 \\\n# a comment ends the continuation\nother-b\n",
+    "sub/pins/c.txt": "more-a<2\n-r ../../from-constraints.txt\n",
+    "from-constraints.txt": "required-from-constraints\n",
+}
+
+
+@pytest.fixture
+def requirement_tree(tmp_path):
+    for name, text in {"main.txt": MAIN_REQUIREMENTS, **NESTED}.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    return tmp_path / "main.txt"
+
+
+def test_requirement_files_read_as_pip_reads_them(requirement_tree, tmp_path):
+    read = read_requirement_file(requirement_tree, step="pip")
+    assert read.requirements == [
         "pkg>=1.2",
         "pkg[extra1,extra2]==2.0",
-        'pkg; python_version > "3"',
+        'pkg-b; python_version > "3"',
         "name @ https://host/pkg.whl",
         "--extra-index-url https://mirror/simple",
-        "-c 'constraints file.txt'",
-        "pkg==1.0 --hash=sha256:abc",
+        'long-name     >=1.0     ; python_version >= "3"',
+        "pkg-c==1.0 --hash=sha256:abc",
+        "git+https://host/x.git#egg=x",
+        "more-a",
+        "required-from-constraints",  # -r in a constraint file: requirements, as in pip
+        "other-a==1",
+        "other-b",
+        "token-${PIP_TOKEN}-pkg",  # pip expands it when it installs (never in the plan)
     ]
-    assert pip.requirement_arguments(entries) == [
-        "pkg>=1.2",
-        "pkg[extra1,extra2]==2.0",
-        'pkg; python_version > "3"',
-        "name @ https://host/pkg.whl",
-        "--extra-index-url",
-        "https://mirror/simple",
-        "-c",
-        "constraints file.txt",
-        "pkg==1.0",
-        "--hash=sha256:abc",
-    ]
+    assert read.constraints == ["more-a<2"]
+    assert [p.relative_to(tmp_path).as_posix() for p in read.files] == [
+        "main.txt", "sub/more.txt", "sub/pins/c.txt", "from-constraints.txt", "sub/other.txt"]
+
+
+def test_requirement_files_agree_with_pips_own_parser(requirement_tree, monkeypatch):
+    """pip's parser (an internal API: this test only) finds the same requirements."""
+    from pip._internal.network import session as network
+    from pip._internal.req import req_file
+    monkeypatch.delenv("PIP_TOKEN", raising=False)
+    parsed = list(req_file.parse_requirements(str(requirement_tree),
+                                              session=network.PipSession()))
+    ours = read_requirement_file(requirement_tree, step="pip")
+    theirs = [(r.requirement, r.constraint) for r in parsed]
+    mine = [(line.split(" --hash")[0], False) for line in ours.requirements
+            if not line.startswith("-")] + [(line, True) for line in ours.constraints]
+    assert sorted(theirs) == sorted(mine)
+
+
+@pytest.mark.parametrize("line, nested", [
+    ("-r a.txt", (False, "a.txt")), ("-ra.txt", (False, "a.txt")),
+    ("--requirement a.txt", (False, "a.txt")), ("--constraint=c.txt", (True, "c.txt")),
+    ("-c 'with space.txt'", (True, "with space.txt")), ("pkg>=1", None),
+    ("pkg==1 --hash=sha256:x", None), ("--index-url https://x/simple", None),
+])
+def test_nested_file_lines(line, nested):
+    assert nested_file(line) == nested
+
+
+def test_missing_nested_file_and_cycles_name_file_and_line(tmp_path):
+    (tmp_path / "a.txt").write_text("x\n-r b.txt\n")
+    with pytest.raises(StepError) as err:
+        read_requirement_file(tmp_path / "a.txt", step="pip")
+    assert err.value.message.startswith(f"{tmp_path / 'a.txt'}:2: `-r b.txt`: ")
+    assert f"{tmp_path / 'b.txt'} not found" in err.value.message
+    assert read_requirement_file(tmp_path / "a.txt", step="pip", missing_ok=True).files == [
+        tmp_path / "a.txt"]
+    (tmp_path / "b.txt").write_text("-r a.txt\n")
+    with pytest.raises(StepError, match="includes a file that includes it again"):
+        read_requirement_file(tmp_path / "a.txt", step="pip")
+
+
+def test_requirement_files_for_pip(tmp_path):
+    path = pip.requirement_files(tmp_path, ["a>=1", "--no-index"], ["a<2"])
+    assert path.read_text() == "-c constraints.txt\na>=1\n--no-index\n"
+    assert (tmp_path / "constraints.txt").read_text() == "a<2\n"
 
 
 @pytest.mark.parametrize(

@@ -11,6 +11,7 @@ from typing import List
 
 from docker_ros.runtime.files import find_special_files, repository_path, walk
 from docker_ros.runtime.packages import package_search_dirs
+from docker_ros.runtime.requirements import read_requirement_file
 from docker_ros.runtime.workspace import IGNORE_MARKERS, Workspace, image_main
 
 # What the collect phases of scripts, rosdep, debs, pip, files and custom read: package
@@ -31,6 +32,11 @@ def resolve_inputs(ws: Workspace, settings: object) -> List[Path]:
         found += [directory / n for n in MANIFESTS if (directory / n).is_file()]
     for name in LIST_SETTINGS:
         found += find_special_files(ws, settings, name, step="resolve", required=False)
+    for path in find_special_files(ws, settings, "additional_pip_file", step="resolve",
+                                   required=False):
+        # the nested -r/-c files it names (a missing one: the pip step says so)
+        nested = read_requirement_file(path, step="resolve", missing_ok=True).files[1:]
+        found += [p for p in nested if ws.root in p.parents]
     files_dir = repository_path(ws, settings, "additional_files_dir", step="resolve")
     if files_dir.is_dir():
         found += [d / n for d in walk(files_dir) for n in sorted(os.listdir(str(d)))

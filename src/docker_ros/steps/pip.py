@@ -1,18 +1,21 @@
 """pip: install the extra pip requirements listed in ADDITIONAL_PIP_FILE(s).
 
-Each requirement is one argv item (`pkg>=1.2`, `pkg[extra]`, `pkg; python_version>"3"`):
-no shell ever sees them. Lines starting with `-` are pip options (`--extra-index-url URL`)
-and are split like a shell would, but still passed as an argv list."""
+collect reads the files by pip's rules (runtime.requirements: continuations, comments, nested
+-r/-c files relative to the naming file) into pip.json; apply writes those lines into a
+requirement file of its own and lets pip read it (`pip install -r`), so requirement syntax,
+options, hashes and `${VARIABLES}` mean what they mean to pip. No shell ever sees them."""
 
 import json
 import os
 import re
-import shlex
+import tempfile
+from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
-from docker_ros.runtime.files import collect_list_entries, unique
+from docker_ros.runtime.files import find_special_files, unique
 from docker_ros.runtime.lock import locked_arguments
 from docker_ros.runtime.process import is_root, probe, run, run_tee
+from docker_ros.runtime.requirements import read_requirement_file
 from docker_ros.runtime.workspace import LOG, StepError, Workspace, format_argv, phases, step_log
 from docker_ros.settings import Settings
 
@@ -43,21 +46,51 @@ def python_command(environ: Optional[Mapping[str, str]] = None) -> str:
     return env.get(PYTHON_ENV) or "python3"
 
 
-def requirement_arguments(entries: Sequence[str]) -> List[str]:
-    """pip argv items for requirement-file lines: one item per requirement, options split."""
-    args: List[str] = []
-    for entry in entries:
-        if entry.startswith("-"):
-            args.extend(shlex.split(entry))
-            continue
-        # Per-requirement options (`pkg==1 --hash=sha256:...`) follow the requirement.
-        match = re.search(r"\s+(--\S.*)$", entry)
-        if match:
-            args.append(entry[: match.start()])
-            args.extend(shlex.split(match.group(1)))
-        else:
-            args.append(entry)
-    return args
+def collect_requirements(ws: Workspace, settings: Settings) -> Dict[str, List[str]]:
+    """The plan: the requirement and constraint lines of every ADDITIONAL_PIP_FILE."""
+    requirements: List[str] = []
+    constraints: List[str] = []
+    files = find_special_files(ws, settings, "additional_pip_file", step=STEP)
+    if not files:
+        LOG.info("%s: no %s found, nothing to do", STEP, settings.additional_pip_file)
+    for path in files:
+        read = read_requirement_file(path, step=STEP)
+        nested = [ws.relative(p) for p in read.files[1:]]
+        LOG.info("%s: %d entries in %s%s", STEP, len(read.requirements), path,
+                 f" (with {', '.join(nested)})" if nested else "")
+        requirements += read.requirements
+        constraints += read.constraints
+    plan = {"requirements": unique(requirements)}
+    return {**plan, "constraints": unique(constraints)} if constraints else plan
+
+
+def requirement_files(
+    directory: Path, requirements: Sequence[str], constraints: Sequence[str]
+) -> Path:
+    """requirements.txt in `directory` with the lines (and -c constraints.txt when any)."""
+    lines = list(requirements)
+    if constraints:
+        (directory / "constraints.txt").write_text("\n".join(constraints) + "\n")
+        lines.insert(0, "-c constraints.txt")  # (read relative to requirements.txt)
+    path = directory / "requirements.txt"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def install_requirements(
+    requirements: Sequence[str], constraints: Sequence[str], *, dry_run: bool, what: str
+) -> None:
+    """pip install -r a requirement file holding the collected lines."""
+    if not requirements:
+        LOG.info("%s: no pip requirements to install", STEP)
+        return
+    for line in requirements:
+        LOG.info("%s: requirement %s", STEP, line)
+    for line in constraints:
+        LOG.info("%s: constraint %s", STEP, line)
+    with tempfile.TemporaryDirectory(prefix="docker-ros-pip-") as tmp:
+        path = requirement_files(Path(tmp), requirements, constraints)
+        pip_install(["-r", str(path)], step=STEP, dry_run=dry_run, what=what)
 
 
 def version_tuple(version: Optional[str]) -> Tuple[int, ...]:
@@ -145,18 +178,16 @@ def main(
     with step_log(STEP):
         plan: Dict[str, Any] = {}
         if do_collect:
-            entries, _ = collect_list_entries(ws, STEP, settings, "additional_pip_file")
-            plan = {"requirements": unique(entries)}
+            plan = collect_requirements(ws, settings)
             ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
         if do_apply:
             if not do_collect:
                 plan = ws.load_plan(STEP, STATE_FILE)
             requirements = list(plan.get("requirements") or [])
-            arguments = locked_arguments(ws, settings, step=STEP, kind="pip",
-                                         inputs=requirements) or requirement_arguments(requirements)
-            pip_install(
-                arguments,
-                step=STEP,
-                dry_run=dry_run,
-                what="installing ADDITIONAL_PIP_FILE requirements",
-            )
+            what = "installing ADDITIONAL_PIP_FILE requirements"
+            locked = locked_arguments(ws, settings, step=STEP, kind="pip", inputs=requirements)
+            if locked is not None:
+                pip_install(locked, step=STEP, dry_run=dry_run, what=what)
+            else:
+                install_requirements(requirements, list(plan.get("constraints") or []),
+                                     dry_run=dry_run, what=what)
