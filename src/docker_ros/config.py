@@ -14,6 +14,7 @@ from dotenv import dotenv_values
 
 from docker_ros.ci import github_default_branch
 from docker_ros.runtime.files import path_problem
+from docker_ros.runtime.rosdeprules import rules_problem
 from docker_ros.settings import (
     FIELDS,
     Settings,
@@ -98,6 +99,24 @@ def path_problems(settings: Settings) -> Dict[str, str]:
         if explicitly_set(settings, name) and not exists and not recursive:
             problems[name] = (f"{env_name(name)} '{value}' not found in the repository, but "
                               "set explicitly: fix the path or unset it")
+    return problems
+
+
+def content_problems(settings: Settings) -> Dict[str, str]:
+    """Setting name -> what is wrong inside the file it names: a rosdep rules file that is not
+    valid YAML (rosdep would skip it and the build go on without its rules)."""
+    rules = Path(settings.build_context).expanduser() / settings.rosdep_rules_file
+    problem = rules_problem(rules, settings.rosdep_rules_file) if rules.is_file() else None
+    return {"rosdep_rules_file": problem} if problem else {}
+
+
+def input_problems(settings: Settings, targets: Sequence[str], *, images: bool) -> Dict[str, str]:
+    """Everything wrong with the inputs (paths, with `images` image names, then the content of
+    the files that exist), all at once, before anything runs."""
+    problems = {**path_problems(settings),
+                **(image_problems(settings, targets) if images else {})}
+    if not problems.keys() & {"build_context", "rosdep_rules_file"}:
+        problems.update(content_problems(settings))
     return problems
 
 

@@ -23,7 +23,7 @@ from invoke import Collection, Context, Exit, Task
 
 from docker_ros import build, engine
 from docker_ros.build import BuiltImage
-from docker_ros.config import config_table, image_problems, path_problems, read_settings
+from docker_ros.config import config_table, input_problems, read_settings
 from docker_ros.runtime.lock import LockError
 from docker_ros.runtime.workspace import StepError, Workspace, format_argv, setup_logging
 from docker_ros.settings import (
@@ -205,7 +205,7 @@ def host_options(step: str, ws: Workspace) -> Dict[str, str]:
 
 def check_inputs(settings: Settings, targets: Sequence[str] = ()) -> None:
     """Bad paths and image names, all at once, before anything runs."""
-    problems = {**path_problems(settings), **(image_problems(settings, targets) if targets else {})}
+    problems = input_problems(settings, targets, images=bool(targets))
     if problems:
         raise SettingsError("invalid configuration:\n  " + "\n  ".join(problems.values()))
 
@@ -275,7 +275,7 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
     lenient=True,
 )
 def config(c: Context, settings: Settings) -> None:
-    problems = {**path_problems(settings), **image_problems(settings, settings.target)}
+    problems = input_problems(settings, settings.target, images=True)
     print(config_table(settings, problems))
     messages = [*(why for _, why in settings.problems.values()), *problems.values()]
     if messages:

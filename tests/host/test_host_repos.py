@@ -120,3 +120,57 @@ def test_hooks_know_where_they_run(repo: Path, tmp_path: Path) -> None:
         f"before_dependency_installation.sh host {repo / 'docker'}",
         f"custom.sh host {repo / 'docker'}",
     ]
+
+
+def test_rules_file_overriding_a_base_key_is_named_once(
+    repo: Path, tmp_path: Path, no_rosdep_database: dict
+) -> None:
+    base = tmp_path / "base-rules"
+    base.mkdir()
+    (base / "rules.yaml").write_text(
+        "my_tool:\n  debian: [jq, jq-extra]\n  ubuntu: [jq, jq-extra]\n"
+        "unused:\n  debian: [tree]\n")
+    sources = Path(no_rosdep_database["ROSDEP_SOURCE_PATH"])
+    (sources / "10-base.list").write_text(f"yaml {(base / 'rules.yaml').as_uri()}\n")
+    ws = tmp_path / "ws"
+    (ws / "src").mkdir(parents=True)
+    (ws / "src" / "target").symlink_to(repo)
+    env = {**no_rosdep_database, "ROSDISTRO_INDEX_URL": "file:///nonexistent",
+           "ROS_OS_OVERRIDE": "debian:bookworm"}
+    proc = run(["docker_ros.steps", "rosdep", "--workspace", str(ws), "--phase", "collect"],
+               repo, env=env)
+    assert proc.returncode == 0, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if "overrides" in line]
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].endswith(
+        f"rosdep: ROSDEP_RULES_FILE docker/rosdep.yaml overrides 'my_tool' of the base's rules "
+        f"({(base / 'rules.yaml').as_uri()}): the base has debian: [jq, jq-extra], "
+        "docker/rosdep.yaml has debian: [jq]")
+
+
+BAD_RULES = "my_tool:\n  debian: [jq\nother:\n  debian: [tree]\n"
+BAD_LINE = ("ROSDEP_RULES_FILE docker/rosdep.yaml:3:6: not valid YAML: expected ',' or ']', but "
+            "got ':' (while parsing a flow sequence at line 2): fix the file (rosdep would skip "
+            "all of its rules)")
+
+
+def test_malformed_rules_file_stops_before_anything_runs(
+    repo: Path, tmp_path: Path, no_rosdep_database: dict
+) -> None:
+    (repo / "docker" / "rosdep.yaml").write_text(BAD_RULES)
+    # the image's entry (the resolve stage runs it): the step itself
+    ws = tmp_path / "image-ws"
+    shutil.copytree(repo, ws / "src" / "target")
+    step = run(["docker_ros.steps", "rosdep", "--workspace", str(ws), "--phase", "collect"],
+               repo, env=no_rosdep_database)
+    assert step.returncode == 1
+    assert step.stderr.strip().splitlines()[-1] == f"docker-ros rosdep: {BAD_LINE}"
+    assert "rosdep update" not in step.stderr
+    # the host tasks, and an image build, check it before anything runs
+    for args in (["rosdep"], ["build", "--base-image", "docker-ros-test-h2:none"]):
+        proc = run(["docker_ros", *args], repo, env={**no_rosdep_database, "COMMAND": "true"})
+        assert proc.returncode != 0
+        last = proc.stderr.strip().splitlines()[-2:]
+        assert last[0].endswith(f"{args[0]}: invalid configuration:"), proc.stderr
+        assert last[1] == f"  {BAD_LINE}"
+        assert "Starting >>>" not in proc.stderr and "docker" not in proc.stdout

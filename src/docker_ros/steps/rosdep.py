@@ -25,6 +25,13 @@ from docker_ros.runtime.packages import (
     underlay_packages,
 )
 from docker_ros.runtime.process import hook_context, privileged, probe, run
+from docker_ros.runtime.rosdeprules import (
+    cached_sources,
+    os_name,
+    overridden_keys,
+    override_lines,
+    rules_problem,
+)
 from docker_ros.runtime.rosenv import ros_distro
 from docker_ros.runtime.workspace import StepError, Workspace, dry, format_argv, phases, step_log
 from docker_ros.settings import Settings, explicitly_set
@@ -299,6 +306,21 @@ def rosdep_database(
         yield private_database(Path(tmp), rules, distro)
 
 
+def report_overrides(rules: Path, shown: str, env: Mapping[str, str]) -> None:
+    """A warning per key of the rules file that the base's rules define otherwise (overriding
+    is legitimate, silently dropping the base's packages is not); an own rules file that
+    rosdep update could not read is an error (rules_problem has no YAML reader here)."""
+    sources = cached_sources(Path(env["ROS_HOME"]))
+    own_url = rules.resolve().as_uri()
+    written = [line for line in rules.read_text().splitlines()
+               if line.strip() and not line.lstrip().startswith("#")]
+    if sources and written and own_url not in [url for url, _ in sources]:
+        raise StepError(STEP, f"ROSDEP_RULES_FILE {shown}: rosdep update could not read it: "
+                        "check that it is valid YAML")
+    for line in override_lines(shown, overridden_keys(own_url, sources), os_name()):
+        LOG.warning("%s: %s", STEP, line)
+
+
 def collect(
     ws: Workspace, settings: Settings, *, dry_run: bool
 ) -> Optional[Dict[str, Dict[str, List[str]]]]:
@@ -327,11 +349,16 @@ def collect(
     if rules is None and explicitly_set(settings, "rosdep_rules_file"):
         raise StepError(STEP, f"ROSDEP_RULES_FILE '{settings.rosdep_rules_file}' not found "
                         "in the repository, but set explicitly: fix the path or unset it")
+    problem = rules_problem(rules, settings.rosdep_rules_file) if rules else None
+    if problem:
+        raise StepError(STEP, problem)
     # No keys, no rosdep: a workspace without dependencies needs no rosdep database.
     resolved: Resolution = {}
     failed: Dict[str, str] = {}
     if all_keys:
         with rosdep_database(ws, rules, distro, dry_run=dry_run) as env:
+            if rules and env:
+                report_overrides(rules, settings.rosdep_rules_file, env)
             resolved, failed = resolve(sorted(all_keys), distro, env=env)
     if failed:
         raise StepError(STEP, format_failures(failed, all_keys))
