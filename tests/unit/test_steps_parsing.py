@@ -188,6 +188,15 @@ def test_nested_file_lines(line, nested):
     assert nested_file(line) == nested
 
 
+def test_find_links_relative_to_the_requirement_file_when_there(tmp_path):
+    (tmp_path / "sub" / "wheels").mkdir(parents=True)
+    (tmp_path / "sub" / "req.txt").write_text(
+        "--find-links wheels\n-f ./missing\n--find-links=https://h/links\n-fwheels\n")
+    wheels = str(tmp_path / "sub" / "wheels")
+    assert read_requirement_file(tmp_path / "sub" / "req.txt", step="pip").requirements == [
+        f"--find-links {wheels}", "-f ./missing", "--find-links=https://h/links", f"-f{wheels}"]
+
+
 def test_missing_nested_file_and_cycles_name_file_and_line(tmp_path):
     (tmp_path / "a.txt").write_text("x\n-r b.txt\n")
     with pytest.raises(StepError) as err:

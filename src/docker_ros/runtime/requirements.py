@@ -1,8 +1,9 @@
 """pip requirement files read by pip's rules (pip/_internal/req/req_file.py): a line ending in
 `\\` continues on the next, a comment starts at `#` at line start or after white space, and a
 nested `-r`/`-c FILE` is read relative to the folder of the file that names it (a URL stays for
-pip to fetch). Environment variables (`${NAME}`) are left for pip to expand when it installs,
-so that no secret lands in the saved plan. Standard library only, Python 3.8+ (runs in images)."""
+pip to fetch), and so is a `--find-links` folder that exists there. Environment variables
+(`${NAME}`) are left for pip to expand when it installs, so that no secret lands in the saved
+plan. Standard library only, Python 3.8+ (runs in images)."""
 
 import os
 import re
@@ -14,7 +15,6 @@ from docker_ros.runtime.workspace import StepError
 
 COMMENT = re.compile(r"(^|\s+)#.*$")
 SCHEME = re.compile(r"^\w+(\+\w+)?://")
-NESTED = {"-r": False, "--requirement": False, "-c": True, "--constraint": True}
 
 
 class RequirementFile(NamedTuple):
@@ -50,26 +50,50 @@ def logical_lines(text: str) -> List[Tuple[int, str]]:
     return [(number, line) for number, line in stripped if line]
 
 
-def nested_file(line: str) -> Optional[Tuple[bool, str]]:
-    """(is a constraint file, its name) when the line names a nested file, as pip's option
-    parser reads it: the options start at the first token beginning with `-`; the first
-    -r/--requirement wins over -c/--constraint."""
+SHORT = {"-r": "--requirement", "-c": "--constraint", "-f": "--find-links"}
+
+
+def path_options(line: str) -> List[Tuple[str, str]]:
+    """(long option, value) of the options naming files on a line, as pip's option parser
+    reads it: the options start at the first token beginning with `-`."""
     tokens = line.split(" ")
-    options = " ".join(tokens[next((i for i, t in enumerate(tokens) if t.startswith("-")),
-                                   len(tokens)):])
+    start = next((i for i, token in enumerate(tokens) if token.startswith("-")), len(tokens))
     try:
-        words = shlex.split(options)
+        words = shlex.split(" ".join(tokens[start:]))
     except ValueError:
-        return None  # pip rejects the line itself
-    found: List[Tuple[bool, str]] = []
+        return []  # pip rejects the line itself
+    found: List[Tuple[str, str]] = []
     for index, word in enumerate(words):
         flag, equals, value = word.partition("=")
-        if flag in NESTED and (equals or index + 1 < len(words)):
-            found.append((NESTED[flag], value if equals else words[index + 1]))
-        elif word[:2] in ("-r", "-c") and len(word) > 2 and not word.startswith("--"):
-            found.append((word[:2] == "-c", word[2:]))
-    requirements = [f for f in found if not f[0]]
-    return (requirements or found)[0] if found else None
+        flag = SHORT.get(flag, flag)
+        if flag in SHORT.values() and (equals or index + 1 < len(words)):
+            found.append((flag, value if equals else words[index + 1]))
+        elif word[:2] in SHORT and len(word) > 2:
+            found.append((SHORT[word[:2]], word[2:]))
+    return found
+
+
+def nested_file(line: str) -> Optional[Tuple[bool, str]]:
+    """(is a constraint file, its name) when the line names a nested file; as in pip, the
+    first -r/--requirement wins over -c/--constraint."""
+    options = path_options(line)
+    for flag, constraint in (("--requirement", False), ("--constraint", True)):
+        names = [value for option, value in options if option == flag]
+        if names:
+            return constraint, names[0]
+    return None
+
+
+def find_links_line(line: str, folder: str) -> str:
+    """The line with its first --find-links path made absolute when it exists relative to the
+    requirement file's folder (pip's rule; a path relative to the working directory otherwise)."""
+    links = [value for option, value in path_options(line) if option == "--find-links"]
+    if not links or SCHEME.match(links[0]) or "${" in links[0]:
+        return line
+    beside = os.path.join(folder, links[0])
+    if not os.path.exists(beside):
+        return line
+    return line.replace(links[0], shlex.quote(os.path.abspath(beside)), 1)
 
 
 def read_requirement_file(path: Path, *, step: str, missing_ok: bool = False) -> RequirementFile:
@@ -86,6 +110,7 @@ def _read(path: Path, constraint: bool, result: RequirementFile, *, step: str,
     for number, line in logical_lines(path.read_text()):
         nested = nested_file(line)
         if nested is None:
+            line = find_links_line(line, os.path.dirname(str(path)))
             (result.constraints if constraint else result.requirements).append(line)
             continue
         nested_constraint, name = nested
