@@ -3,6 +3,7 @@
 Pure helpers (no pytest): they write real files and run real git; tests import them."""
 
 import base64
+import hashlib
 import os
 import shutil
 import socket
@@ -10,8 +11,10 @@ import subprocess
 import textwrap
 import threading
 import time
+import zipfile
 from dataclasses import dataclass
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from functools import partial
+from http.server import BaseHTTPRequestHandler, SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Dict, Mapping, Optional, Sequence, Union
 
@@ -348,3 +351,37 @@ def sshd_server(
         time.sleep(0.05)
     server.stop()
     raise RuntimeError(f"sshd did not listen within 10 s: {log_path.read_text()}")
+
+
+def make_wheel(directory: Union[str, Path], name: str, version: str) -> Path:
+    """A real (pure-Python) wheel of a module `name` whose VERSION is `version`."""
+    dist = f"{name}-{version}.dist-info"
+    files = {
+        f"{name}.py": f"VERSION = {version!r}\n",
+        f"{dist}/METADATA": f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n",
+        f"{dist}/WHEEL": "Wheel-Version: 1.0\nGenerator: docker-ros-tests\n"
+                         "Root-Is-Purelib: true\nTag: py3-none-any\n",
+    }
+    record = []
+    for path, text in files.items():
+        digest = base64.urlsafe_b64encode(hashlib.sha256(text.encode()).digest()).rstrip(b"=")
+        record.append(f"{path},sha256={digest.decode()},{len(text.encode())}")
+    files[f"{dist}/RECORD"] = "\n".join(record + [f"{dist}/RECORD,,"]) + "\n"
+    wheel = Path(directory) / f"{name}-{version}-py3-none-any.whl"
+    with zipfile.ZipFile(wheel, "w") as archive:
+        for path, text in files.items():
+            archive.writestr(path, text)
+    return wheel
+
+
+def file_http_server(root: Union[str, Path]) -> ThreadingHTTPServer:
+    """Files of `root` (with directory listings: a pip --find-links page) on 127.0.0.1:<free
+    port>, in a daemon thread; the caller ends it with `shutdown(); server_close()`."""
+
+    class Quiet(SimpleHTTPRequestHandler):
+        def log_message(self, *args: object) -> None:
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), partial(Quiet, directory=str(root)))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server

@@ -12,7 +12,13 @@ import pytest
 from docker_ros.runtime.process import is_root
 from docker_ros.runtime.workspace import StepError
 from docker_ros.steps import blacklist, debs, files, pip, rosdep
-from tests.rosfixtures import make_package, rosdep_update, tree_snapshot, write_rosdep_rules
+from tests.rosfixtures import (
+    make_package,
+    make_wheel,
+    rosdep_update,
+    tree_snapshot,
+    write_rosdep_rules,
+)
 
 pytestmark = pytest.mark.host
 needs_root = pytest.mark.skipif(
@@ -263,29 +269,6 @@ def test_state_json_is_sorted_and_stable(project):
     text = (project.ws.state / "debs.json").read_text()
     assert json.loads(text) == {"packages": ["awk", "zsh"]}
     assert text == json.dumps({"packages": ["awk", "zsh"]}, indent=2, sort_keys=True) + "\n"
-
-
-def make_wheel(directory, name: str, version: str) -> None:
-    """A real (pure-Python) wheel of a module `name` whose VERSION is `version`."""
-    import base64
-    import hashlib
-    import zipfile
-
-    dist = f"{name}-{version}.dist-info"
-    files = {
-        f"{name}.py": f"VERSION = {version!r}\n",
-        f"{dist}/METADATA": f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n",
-        f"{dist}/WHEEL": "Wheel-Version: 1.0\nGenerator: docker-ros-tests\n"
-                         "Root-Is-Purelib: true\nTag: py3-none-any\n",
-    }
-    record = []
-    for path, text in files.items():
-        digest = base64.urlsafe_b64encode(hashlib.sha256(text.encode()).digest()).rstrip(b"=")
-        record.append(f"{path},sha256={digest.decode()},{len(text.encode())}")
-    files[f"{dist}/RECORD"] = "\n".join(record + [f"{dist}/RECORD,,"]) + "\n"
-    with zipfile.ZipFile(directory / f"{name}-{version}-py3-none-any.whl", "w") as wheel:
-        for path, text in files.items():
-            wheel.writestr(path, text)
 
 
 def test_pip_reads_requirement_files_as_pip_does(
