@@ -47,9 +47,12 @@ def test_clone_from_a_venv_that_is_not_activated(venv: Path, tmp_path: Path) -> 
     assert "command not found" not in proc.stderr
 
 
-def test_tool_path_prefers_the_interpreters_folder(venv: Path) -> None:
+def test_tool_path_prefers_the_interpreters_folder(venv: Path, monkeypatch) -> None:
+    monkeypatch.delenv("DOCKER_ROS", raising=False)
     python = str(venv / "bin" / "python")
     assert tool_path("vcs", python) == str(venv / "bin" / "vcs")
     assert tool_path("rosdep", python) == "rosdep"  # not in that venv: PATH decides
     assert tool_path("git", python) == "git"  # only the host-mode tools
     assert executable_argv(["git", "status"]) == ["git", "status"]
+    monkeypatch.setenv("DOCKER_ROS", "1")  # in images: PATH, as the image's tools are
+    assert tool_path("vcs", python) == "vcs"

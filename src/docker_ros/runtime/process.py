@@ -81,11 +81,11 @@ HOST_EXTRA = "pip install 'docker-ros[host]'"
 
 
 def tool_path(program: str, executable: Optional[str] = None) -> str:
-    """Where a host-mode tool is: beside our interpreter first (docker-ros installed in a venv
-    that is not activated, or with pipx, has its vcs, rosdep and colcon there, not on PATH),
-    else `program` itself (found on PATH)."""
+    """Where a host-mode tool is: on the host beside our interpreter first (docker-ros
+    installed in a venv that is not activated, or with pipx, has its vcs, rosdep and colcon
+    there, not on PATH), else `program` itself (found on PATH, as always in images)."""
     executable = sys.executable if executable is None else executable
-    if program in HOST_TOOLS and executable:
+    if program in HOST_TOOLS and executable and hook_context() == "host":
         beside = os.path.join(os.path.dirname(executable), program)
         if os.path.isfile(beside) and os.access(beside, os.X_OK):
             return beside
