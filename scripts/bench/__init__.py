@@ -25,6 +25,10 @@ real CLI (`python -m docker_ros build`, TARGET=dev,run from the workspace's .env
       .cpp changed in the last package, rebuilt lean (against the physical limit too)
   8   slim image (ENABLE_SLIM) of the run image after 7b, then 8b, the same build again: the
       slim image is up to date (its figure; tests/docker/test_slim.py checks it, untimed)
+  9   CI jobs on empty runners through a local registry, with CI's build state
+      (BUILD_STATE_FROM) and CACHE_FROM: job 1 builds and pushes; 9b one .cpp changed in the
+      last package, 9c nothing changed, each in a checkout of its own (an empty colcon build/
+      cache; BuildKit's layer cache of the shared engine is not emptied)
 
 and checks while measuring that the run image runs the changed code. Prints one table;
 --json writes the figures to a file. Timings are wall-clock and as noisy as the machine.

@@ -89,10 +89,11 @@ def resolve_keys(base_image: str, keys: Sequence[str]) -> Dict[str, List[str]]:
 
 
 def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = (),
-            timed: Optional[List[Tuple[float, str]]] = None) -> tuple[float, str]:
-    """`python -m docker_ros build ARGS` in project, as a user runs it; (seconds, output).
+            timed: Optional[List[Tuple[float, str]]] = None,
+            task: str = "build") -> tuple[float, str]:
+    """`python -m docker_ros TASK ARGS` in project, as a user runs it; (seconds, output).
     timed: receives each output line with the wall time it arrived."""
-    argv = [sys.executable, "-m", "docker_ros", "build", *args]
+    argv = [sys.executable, "-m", "docker_ros", task, *args]
     env = clean_environ()
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO / "src"), env.get("PYTHONPATH")]))
     began = time.monotonic()
@@ -113,7 +114,7 @@ def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = ()
     seconds = time.monotonic() - began
     if code != 0:
         tail = "".join(lines[-25:])
-        raise BenchError(f"docker-ros build failed (exit code {code}); log: {log}\n{tail}")
+        raise BenchError(f"docker-ros {task} failed (exit code {code}); log: {log}\n{tail}")
     return seconds, "".join(lines)
 
 

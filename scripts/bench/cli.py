@@ -46,6 +46,9 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                         help="skip scenario 6 (the workspace importing its packages via .repos)")
     parser.add_argument("--no-slim", dest="slim", action="store_false",
                         help="skip scenario 8 (the run image slimmed, then rebuilt unchanged)")
+    parser.add_argument("--no-ci", dest="ci", action="store_false",
+                        help="skip scenario 9 (CI jobs on empty runners, through a local "
+                             "registry)")
     parser.add_argument("--json", type=Path, metavar="FILE", help="also write the figures here")
     parser.add_argument("--keep", action="store_true",
                         help="keep the generated workspace, the build log (path printed) and "

@@ -82,6 +82,11 @@ def print_report(rows: Sequence[Scenario], sizes: Dict[str, float], packages: in
     print(f"run image over the base: {sizes['run'] - sizes['base']:.0f} MB, lean "
           f"{sizes['run (lean)'] - sizes['base']:.0f} MB" + (
               f", slim image {sizes['run (slim)']:.0f} MB" if "run (slim)" in sizes else ""))
+    ci_edit = next((r for r in rows if r.name.startswith("9b")), None)
+    if ci_edit is not None:
+        print(f"CI on an empty runner, one-file edit (9b): {ci_edit.seconds:.1f} s, "
+              f"{ci_edit.seconds / edit.seconds:.2f}x the local one-file edit (3, "
+              f"{edit.seconds:.1f} s); {ci_edit.detail.split(';')[0]}")
     failed = [row for row in rows if row.check == "FAIL"]
     for row in failed:
         print(f"FAIL {row.name}: {row.detail}")

@@ -7,8 +7,11 @@ import json
 import os
 import re
 import shlex
+import shutil
+import socket
 import subprocess
 import time
+import urllib.request
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -49,7 +52,9 @@ from bench.workspace import (
     set_mark,
     write_workspace,
 )
+from docker_ros.settings import host_platform
 
+BUILD_STATE_PULLED = re.compile(r"build state: \S+ pulled in ([\d.]+) s \((\d+) MB\)")
 LEAN = ("--target", "run", "--image-tag", "lean", "--set", "ENABLE_LEAN_RUN_IMAGE=true")
 SLIM = ("--target", "run", "--set", "ENABLE_SLIM=true")
 
@@ -61,26 +66,28 @@ class Bench:
         self.log = log
         self.count: int = args.packages
         self.rows: List[Scenario] = []
+        self.output = ""
 
     def say(self, text: str) -> None:
         print(f"[bench] {text}", flush=True)
 
     def build(self, name: str, root: Optional[Path] = None,
-              invocations: Sequence[Sequence[str]] = ((),)) -> Scenario:
-        """One scenario: the CLI's build, or several builds one after the other (invocations:
-        their extra arguments), timed together."""
+              invocations: Sequence[Sequence[str]] = ((),), task: str = "build") -> Scenario:
+        """One scenario: the CLI's build (or TASK), or several one after the other
+        (invocations: their extra arguments), timed together. self.output: what they printed."""
         self.say(f"{name} ...")
         load = load1()
         seconds, output, timed = 0.0, "", []  # type: float, str, List[Tuple[float, str]]
         for args in invocations:
             took, out = run_cli(root or self.root, self.log, verbose=self.args.verbose,
-                                args=args, timed=timed)
+                                args=args, timed=timed, task=task)
             seconds, output = seconds + took, output + out
         row = Scenario(name, seconds, compiled_units(output), dependency_layers(output),
                        changed_sources=changed_sources(output),
                        image_seconds=image_seconds(output), load1=load,
                        deps_overlap=dependency_overlap(timed))
         row.imports = imports_state(output)
+        self.output = output
         self.say(f"{name}: {seconds:.1f} s, {len(row.compiled)} TUs compiled, "
                  f"dependency layers {row.deps_layers}, sources taken as changed "
                  f"{row.changed_sources}")
@@ -273,6 +280,43 @@ class Bench:
         self.check(row, before == after, "slim image id unchanged" if before == after else
                    f"slim image id changed: {before} -> {after}")
 
+    def ci_empty_runner(self, tmp: Path, registry: str) -> None:
+        """9: CI jobs on empty runners, defaults as in CI (BUILD_STATE_FROM, CACHE_FROM): job 1
+        pushes the run image and its build state to a local registry; each later job works in
+        a checkout of its own (another path: a build/ cache that holds nothing of the
+        project), its local images removed: 9b one .cpp changed in the last package, 9c
+        nothing changed. The engine is shared and never pruned: BuildKit's layer cache is not
+        emptied, the colcon build/ cache is."""
+        ref = f"{registry}/docker-ros-bench/ci:latest"
+        state = f"{ref}-build-state"
+        args = ("--image", ref, "--target", "run", "--cache-from", ref,
+                "--set", f"BUILD_STATE_FROM={state}")
+        last = self.count - 1
+
+        def job(name: str, number: int, task: str = "build") -> Scenario:
+            root = tmp / f"ci-job{number}"
+            shutil.copytree(self.root, root, symlinks=True)
+            for each in (ref, f"{state}-{host_platform()}"):
+                docker("image", "rm", "-f", each)
+            return self.build(name, root, invocations=(args,), task=task)
+
+        row = job("9  CI job on an empty runner: build, push", 1, task="push")
+        self.check(row, len(row.compiled) == 3 * self.count,
+                   f"{len(row.compiled)} TUs compiled (no build state yet: all expected)")
+        set_mark(self.root, last, "changed-ci")
+        row = job("9b CI: one .cpp changed, empty runner", 2)
+        pulled = BUILD_STATE_PULLED.search(self.output)
+        self.check_run(row, f"{package_name(last)}[changed-ci]", ref=ref)
+        ok = len(row.compiled) == 1 and pulled is not None
+        row.detail = (f"{len(row.compiled)} TU compiled, build state "
+                      + (f"pulled in {pulled.group(1)} s ({pulled.group(2)} MB)" if pulled
+                         else "NOT pulled") + "; " + row.detail)
+        row.check = "OK" if ok and row.check == "OK" else "FAIL"
+        row = job("9c CI: nothing changed, empty runner", 3)
+        self.check(row, not row.compiled, f"{len(row.compiled)} TUs compiled (0 expected)")
+        for each in (ref, f"{state}-{host_platform()}"):
+            docker("image", "rm", "-f", each)
+
     def imports(self, root: Path) -> None:
         """The workspace importing packages 0..N-1 through .repos; its own package is N."""
         own = self.count
@@ -295,6 +339,32 @@ class Bench:
                    f"vcs import {row.imports}, {len(row.compiled)} TUs compiled (expected a "
                    "fresh import and nothing compiled: same content)")
         docker("image", "rm", "-f", IMPORTS_IMAGE, IMPORTS_IMAGE + "-dev")
+
+
+def local_registry(tmp: Path) -> Tuple[subprocess.Popen, str]:
+    """A throw-away `docker-registry` (Debian's, installed by scripts/setup.sh) on a free
+    loopback port, for the CI scenario; (process, address)."""
+    executable = shutil.which("docker-registry")
+    if executable is None:
+        raise BenchError("docker-registry is not installed: run `bash scripts/setup.sh` first")
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        address = f"127.0.0.1:{probe.getsockname()[1]}"
+    work = tmp / "registry"
+    work.mkdir()
+    (work / "config.yml").write_text(
+        f"version: 0.1\nlog: {{level: warn}}\nhttp: {{addr: '{address}'}}\n"
+        f"storage: {{filesystem: {{rootdirectory: '{work / 'storage'}'}}}}\n")
+    server = subprocess.Popen([executable, "serve", str(work / "config.yml")],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    for _ in range(100):
+        try:
+            urllib.request.urlopen(f"http://{address}/v2/", timeout=1)
+            return server, address
+        except OSError:
+            time.sleep(0.1)
+    server.terminate()
+    raise BenchError(f"the bench's registry did not start on {address}")
 
 
 def run_all(args: argparse.Namespace, tmp: Path) -> Tuple[List[Scenario], Dict[str, float]]:
@@ -335,6 +405,13 @@ def run_all(args: argparse.Namespace, tmp: Path) -> Tuple[List[Scenario], Dict[s
     if args.slim:
         bench.slim()
         sizes["run (slim)"] = image_mb(SLIM_IMAGE)
+    if args.ci:
+        registry, address = local_registry(tmp)
+        try:
+            bench.ci_empty_runner(tmp, address)
+        finally:
+            registry.terminate()
+            registry.wait()
     if args.imports:
         daemon, url = git_server(tmp, args.packages, chain=args.chain, depth=args.depth,
                                  key=args.key, run_id=run_id)

@@ -15,7 +15,6 @@ from docker_ros.runtime.lock import (
     apt_closure,
     base_image_ref,
     dump_lock,
-    host_platform,
     image_repository,
     load_lock,
     locked_target,
@@ -24,7 +23,7 @@ from docker_ros.runtime.lock import (
     target_key,
 )
 from docker_ros.runtime.workspace import Workspace
-from docker_ros.settings import Settings
+from docker_ros.settings import Settings, host_platform
 
 
 def base_image_record(ref: str, attrs: Optional[Mapping[str, Any]]) -> Dict[str, Any]:

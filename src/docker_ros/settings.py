@@ -658,8 +658,9 @@ def with_ci_tags(
 
 
 def host_platform() -> str:
-    machine = os.uname().machine
-    return "arm64" if machine in ("aarch64", "arm64") else "amd64"
+    """This machine's architecture as Docker names it (amd64, arm64, ...)."""
+    machine = os.uname().machine.lower()
+    return {"x86_64": "amd64", "aarch64": "arm64"}.get(machine, machine)
 
 
 def require(settings: Settings, names: Iterable[str]) -> None:

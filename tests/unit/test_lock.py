@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from docker_ros.runtime import lock
+from docker_ros.settings import host_platform
 
 
 def test_apt_simulation_gives_every_package_with_its_version():
@@ -141,7 +142,7 @@ def _locked_ws(tmp_path: Path, debs: str, inputs):
     (ws.target / "debs.txt").write_text(debs)
     entry = {"inputs": {"debs": inputs}, "apt": {"sl": "5.02-1+b1", "libncurses6": "6.4-4"}}
     (ws.target / lock.LOCK_FILE).write_text(lock.dump_lock(
-        {"format": 1, "targets": {f"dev/{lock.host_platform()}": entry}}))
+        {"format": 1, "targets": {f"dev/{host_platform()}": entry}}))
     settings = load_settings(environ={"ADDITIONAL_DEBS_FILE": "debs.txt", "LOCKED": "true"},
                              project_dir=ws.target)
     return ws, settings
@@ -169,7 +170,7 @@ def test_locked_rosdep_plan_pins_and_names_a_new_dependency(tmp_path: Path):
 
     ws, settings = _locked_ws(tmp_path, "", [])
     data = json.loads((ws.target / lock.LOCK_FILE).read_text())
-    data["targets"][f"dev/{lock.host_platform()}"]["inputs"].update(
+    data["targets"][f"dev/{host_platform()}"]["inputs"].update(
         {"rosdep_apt_all": ["sl"], "rosdep_pip_all": []})
     (ws.target / lock.LOCK_FILE).write_text(lock.dump_lock(data))
     plan = {"all": {"apt": ["sl"], "pip": []}}

@@ -16,13 +16,13 @@ differ is stale and stops before installing anything."""
 import hashlib
 import json
 import os
-import platform
 import re
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.runtime.process import probe
 from docker_ros.runtime.workspace import StepError, Workspace
+from docker_ros.settings import host_platform
 
 LOCK_FILE = "docker-ros.lock"
 FORMAT = 1
@@ -215,11 +215,6 @@ def image_repository(ref: str) -> str:
     if ":" in last:
         name = name[: len(name) - len(last)] + last.split(":", 1)[0]
     return name
-
-
-def host_platform() -> str:
-    machine = platform.machine().lower()
-    return {"x86_64": "amd64", "aarch64": "arm64"}.get(machine, machine)
 
 
 def active_entry(ws: Workspace, settings: Any, step: str) -> Optional[Dict[str, Any]]:
