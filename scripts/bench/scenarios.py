@@ -117,11 +117,13 @@ class Bench:
     def cold(self) -> None:
         # Never `docker builder prune`: the engine is shared, and the new workspace (run id,
         # cache mount ids from its path) finds no cache of an earlier run anyway.
-        for ref in (IMAGE, DEV_IMAGE):
+        for ref in (IMAGE, DEV_IMAGE, SLIM_IMAGE):
             docker("image", "rm", "-f", ref)
         row = self.build("1  cold build")
         last = package_name(self.count - 1)
         self.check_run(row, f"{last}[original]")
+        if image_id(SLIM_IMAGE):  # the defaults a user gets: a local build does not slim
+            self.check(row, False, f"the default build made {SLIM_IMAGE}")
 
     def no_change(self) -> None:
         before = {ref: image_id(ref) for ref in (DEV_IMAGE, IMAGE)}

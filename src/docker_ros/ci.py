@@ -116,8 +116,10 @@ def plan_ci_job(
     *, target: Tuple[str, ...], enable_industrial_ci: bool, enable_slim: bool
 ) -> List[List[str]]:
     """The docker-ros tasks (argv after `docker-ros`) of one CI job: build, test, slim, push.
-    Tests run before anything is pushed, so a failing test pushes nothing."""
-    plan = [["build", *SEPARATE]]
+    Tests run before anything is pushed, so a failing test pushes nothing. A `slim` target is
+    the slim task's: the build makes the images without it."""
+    images = [t for t in target if t != "slim"]
+    plan = [["build", *SEPARATE, *(["--target", ",".join(images)] if "slim" in target else [])]]
     if enable_industrial_ci:
         plan.append(["test"])
     if enable_slim and "run" in target:

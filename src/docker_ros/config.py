@@ -42,8 +42,10 @@ def read_settings(
     project_dir: Optional[Path] = None,
     environ: Optional[Mapping[str, str]] = None,
     lenient: bool = False,
+    command: str = "",
 ) -> Settings:
-    """Settings of the project in project_dir (default: cwd) from every source."""
+    """Settings of the project in project_dir (default: cwd) from every source, for the task
+    `command`."""
     project = project_dir or Path.cwd()
     env_file = project / ".env"
     dotenv = dotenv_values(env_file) if env_file.is_file() else {}
@@ -60,6 +62,7 @@ def read_settings(
         flags=flags,
         project_dir=project,
         lenient=lenient,
+        command=command,
     )
 
 

@@ -9,7 +9,7 @@ from typing import Dict, List, Mapping, Optional, Sequence
 from docker_ros import engine
 from docker_ros.build import BuildError, image_ref, platform_ref, target_ref
 from docker_ros.runtime.workspace import format_argv
-from docker_ros.settings import Settings
+from docker_ros.settings import Settings, made_images
 
 LOCAL_REGISTRIES = ("localhost", "127.0.0.1")
 # Commands whose failure changes nothing: removing a list the local store does not hold.
@@ -29,11 +29,12 @@ def latest_ref(ref: str, target: str) -> str:
 
 
 def push_targets(settings: Settings) -> List[str]:
-    """TARGET, plus slim after run when ENABLE_SLIM (as docker-ros's CI pushes it)."""
-    targets = list(settings.target)
+    """TARGET's images (made_images: slim after run when ENABLE_SLIM, as docker-ros's CI
+    pushes it), the build state after run with BUILD_STATE_FROM."""
+    targets = made_images(settings)
     if "run" in targets and settings.build_state_from:
-        targets.append("build-state")
-    return targets + ["slim"] if settings.enable_slim and "run" in targets else targets
+        targets.insert(targets.index("run") + 1, "build-state")
+    return targets
 
 
 def insecure(ref: str) -> List[str]:

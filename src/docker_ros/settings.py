@@ -17,7 +17,10 @@ SLIM_BUILD_ARGS_DEFAULT = (
 )
 TRUE_WORDS = ("true", "1", "yes")
 FALSE_WORDS = ("false", "0", "no")
-TARGETS = ("dev", "run")
+TARGETS = ("dev", "run", "slim")
+# Commands that keep docker-ros's ENABLE_SLIM default (true) on a developer machine too: what
+# they produce is what CI pushes. A local `build` slims only when asked (slim_default).
+SLIMMING_COMMANDS = ("push", "ci", "manifest")
 PLATFORMS = ("amd64", "arm64")
 
 # Where a value came from, lowest to highest precedence.
@@ -189,6 +192,8 @@ class Settings:
         True,
         "Enable an extra slimmed run image (only if `run` stage is targeted): traced, minified,"
         " checked to run alike (see Slim images)", build="none", flags=("push",),
+        default_doc="`true` in CI and for `push`, `ci`, `manifest`; `false` for a local"
+        " `build` (slim with `true`, a `slim` target or `inv slim`)",
     )
     git_https_password: Optional[str] = setting(
         None, "Password for cloning private Git repositories via HTTPS", secret=True, build="tool"
@@ -255,7 +260,9 @@ class Settings:
         None, "Image tag of slim run image", default_doc="`<IMAGE_TAG>-slim`", build="none"
     )
     target: Tuple[str, ...] = setting(
-        ("run",), "Target stage of Dockerfile (comma-separated list)", choices=TARGETS, build="tool"
+        ("run",),
+        "Target stage of Dockerfile (comma-separated list; `slim`: the run image, slimmed)",
+        choices=TARGETS, build="tool",
     )
     vcs_import_file: str = setting(
         ".repos",
@@ -465,10 +472,12 @@ def load_settings(
     flags: Optional[Mapping[str, object]] = None,
     project_dir: Optional[Path] = None,
     lenient: bool = False,
+    command: str = "",
 ) -> Settings:
     """Merge defaults < invoke.yaml < .env < environment < flags; all errors in one message.
     `lenient`: keep going instead, invalid values stay at their defaults and are listed in
-    `problems` (so that `inv config` can show a broken configuration)."""
+    `problems` (so that `inv config` can show a broken configuration). `command`: the task
+    the settings are for (some defaults depend on it, see slim_defaults)."""
     layers: List[Tuple[str, Mapping[str, object]]] = []
     errors: List[str] = []
     problems: Dict[str, Tuple[str, str]] = {}
@@ -503,9 +512,15 @@ def load_settings(
                 sources[name] = source
                 continue
             sources[name] = origin
+    conflict = slim_conflict(values, sources)
+    if conflict:
+        errors.append(conflict)
+        problems["enable_slim"] = ("false", conflict)
+        del values["enable_slim"]
     if errors and not lenient:
         raise SettingsError("invalid configuration:\n  " + "\n  ".join(errors))
-    derived = derived_defaults(values, sources, environ or {}, project_dir or Path.cwd())
+    derived = derived_defaults(values, sources, environ or {}, project_dir or Path.cwd(),
+                               command)
     for name, (value, origin) in derived.items():
         values[name] = value
         if origin:
@@ -537,6 +552,7 @@ def derived_defaults(
     sources: Mapping[str, str],
     environ: Mapping[str, str],
     project_dir: Path,
+    command: str = "",
 ) -> Dict[str, Tuple[object, str]]:
     """Defaults that depend on other values or on the CI we run in (docker-ros's rules), each
     with its provenance ('' keeps "default")."""
@@ -565,6 +581,7 @@ def derived_defaults(
         if not values.get(f"{image}_image_tag"):
             out[f"{image}_image_tag"] = (f"{tag}-{image}", origin("image_tag"))
     out.update(with_ci_tags(values, sources, out, environ))
+    out.update(slim_defaults(values, sources, environ, command))
     if not values.get("platform"):
         out["platform"] = ((host_platform(),), "")
     if not values.get("workspace"):
@@ -600,6 +617,50 @@ def ci_build_state_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
     tag = str(values.get("image_tag", "latest"))
     return tuple(f"{values['image_name']}:{each}-build-state"
                  for each in unpostfixed_tags(values, tag))
+
+
+def slim_conflict(values: Mapping[str, object], sources: Mapping[str, str]) -> str:
+    """A `slim` target with ENABLE_SLIM=false given: the one contradiction of the two."""
+    target: Tuple[str, ...] = values.get("target") or ()  # type: ignore[assignment]
+    if "slim" in target and values.get("enable_slim") is False:
+        return (f"TARGET ({sources.get('target')}) names slim but ENABLE_SLIM=false "
+                f"({sources.get('enable_slim')}): drop one of them")
+    return ""
+
+
+def slim_defaults(
+    values: Mapping[str, object],
+    sources: Mapping[str, str],
+    environ: Mapping[str, str],
+    command: str,
+) -> Dict[str, Tuple[object, str]]:
+    """TARGET `slim` stands for the run image, slimmed (the run image joins TARGET, at the
+    source of the slim target, which `ci` passes on as given). ENABLE_SLIM, unless given, keeps
+    docker-ros's default (true) in CI and for the commands that make what CI pushes
+    (SLIMMING_COMMANDS); a build on a developer machine slims only when asked, as docker-ros's
+    local build.sh never slims (a trace and a check on every run image change)."""
+    target: Tuple[str, ...] = values.get("target") or FIELDS["target"].default  # type: ignore[assignment]
+    given = sources.get("target", "default")
+    out: Dict[str, Tuple[object, str]] = {}
+    if "slim" in target and "run" not in target:
+        at = target.index("slim")
+        out["target"] = (target[:at] + ("run",) + target[at:], "")
+    if "enable_slim" in sources:  # given (an invalid value stays at the declared default)
+        return out
+    if "slim" in target:
+        out["enable_slim"] = (True, f"derived from TARGET ({given})")
+        return out
+    pipeline = detect_pipeline(environ)
+    if pipeline is not None:
+        out["enable_slim"] = (True, f"derived from the CI pipeline ({pipeline.ci}): "
+                                    "docker-ros's default")
+    elif command in SLIMMING_COMMANDS:
+        out["enable_slim"] = (True, f"derived from the command: `{command}` slims as CI does")
+    else:
+        out["enable_slim"] = (False, "derived: a local build slims only when asked "
+                                     "(ENABLE_SLIM=true, TARGET slim or `inv slim`); "
+                                     "push, ci and CI pipelines slim")
+    return out
 
 
 def ci_cache_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
@@ -672,6 +733,13 @@ def require(settings: Settings, names: Iterable[str]) -> None:
             + ", ".join(missing)
             + " (set them in .env, the environment, invoke.yaml under docker_ros: or as flags)"
         )
+
+
+def made_images(settings: Settings) -> List[str]:
+    """The images TARGET makes: dev and run as listed, then slim when the run image is slimmed
+    (ENABLE_SLIM, which a `slim` target sets)."""
+    images = [t for t in settings.target if t != "slim"]
+    return images + ["slim"] if settings.enable_slim and "run" in images else images
 
 
 def required_for_build(settings: Settings) -> List[str]:

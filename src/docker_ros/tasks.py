@@ -34,6 +34,8 @@ from docker_ros.settings import (
     display_value,
     env_name,
     is_secret,
+    kind_of,
+    made_images,
     parse_set,
     require,
     required_for_build,
@@ -118,7 +120,7 @@ def settings_task(
                 for n in settings_flags:
                     kwargs.pop(n, None)
                 cfg = c.config.get("docker_ros", None) or {}
-                settings = read_settings(dict(cfg), overrides, lenient=lenient)
+                settings = read_settings(dict(cfg), overrides, lenient=lenient, command=name)
                 return func(c, settings, **kwargs)
             except KeyboardInterrupt:
                 raise Exit(f"docker-ros {name}: interrupted", code=130) from None
@@ -143,8 +145,10 @@ def settings_task(
         for n in settings_flags:
             help_map[n] = setting_help(n)
         repeatable = ["set"] + [n for n, d, _ in flags if isinstance(d, list)]
+        # `--enable-slim` alone means true; `--enable-slim=false` (or a value after it) too.
+        optional = [n for n in settings_flags if kind_of(n) == "bool"]
         return SettingsTask(body, name=name, help=help_map, auto_shortflags=False,
-                            iterable=repeatable, shortflags=shortflags)
+                            iterable=repeatable, optional=optional, shortflags=shortflags)
 
     return decorate
 
@@ -397,7 +401,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
     [DRY_RUN, SHELL_ON_FAILURE,
      ("until", "", "Build only up to (and including) this step, tag the result "
       "<IMAGE>-until-<step> and stop; the README shows how to run the next step in it")],
-    uses=("target",) + IMAGE_SETTINGS + ("command",),
+    uses=("target",) + IMAGE_SETTINGS + ("command", "enable_slim"),
 )
 def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failure: bool,
                until: str) -> None:
@@ -572,11 +576,10 @@ def _push_and_report(
 def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     from docker_ros.push import manifest
 
-    slim = settings.enable_slim and "run" in settings.target
-    if slim:
+    images = made_images(settings)
+    if "slim" in images:
         _require_tasks([["slim"]])
-    _push_and_report(settings, (*settings.target, *(["slim"] if slim else [])), manifest,
-                     dry_run=dry_run)
+    _push_and_report(settings, images, manifest, dry_run=dry_run)
 
 
 @settings_task(

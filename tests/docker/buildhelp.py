@@ -26,7 +26,8 @@ EXAMPLE = REPO / "example"
 def docker_ros(project: Path, *args: str, env: Optional[Dict[str, str]] = None,
                timeout: int = 1800) -> subprocess.CompletedProcess:
     """`docker-ros ARGS` in project; output (stdout+stderr) in .stdout. ENABLE_SLIM is false
-    unless env sets it (slimming costs a traced run; only the slim tests pay for it)."""
+    unless env sets it: a local build's default, and for push and ci too, which would slim by
+    default (a traced run; only the slim tests pay for it)."""
     full_env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
     full_env["ENABLE_SLIM"] = "false"
     full_env.update(env or {})

@@ -73,4 +73,4 @@ def test_set_reaches_any_setting_and_refuses_secrets(tmp_path: Path) -> None:
     flag_wins = cli("build", "--dry-run", "--image-tag", "a", "--set", "IMAGE_TAG=b",
                     "--set", "BASE_IMAGE=x", "--set", "COMMAND=true", cwd=tmp_path)
     assert flag_wins.returncode == 0, flag_wins.stderr
-    assert ":a " in flag_wins.stdout and ":b " not in flag_wins.stdout
+    assert ':a"' in flag_wins.stdout and ':b"' not in flag_wins.stdout

@@ -142,6 +142,9 @@ def test_ci_job_plan_tests_before_pushing_and_names_missing_tasks():
         "ENABLE_INDUSTRIAL_CI=true needs the `test` task, which this docker-ros does not have "
         "yet: set ENABLE_INDUSTRIAL_CI=false"
     ]
+    # a slim target is the slim task's; the build before it makes the images without it
+    slim = plan_ci_job(target=("run", "slim"), enable_industrial_ci=False, enable_slim=True)
+    assert slim[0][-2:] == ["--target", "run"] and [a[0] for a in slim] == ["build", "slim", "push"]
 
 
 def test_ci_jobs_reuse_the_pushed_dev_and_run_images_as_cache_by_default() -> None:

@@ -73,7 +73,8 @@ def test_bad_boolean_names_variable_and_accepted_values(raw):
 
 def test_empty_environment_values_count_as_unset():
     settings = load(environ={"ENABLE_SLIM": "", "ROS_DISTRO": ""}, dotenv={"IMAGE_TAG": ""})
-    assert settings.enable_slim is True and settings.ros_distro is None
+    assert settings.enable_slim is False and settings.ros_distro is None
+    assert settings.source_of("enable_slim").startswith("derived: a local build")
     assert settings.image_tag == "latest"
 
 
@@ -97,6 +98,39 @@ def test_all_errors_reported_together():
     text = str(err.value)
     assert "TARGET" in text and "ENABLE_SLIM" in text
     assert "did you mean 'image_tag'" in text
+
+
+def test_a_local_build_slims_only_when_asked():
+    """docker-ros's ENABLE_SLIM=true stays the default in CI and for push/ci/manifest; a local
+    build slims when ENABLE_SLIM is given (any source), or with a `slim` target."""
+    local = load(environ={"TARGET": "run"}, command="build")
+    assert local.enable_slim is False
+    assert "slims only when asked" in local.source_of("enable_slim")
+    for command in ("push", "ci", "manifest"):
+        pushed = load(command=command)
+        assert pushed.enable_slim is True
+        assert pushed.source_of("enable_slim") == (f"derived from the command: `{command}` "
+                                                   "slims as CI does")
+    github = load(environ={"GITHUB_ACTIONS": "true"}, command="build")
+    assert github.enable_slim is True and "CI pipeline (github)" in github.source_of("enable_slim")
+    assert load(environ={"GITLAB_CI": "true"}).enable_slim is True
+    for given in ({"dotenv": {"ENABLE_SLIM": "true"}}, {"environ": {"ENABLE_SLIM": "yes"}},
+                  {"invoke_config": {"enable_slim": True}}, {"flags": {"enable_slim": True}}):
+        assert load(**given, command="build").enable_slim is True, given
+    off = load(environ={"ENABLE_SLIM": "false"}, command="push")
+    assert off.enable_slim is False and off.source_of("enable_slim") == "environment"
+
+
+def test_a_slim_target_is_the_run_image_slimmed():
+    only = load(flags={"target": "slim"}, command="build")
+    assert only.target == ("run", "slim") and only.source_of("target") == "flag"
+    assert only.enable_slim is True
+    assert only.source_of("enable_slim") == "derived from TARGET (flag)"
+    both = load(dotenv={"TARGET": "dev,run,slim"})
+    assert both.target == ("dev", "run", "slim") and both.enable_slim is True
+    with pytest.raises(SettingsError, match=r"TARGET \(flag\) names slim but ENABLE_SLIM=false "
+                                            r"\(.env\): drop one of them"):
+        load(dotenv={"ENABLE_SLIM": "false"}, flags={"target": "dev,slim"})
 
 
 def test_missing_required_all_at_once():

@@ -157,8 +157,11 @@ def test_compare_ignores_errors_the_run_image_printed_too() -> None:
 
 def test_push_includes_slim_when_enabled() -> None:
     settings = load_settings(environ={"IMAGE": "reg/x:v1", "TARGET": "dev,run",
-                                      "ENABLE_PUSH_AS_LATEST": "true", "PLATFORM": "amd64"})
+                                      "ENABLE_PUSH_AS_LATEST": "true", "PLATFORM": "amd64"},
+                             command="push")
     assert push_targets(settings) == ["dev", "run", "slim"]
+    slim_target = load_settings(environ={"IMAGE": "reg/x:v1", "TARGET": "slim,dev"})
+    assert push_targets(slim_target) == ["run", "dev", "slim"]
     pushed = [argv[-1] for argv in plan_push(settings, push_targets(settings))
               if argv[1] == "push"]
     assert pushed == ["reg/x:v1-dev", "reg/x:latest-dev", "reg/x:v1", "reg/x:latest",

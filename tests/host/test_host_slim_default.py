@@ -1,0 +1,80 @@
+"""Where slimming applies (issue 19): a local `build` slims only when asked; CI, `push` and `ci`
+keep docker-ros's default; `config` says which applies and why. Dry runs print the plan the
+real commands follow (`[dry-run] slim: ...` exactly when the run image would be slimmed)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Dict, Optional
+
+import pytest
+
+pytestmark = pytest.mark.host
+
+CI_VARIABLES = ("GITHUB_ACTIONS", "GITLAB_CI", "ENABLE_SLIM", "TARGET", "COMMAND", "IMAGE")
+SLIMS = "[dry-run] slim: trace"
+
+
+def cli(project: Path, *args: str, env: Optional[Dict[str, str]] = None, inv: bool = False
+        ) -> subprocess.CompletedProcess:
+    """`docker-ros ARGS` (or `inv ARGS`) in project, outside any CI."""
+    clean = {k: v for k, v in os.environ.items() if k not in CI_VARIABLES}
+    program = ([shutil.which("inv", path=os.path.dirname(sys.executable)) or "inv"] if inv
+               else [sys.executable, "-m", "docker_ros"])
+    return subprocess.run([*program, *args], cwd=project, env={**clean, **(env or {})},
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture
+def project(tmp_path: Path) -> Path:
+    (tmp_path / ".env").write_text("BASE_IMAGE=docker-ros-test/none:1\nCOMMAND=true\n")
+    return tmp_path
+
+
+def slims(result: subprocess.CompletedProcess) -> bool:
+    assert result.returncode == 0, result.stdout + result.stderr
+    return SLIMS in result.stdout
+
+
+def test_a_local_build_slims_only_when_asked(project: Path) -> None:
+    assert not slims(cli(project, "build", "--dry-run"))
+    assert slims(cli(project, "build", "--dry-run", "--enable-slim"))
+    assert not slims(cli(project, "build", "--dry-run", "--enable-slim=false"))
+    assert slims(cli(project, "build", "--dry-run", "--target", "slim"))
+    assert slims(cli(project, "build", "--dry-run", env={"ENABLE_SLIM": "true"}))
+    # invoke.yaml is read by `inv` (beside the project's tasks.py)
+    (project / "tasks.py").write_text("from docker_ros.tasks import ns  # noqa: F401\n")
+    (project / "invoke.yaml").write_text("docker_ros:\n  enable_slim: true\n")
+    assert slims(cli(project, "build", "--dry-run", inv=True))
+
+
+def test_ci_and_push_keep_docker_ros_default(project: Path) -> None:
+    assert slims(cli(project, "build", "--dry-run", env={"GITHUB_ACTIONS": "true"}))
+    assert slims(cli(project, "build", "--dry-run", env={"GITLAB_CI": "true"}))
+    pushed = cli(project, "push", "--dry-run")
+    assert slims(pushed) and "docker push docker-ros-test" not in pushed.stdout
+    assert "[dry-run] push: docker push " in pushed.stdout and ":latest-slim" in pushed.stdout
+    ci = cli(project, "ci", "--dry-run")
+    assert ci.returncode == 0, ci.stderr
+    assert "docker-ros ci: docker-ros slim" in ci.stdout
+    assert not slims(cli(project, "push", "--dry-run", env={"ENABLE_SLIM": "false"}))
+
+
+def test_config_says_which_applies_and_why(project: Path) -> None:
+    def row(*args: str, env: Optional[Dict[str, str]] = None) -> str:
+        shown = cli(project, "config", *args, env=env)
+        assert shown.returncode == 0, shown.stderr
+        return next(line for line in shown.stdout.splitlines() if line.startswith("ENABLE_SLIM"))
+
+    local = row().split(None, 2)
+    assert local[1] == "false" and local[2].startswith("derived: a local build slims only when "
+                                                       "asked (ENABLE_SLIM=true, TARGET slim")
+    assert row("--set", "TARGET=dev,slim").split(None, 2)[1:] == ["true",
+                                                                 "derived from TARGET (flag)"]
+    github = row(env={"GITHUB_ACTIONS": "true"}).split(None, 2)
+    assert github[1:] == ["true", "derived from the CI pipeline (github): docker-ros's default"]
+    assert row(env={"ENABLE_SLIM": "true"}).split()[1:] == ["true", "environment"]
