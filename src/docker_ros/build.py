@@ -38,6 +38,11 @@ SCRATCH_FOLDER = ".gitlab-ci-local"  # gitlab-ci-local's copies of the repositor
 STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
 STEP_START = re.compile(r"Starting >>> (\w+)")
 STEP_END = re.compile(r"(Finished|Failed  ) <<< (\w+)")
+# buildx's own lines (not a build step's output, `#N ...`) when the engine went away mid-build
+ENGINE_LOST = re.compile(
+    r"code = Unavailable|error reading from server: EOF|transport is closing|"
+    r"Cannot connect to the Docker daemon|docker\.sock: connect: |connection reset by peer",
+)
 # a build step of a stage; bake puts the target first: `#7 [run build 1/1]`
 VERTEX = re.compile(r"#(\d+) \[(?:[\w-]+ )?([\w-]+) \d+/\d+\]")
 
@@ -361,6 +366,33 @@ def failed_step(lines: Sequence[str]) -> Tuple[str, str]:
     return found
 
 
+def engine_lost(lines: Sequence[str]) -> str:
+    """buildx's line saying that the connection to the Docker engine was lost (the daemon
+    stopped or restarted mid-build), '' when the log shows none. A build step's own output
+    (`#N ...`, e.g. a refused git connection) never counts."""
+    for line in reversed(lines):
+        if not line.startswith("#") and ENGINE_LOST.search(line):
+            return line.strip()
+    return ""
+
+
+def cancelled(lines: Sequence[str]) -> bool:
+    """Whether buildx stopped because it was interrupted (SIGINT reached it, maybe only it):
+    its last error is the cancellation itself (`ERROR: failed to solve: Canceled: context
+    canceled`); when one target of several fails, buildx names that failure instead."""
+    own = [line for line in lines if line.startswith(("ERROR", "error:"))]
+    return bool(own) and "context canceled" in own[-1]
+
+
+def failure_reason(lines: Sequence[str], errors: Sequence[str]) -> str:
+    """How a failed buildx run ended, for the one-line message."""
+    lost = engine_lost(lines)
+    if lost:
+        return (f"failed: the connection to the Docker engine was lost ({lost}); nothing was "
+                "tagged, so rerunning is safe once `docker info` answers")
+    return f"failed in step {errors[-1]}" if errors else "failed (see the BuildKit error above)"
+
+
 def _kept(lines: List[str], line: str) -> str:
     lines.append(line)
     return line
@@ -625,12 +657,13 @@ def run_buildx(argv: Sequence[str], targets: Sequence[str], platform: str, *,
         proc.terminate()
         proc.wait()
         raise
+    if code != 0 and cancelled(lines) and not engine_lost(lines):
+        raise KeyboardInterrupt  # as if we had seen the Ctrl-C that stopped buildx
     if code != 0:
-        where = f"in step {errors[-1]}" if errors else "(see the BuildKit error above)"
         stage, step = failed_step(lines)
         what = "target" if len(targets) == 1 else "targets"
         raise BuildError(f"building {what} {', '.join(repr(t) for t in targets)} ({platform}) "
-                         f"failed {where}", code, stage=stage, step=step)
+                         f"{failure_reason(lines, errors)}", code, stage=stage, step=step)
     return time.monotonic() - began
 
 

@@ -124,6 +124,43 @@ def host_xauthority(environ: Mapping[str, str]) -> Optional[Path]:
     return path if path.is_file() else None
 
 
+# docker run -v HOST:CONTAINER[:MODE]: the mode words docker accepts (comma-separated).
+VOLUME_MODES = ("ro", "rw", "z", "Z", "shared", "rshared", "slave", "rslave", "private",
+                "rprivate", "nocopy", "consistent", "cached", "delegated")
+VOLUME_NAME = re.compile(r"^[a-zA-Z0-9][a-zA-Z0-9_.-]+$")  # docker's named volume names
+VOLUME_FORM = "use HOST:CONTAINER[:MODE], e.g. ./data:/data:ro or a volume name, ccache:/ccache"
+
+
+def volume_problem(spec: str) -> str:
+    """Why `docker run -v spec` would fail ('' when it would not), in the words of --volume."""
+    parts = spec.split(":")
+    if len(parts) not in (2, 3):
+        count = "no ':'" if len(parts) == 1 else f"{len(parts) - 1} ':' (one or two belong)"
+        return f"--volume {spec!r}: {count}; {VOLUME_FORM}"
+    host, container = parts[0], parts[1]
+    if not host:
+        return f"--volume {spec!r}: the host side (before ':') is empty; {VOLUME_FORM}"
+    if not host.startswith(("/", ".", "~")) and not VOLUME_NAME.match(host):
+        return (f"--volume {spec!r}: {host!r} is neither a path (/, ./, ~/) nor a volume name; "
+                f"{VOLUME_FORM}")
+    if not container.startswith("/"):
+        return (f"--volume {spec!r}: the container side {container!r} must be an absolute "
+                f"path; {VOLUME_FORM}")
+    bad = [m for m in parts[2].split(",") if m not in VOLUME_MODES] if len(parts) == 3 else []
+    if bad:
+        return (f"--volume {spec!r}: unknown mode {', '.join(map(repr, bad))}; use "
+                f"{', '.join(VOLUME_MODES[:4])} ... (comma-separated)")
+    return ""
+
+
+def check_volumes(specs: Sequence[str]) -> None:
+    """Every --volume checked before the dev image is built (docker would say `invalid spec`
+    only after it)."""
+    problems = [p for p in map(volume_problem, specs) if p]
+    if problems:
+        raise DevShellError("; ".join(problems))
+
+
 def host_path(spec: str, cwd: Path) -> str:
     """The host side of a --volume made absolute (docker takes a relative one for the name of
     a named volume); a name without a slash stays a named volume."""

@@ -436,9 +436,13 @@ def parse_value(name: str, raw: object) -> Value:
     return text
 
 
-def _did_you_mean(key: str) -> str:
-    close = difflib.get_close_matches(key.lower(), list(FIELDS), n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+def _did_you_mean(key: str, *, upper: bool = True) -> str:
+    """The closest setting, named as users write it: ENABLE_SLIM (`upper`), or enable_slim
+    for an invoke.yaml key written in lower case."""
+    close = difflib.get_close_matches(key.lower().replace("-", "_"), list(FIELDS), n=1)
+    if not close:
+        return ""
+    return f" (did you mean {env_name(close[0]) if upper else close[0]}?)"
 
 
 def parse_set(items: Iterable[str]) -> Dict[str, str]:
@@ -485,7 +489,8 @@ def load_settings(
     for key, value in (invoke_config or {}).items():
         name = str(key).lower().replace("-", "_")
         if name not in FIELDS:
-            errors.append(f"invoke.yaml: unknown key docker_ros.{key}{_did_you_mean(str(key))}")
+            hint = _did_you_mean(str(key), upper=str(key).isupper())
+            errors.append(f"invoke.yaml: unknown key docker_ros.{key}{hint}")
             problems[f"invoke.yaml:{key}"] = (str(value), errors[-1])
         else:
             yaml_values[name] = value

@@ -11,6 +11,7 @@ import dataclasses
 import getpass
 import inspect
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, Iterator, List, Mapping, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
+from invoke.parser import ParserContext
 
 from docker_ros import build, engine
 from docker_ros.build import BuiltImage
@@ -33,6 +35,7 @@ from docker_ros.settings import (
     default_doc,
     display_value,
     env_name,
+    flag_name,
     is_secret,
     kind_of,
     made_images,
@@ -70,6 +73,19 @@ IMAGE_SETTINGS = settings_where("flags", "image")
 HOST_SETTINGS = settings_where("flags", "host")
 PUSH_SETTINGS = settings_where("flags", "push")
 SET: Flag = ("set", None, "Any setting, as NAME=VALUE (repeatable), e.g. --set ENABLE_SLIM=false")
+# Secrets are never flags (a command line is visible to every process on the machine); every
+# task still parses them, hidden from --help, to say so instead of invoke's "No idea what".
+SECRETS = tuple(n for n in FIELDS if is_secret(n))
+
+
+def secret_flag_refusal(task: str, given: Sequence[str]) -> str:
+    """The message for secrets given as flags ('' when none was)."""
+    if not given:
+        return ""
+    names = ", ".join(env_name(n) for n in given)
+    return (f"docker-ros {task}: {' and '.join(flag_name(n) for n in given)}: a secret is never "
+            f"a flag (a command line is visible to every process on this machine); set {names}"
+            " in the environment or in the project's .env file")
 
 
 class SettingsTask(Task):
@@ -106,6 +122,10 @@ def settings_task(
 
         def body(c: Context, **kwargs: Any) -> Any:
             setup_logging()
+            hear_interrupts()
+            refused = secret_flag_refusal(name, [n for n in SECRETS if kwargs.pop(n) is not None])
+            if refused:
+                raise Exit(refused, code=2)
             if invoke_dry(c):
                 # invoke's -R/--dry means "do not act": our dry run, or a refusal, never ignored.
                 if "dry_run" not in kwargs:
@@ -135,6 +155,7 @@ def settings_task(
         params += [inspect.Parameter(n, keyword, default=d) for n, d, _ in [*flags, SET]]
         # Secrets get no flag: a command line is visible to every process on the machine.
         params += [inspect.Parameter(n, keyword, default=None) for n in settings_flags]
+        params += [inspect.Parameter(n, keyword, default=None) for n in SECRETS]
         body.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
         # First paragraph: the one line of `--list` (at most 76 characters, a test checks);
         # the others wrapped for 80 columns.
@@ -146,11 +167,38 @@ def settings_task(
             help_map[n] = setting_help(n)
         repeatable = ["set"] + [n for n, d, _ in flags if isinstance(d, list)]
         # `--enable-slim` alone means true; `--enable-slim=false` (or a value after it) too.
-        optional = [n for n in settings_flags if kind_of(n) == "bool"]
+        optional = [n for n in settings_flags if kind_of(n) == "bool"] + list(SECRETS)
         return SettingsTask(body, name=name, help=help_map, auto_shortflags=False,
                             iterable=repeatable, optional=optional, shortflags=shortflags)
 
     return decorate
+
+
+class SettingsContext(ParserContext):
+    """A task's flags as the parser knows them, its --help without the secrets' flags (they
+    exist only to be refused, see SECRETS)."""
+
+    def help_tuples(self) -> List[Tuple[str, Any]]:
+        hidden = tuple(flag_name(n) for n in SECRETS)
+        return [(names, text) for names, text in super().help_tuples()
+                if not names.startswith(hidden)]
+
+
+class SettingsCollection(Collection):
+    """The tasks, parsed with SettingsContext."""
+
+    def to_contexts(self, ignore_unknown_help: Any = None) -> List[ParserContext]:
+        return [SettingsContext(name=primary, aliases=aliases, args=self[primary].get_arguments(
+                    ignore_unknown_help=ignore_unknown_help))
+                for primary, aliases in self.task_names.items()]
+
+
+def hear_interrupts() -> None:
+    """Ctrl-C raises KeyboardInterrupt (exit 130, "interrupted") even when we started with
+    SIGINT ignored, as a background job of a script does: buildx and docker (Go) stop on it
+    anyway, and their failure must not be reported as a failed build."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def setting_help(name: str) -> str:
@@ -352,6 +400,8 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
     settings = dataclasses.replace(settings, target=tuple(targets))
     require(settings, required_for_build(settings))
     check_inputs(settings, targets)
+    if slim and "run" in targets:
+        _slim_options(settings)
     assert settings.base_image
     if not dry_run:
         try:
@@ -414,6 +464,16 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failur
         _test(settings, results_dir="", dry_run=dry_run)
 
 
+def _slim_options(settings: Settings) -> None:
+    """SLIM_BUILD_ARGS and ADDITIONAL_SLIM_BUILD_ARGS checked before anything is built."""
+    from docker_ros import slim
+
+    try:
+        slim.parse_slim_args(slim.slim_args(settings))
+    except slim.SlimError as exc:
+        raise TaskError(str(exc)) from None
+
+
 def _slim(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
     from docker_ros import slim
 
@@ -435,6 +495,7 @@ def _slim(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
 )
 def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     settings = dataclasses.replace(settings, target=("run",))
+    _slim_options(settings)
     refs = [build.platform_ref(build.image_ref(settings, "run"), p, settings.platform)
             for p in settings.platform]
     if not dry_run and not all(engine.local_or_pulled(ref) for ref in refs):
@@ -595,6 +656,8 @@ def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     plan = plan_ci_job(target=settings.target, enable_industrial_ci=settings.enable_industrial_ci,
                        enable_slim=settings.enable_slim)
     _require_tasks(plan)
+    if ["slim"] in plan:
+        _slim_options(settings)
     # The tasks re-read .env, invoke.yaml and the environment; flags given to `ci` go along.
     given = [arg for n in FIELDS if settings.source_of(n) == "flag"
              for arg in ("--set", f"{env_name(n)}={display_value(settings, n)}")]
@@ -648,6 +711,7 @@ def dev_shell(
 
     ref = build.image_ref(settings, "dev")
     try:
+        devshell.check_volumes(volume)
         display = os.environ.get("DISPLAY", "") if devshell.select_x11(
             x11, os.environ.get("DISPLAY", "")) else ""
         runtimes = devshell.docker_runtimes() if gpus == "auto" else []
@@ -723,7 +787,7 @@ def example(c: Context, settings: Settings, *, seconds: int) -> None:
 
 
 def collection() -> Collection:
-    ns = Collection()
+    ns = SettingsCollection()
     for step in STEPS:
         ns.add_task(make_step_task(step))
     for task in (config, dev, run, build_task, test_task, slim_task, push_task, manifest_task,

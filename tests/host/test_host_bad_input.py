@@ -121,3 +121,42 @@ def test_crlf_hook_says_so(repo: Path) -> None:
     proc = run(["docker_ros", "scripts"], repo)
     assert proc.returncode != 0
     assert "the script has Windows (CRLF) line endings" in last_line(proc), proc.stderr
+
+
+@pytest.mark.parametrize("task,flag,variable", [
+    ("build", "--git-https-password", "GIT_HTTPS_PASSWORD"),
+    ("clone", "--git-ssh-private-key", "GIT_SSH_PRIVATE_KEY"),
+    ("push", "--registry-password", "REGISTRY_PASSWORD"),
+])
+def test_a_secret_given_as_a_flag_says_where_it_goes(repo: Path, task: str, flag: str,
+                                                     variable: str) -> None:
+    for args in ([flag, "hunter2"], [f"{flag}=hunter2"], [flag]):
+        proc = run(["docker_ros", task, *args], repo)
+        assert proc.returncode == 2, proc.stderr
+        assert last_line(proc) == (
+            f"docker-ros {task}: {flag}: a secret is never a flag (a command line is visible to "
+            f"every process on this machine); set {variable} in the environment or in the "
+            "project's .env file")
+        assert "hunter2" not in proc.stdout + proc.stderr
+    shown = run(["docker_ros", task, "--help"], repo)
+    assert shown.returncode == 0 and flag not in shown.stdout
+
+
+def test_bad_volume_and_slim_args_are_refused_before_any_build(repo: Path) -> None:
+    """BASE_IMAGE=none:1 cannot be built: each message below comes before the build would."""
+    proc = run(["docker_ros", "dev-shell", "--volume", "bad:::"], repo)
+    assert proc.returncode == 1
+    assert last_line(proc) == (
+        "docker-ros dev-shell: --volume 'bad:::': 3 ':' (one or two belong); use "
+        "HOST:CONTAINER[:MODE], e.g. ./data:/data:ro or a volume name, ccache:/ccache")
+    unknown = {"ADDITIONAL_SLIM_BUILD_ARGS": "--unknown"}
+    for args in (["build", "--enable-slim"], ["build", "--target", "slim"], ["push"], ["slim"],
+                 ["ci"]):
+        proc = run(["docker_ros", *args], repo, env=unknown)
+        assert proc.returncode == 1, args
+        assert last_line(proc).startswith(
+            f"docker-ros {args[0]}: SLIM_BUILD_ARGS/ADDITIONAL_SLIM_BUILD_ARGS: unknown "
+            "option(s) --unknown; supported: --include-path"), (args, proc.stderr)
+    # checked only where the run image is slimmed
+    unslimmed = run(["docker_ros", "build", "--dry-run"], repo, env={**unknown, "ENABLE_SLIM": "0"})
+    assert unslimmed.returncode == 0, unslimmed.stderr

@@ -226,3 +226,48 @@ def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path)
         assert source_stages(settings) == {"DOCKER_ROS_SOURCE_START": "checkout",
                                            "DOCKER_ROS_TREE": "source"}
         (tmp_path / name).unlink()
+
+
+# The endings of real buildx runs (docker driver, buildx 0.13, Engine 20.10).
+DAEMON_RESTARTED = [
+    "#19 [source 1/1] RUN python3 -m docker_ros.steps clone\n",
+    "#19 1.399 Starting >>> clone\n",
+    "ERROR: failed to receive status: rpc error: code = Unavailable desc = error reading from "
+    "server: EOF\n",
+]
+INTERRUPTED = [
+    "#19 1.399 started-f90bde4cdac0487189b584bc5467c781\n",
+    "#19 CANCELED\n",
+    "ERROR: failed to solve: Canceled: context canceled\n",
+]
+
+
+def test_a_lost_engine_is_named_and_a_rerun_called_safe():
+    assert build.engine_lost(DAEMON_RESTARTED).endswith("error reading from server: EOF")
+    refused = ["#3 DONE 0.1s\n", "ERROR: Cannot connect to the Docker daemon at "
+               "unix:///var/run/docker.sock. Is the docker daemon running?\n"]
+    assert build.engine_lost(refused).startswith("ERROR: Cannot connect to the Docker daemon")
+    dial = ["error: dial unix /var/run/docker.sock: connect: connection refused\n"]
+    assert build.engine_lost(dial)
+    # a build step's own output never counts (a refused git server inside a RUN)
+    step = ["#9 0.5 fatal: unable to access: Failed to connect: connection refused\n",
+            "#9 0.6 rpc error: code = Unavailable desc = transport is closing\n",
+            "ERROR: failed to solve: process \"/bin/sh -c x\" did not complete successfully\n"]
+    assert build.engine_lost(step) == "" and build.engine_lost(INTERRUPTED) == ""
+    reason = build.failure_reason(DAEMON_RESTARTED, [])
+    assert reason.startswith("failed: the connection to the Docker engine was lost (ERROR: "
+                             "failed to receive status: rpc error: code = Unavailable")
+    assert reason.endswith("nothing was tagged, so rerunning is safe once `docker info` answers")
+    assert build.failure_reason(step, ["clone: x"]) == "failed in step clone: x"
+    assert build.failure_reason(step, []) == "failed (see the BuildKit error above)"
+
+
+def test_an_interrupted_buildx_is_told_from_a_failed_one():
+    assert build.cancelled(INTERRUPTED)
+    assert not build.cancelled(DAEMON_RESTARTED)
+    # bake: one target failed, the other cancelled; buildx names the failure last
+    failed = ["#12 CANCELED\n", "ERROR: target dev: failed to solve: Canceled: context canceled\n",
+              "ERROR: target run: failed to solve: process \"/bin/sh -c x\" did not complete "
+              "successfully: exit code: 1\n"]
+    assert not build.cancelled(failed)
+    assert not build.cancelled(["#5 0.1 ERROR: context canceled\n"])

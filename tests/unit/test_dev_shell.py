@@ -143,3 +143,18 @@ def test_dry_run_prints_the_docker_run_with_repeated_flags(tmp_path):
     line = result.stdout.strip()
     assert line.startswith("docker run --rm -i")
     assert "-v /a:/a -v /b:/b -e X=1 --network host --ipc host robot:1-dev bash -c 'exit 3'" in line
+
+
+def test_volume_specs_are_checked_in_our_words():
+    for good in ("./data:/data:ro", "~/.ccache:/ccache", "cache:/c", "/abs:/abs:rw,z"):
+        assert devshell.volume_problem(good) == "", good
+    assert devshell.volume_problem("bad:::") == (
+        "--volume 'bad:::': 3 ':' (one or two belong); use HOST:CONTAINER[:MODE], e.g. "
+        "./data:/data:ro or a volume name, ccache:/ccache")
+    assert "no ':'" in devshell.volume_problem("/data")
+    assert "host side (before ':') is empty" in devshell.volume_problem(":/data")
+    assert "'my data' is neither a path" in devshell.volume_problem("my data:/data")
+    assert "container side 'data' must be an absolute path" in devshell.volume_problem("./d:data")
+    assert "unknown mode 'rx'" in devshell.volume_problem("./d:/d:ro,rx")
+    with pytest.raises(devshell.DevShellError, match="'x:y'.*; --volume 'bad:::'"):
+        devshell.check_volumes(["./ok:/ok", "x:y", "bad:::"])

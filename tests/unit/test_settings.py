@@ -12,6 +12,7 @@ from docker_ros.settings import (
     as_env,
     display_value,
     load_settings,
+    parse_set,
     require,
     required_for_build,
 )
@@ -97,7 +98,12 @@ def test_all_errors_reported_together():
         load(environ={"TARGET": "foo", "ENABLE_SLIM": "maybe"}, invoke_config={"imge_tag": "x"})
     text = str(err.value)
     assert "TARGET" in text and "ENABLE_SLIM" in text
-    assert "did you mean 'image_tag'" in text
+    assert "did you mean image_tag?" in text  # as written in invoke.yaml: lower case
+    with pytest.raises(SettingsError, match=r"docker_ros.IMGE_TAG \(did you mean IMAGE_TAG\?"):
+        load(invoke_config={"IMGE_TAG": "x"})
+    with pytest.raises(SettingsError, match=r"--set enable-slm: unknown setting \(did you mean "
+                                            r"ENABLE_SLIM\?\)"):
+        parse_set(["enable-slm=true"])
 
 
 def test_a_local_build_slims_only_when_asked():
