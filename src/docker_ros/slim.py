@@ -32,6 +32,8 @@ EXCHANGE = "/docker-ros-slim"  # the tracer and its results inside the trace con
 LABEL_SOURCE = "io.docker-ros.slim.source"
 LABEL_FINGERPRINT = "io.docker-ros.slim.fingerprint"
 EXITED = re.compile(r"docker-ros slimtrace: command exited with status (-?\d+)")
+SETTLED = re.compile(r"docker-ros slimtrace: traced files settled after ([\d.]+) s")
+SETTLE_SECONDS = 3.0  # --settle's default
 TRACER_LINE = re.compile(r"^docker-ros slimtrace: .*\n?", re.MULTILINE)
 # A DOCKER_UID/GID probe of the docker-ros entrypoint (as docker-ros's own SLIM_BUILD_ARGS do).
 PROBE_UID = "23456"
@@ -68,7 +70,7 @@ TROUBLE = re.compile(
 OPTIONS = {
     "--include-path": "path", "--preserve-path": "path", "--exclude-pattern": "path",
     "--include-bin": "path", "--include-exe": "path", "--continue-after": "seconds",
-    "--env": "env", "--exec": "text", "--expect": "text",
+    "--settle": "seconds", "--env": "env", "--exec": "text", "--expect": "text",
 }
 IGNORED_WITH_VALUE = frozenset({
     "--sensor-ipc-mode", "--sensor-ipc-endpoint", "--http-probe-cmd", "--http-probe-cmd-file",
@@ -95,7 +97,8 @@ class SlimOptions:
     include: Tuple[str, ...] = ()
     exclude: Tuple[str, ...] = ()
     executables: Tuple[str, ...] = ()
-    continue_after: float = 10.0
+    continue_after: float = 10.0  # the longest window
+    settle: float = SETTLE_SECONDS  # the window ends this long after the last new file
     env: Tuple[str, ...] = ()
     execs: Tuple[str, ...] = ()
     expect: Tuple[str, ...] = ()
@@ -138,13 +141,8 @@ def parse_slim_args(text: str) -> SlimOptions:
         raise SlimError(
             "SLIM_BUILD_ARGS/ADDITIONAL_SLIM_BUILD_ARGS: unknown option(s) " + ", ".join(unknown)
             + "; supported: " + ", ".join(OPTIONS) + " (see the README's Slim images section)")
-    continue_after = 10.0
-    for raw in values["--continue-after"]:
-        try:
-            continue_after = float(raw)
-        except ValueError:
-            raise SlimError(f"SLIM_BUILD_ARGS: --continue-after={raw!r}: give a number of seconds"
-                            " (docker-slim's enter/signal/probe modes do not apply)") from None
+    continue_after = seconds_option("--continue-after", values["--continue-after"], 10.0)
+    settle = seconds_option("--settle", values["--settle"], SETTLE_SECONDS)
     for pair in values["--env"]:
         if "=" not in pair:
             raise SlimError(f"SLIM_BUILD_ARGS: --env {pair!r}: use NAME=VALUE")
@@ -154,11 +152,24 @@ def parse_slim_args(text: str) -> SlimOptions:
         exclude=tuple(values["--exclude-pattern"]),
         executables=tuple(values["--include-exe"]),
         continue_after=continue_after,
+        settle=settle,
         env=tuple(values["--env"]),
         execs=tuple(values["--exec"]),
         expect=tuple(values["--expect"]),
         ignored=tuple(ignored),
     )
+
+
+def seconds_option(name: str, given: Sequence[str], default: float) -> float:
+    """The last value of a seconds option (docker-slim: the last one wins)."""
+    seconds = default
+    for raw in given:
+        try:
+            seconds = float(raw)
+        except ValueError:
+            raise SlimError(f"SLIM_BUILD_ARGS: {name}={raw!r}: give a number of seconds"
+                            " (docker-slim's enter/signal/probe modes do not apply)") from None
+    return seconds
 
 
 def slim_args(settings: Settings) -> str:
@@ -206,6 +217,7 @@ def tracer_spec(config: Mapping, options: SlimOptions) -> Dict[str, object]:
         "path": path,
         # the host stops the trace; this only bounds a trace whose host went away
         "max_seconds": options.continue_after + 900,
+        "settle_seconds": options.settle,
     }
 
 
@@ -254,12 +266,15 @@ def member_path(name: str) -> str:
 @dataclass
 class Probe:
     """How an image behaved: COMMAND's exit status (None: still running at the end of the
-    window), the execs' exit status and output, the DOCKER_UID probe's, and the output."""
+    window), the execs' exit status and output, the DOCKER_UID probe's, and the output; how
+    long the window lasted and why it ended ("exited", "settled" or "window")."""
 
     exit_code: Optional[int] = None
     execs: List[Tuple[str, int, str]] = field(default_factory=list)
     user: Optional[Tuple[int, str]] = None
     output: str = ""
+    watched: float = 0.0
+    ended: str = "window"
 
     def all_output(self) -> str:
         return self.output + "".join(out for _, _, out in self.execs)
@@ -282,9 +297,9 @@ def compare_probes(reference: Probe, slim: Probe, options: SlimOptions) -> List[
     """What the slim image did differently from the run image (empty: it passed)."""
     diffs = []
     if reference.exit_code != slim.exit_code:
-        seconds = options.continue_after
-        diffs.append(f"COMMAND {describe_exit(reference.exit_code, seconds)} in the run image "
-                     f"but {describe_exit(slim.exit_code, seconds)} in the slim image")
+        diffs.append(f"COMMAND {describe_exit(reference.exit_code, reference.watched)} in the "
+                     f"run image but {describe_exit(slim.exit_code, slim.watched)} in the slim "
+                     "image")
     for (command, code, _), (_, slim_code, slim_out) in zip(reference.execs, slim.execs):
         if code != slim_code:
             last = slim_out.strip().splitlines()[-1:] or ["no output"]
@@ -328,17 +343,58 @@ def logs(name: str) -> str:
     return proc.stdout.decode(errors="replace") + proc.stderr.decode(errors="replace")
 
 
+Ending = Optional[Tuple[str, Optional[int]]]  # why a window ends, COMMAND's exit status
+
+
+def expected_seen(expect: Sequence[str], output: str) -> bool:
+    return all(text in output for text in expect)
+
+
+def trace_ending(log: str, running: bool, code: int, expect: Sequence[str]) -> Ending:
+    """Why the trace window ends now (None: it goes on): COMMAND exited, or the traced files
+    settled (the tracer's SETTLED line) with every --expect text printed."""
+    found = EXITED.search(log)
+    if found:
+        return ("exited", int(found.group(1)))
+    if not running:
+        raise SlimError(f"the tracer stopped early (exit code {code}): " + log.strip()[-500:])
+    if SETTLED.search(log) and expected_seen(expect, log):
+        return ("settled", None)
+    return None
+
+
+def check_ending(elapsed: float, running: bool, code: int, reference: Probe,
+                 output: Callable[[], str], expect: Sequence[str]) -> Ending:
+    """Why the check window ends now: COMMAND exited, or the slim image ran as long as the
+    run image was watched (and printed every --expect text)."""
+    if not running:
+        return ("exited", code)
+    if reference.ended != "exited" and elapsed >= reference.watched and (
+            not expect or expected_seen(expect, output())):
+        return (reference.ended, None)
+    return None
+
+
+def watch(poll: Callable[[float], Ending], limit: float) -> Tuple[str, Optional[int], float]:
+    """Poll with the seconds since the start until it says why the window ends, at most limit
+    seconds: (why, COMMAND's exit status or None, seconds watched)."""
+    began = time.monotonic()
+    while True:
+        elapsed = time.monotonic() - began
+        ended = poll(elapsed)
+        if ended is not None:
+            return ended[0], ended[1], elapsed
+        if elapsed >= limit:
+            return "window", None, elapsed
+        time.sleep(0.3)
+
+
 def run_probes(name: str, image: str, config: Mapping, options: SlimOptions,
-               exited: Callable[[], Optional[int]], alive: Callable[[], bool]) -> Probe:
+               poll: Callable[[float], Ending], limit: float, alive: Callable[[], bool]) -> Probe:
     """Watch a started container for the window, then run the execs and the user probe:
     in it while it runs, else in a fresh container of the image."""
     probe = Probe()
-    deadline = time.monotonic() + options.continue_after
-    while time.monotonic() < deadline:
-        probe.exit_code = exited()
-        if probe.exit_code is not None:
-            break
-        time.sleep(0.3)
+    probe.ended, probe.exit_code, probe.watched = watch(poll, limit)
     prefix = exec_prefix(config.get("Entrypoint") or [])
 
     def in_image(env: Sequence[str], argv: Sequence[str]) -> Tuple[int, str]:
@@ -378,17 +434,11 @@ def trace(run_id: str, config: Mapping, options: SlimOptions, workdir: Path) -> 
         docker("cp", "-", f"{name}:/", input=exchange.getvalue())
         docker("start", name)
 
-        def exited() -> Optional[int]:
-            found = EXITED.search(logs(name))
-            if found:
-                return int(found.group(1))
-            running, code = container_state(name)
-            if not running:
-                raise SlimError(f"the tracer stopped early (exit code {code}): "
-                                + logs(name).strip()[-500:])
-            return None
+        def poll(elapsed: float) -> Ending:
+            log = logs(name)
+            return trace_ending(log, *container_state(name), options.expect)
 
-        probe = run_probes(name, run_id, config, options, exited,
+        probe = run_probes(name, run_id, config, options, poll, options.continue_after,
                            lambda: container_state(name)[0])
         docker("kill", "--signal", "TERM", name)
         docker("wait", name, timeout=300)
@@ -447,16 +497,18 @@ def export_filtered(run_id: str, keep: Set[str], changes: Sequence[str]) -> Tupl
     return out.decode().strip(), kept, total
 
 
-def check(slim_id: str, config: Mapping, options: SlimOptions) -> Probe:
+def check(slim_id: str, config: Mapping, options: SlimOptions, reference: Probe) -> Probe:
     """Run the slim image as the run image was run (same command, env and window)."""
     name = f"docker-ros-slim-check-{os.getpid()}-{int(time.time() * 1000)}"
     docker("run", "-d", "--name", name, *env_args(options.env), slim_id)
     try:
-        def exited() -> Optional[int]:
-            running, code = container_state(name)
-            return None if running else code
+        def poll(elapsed: float) -> Ending:
+            return check_ending(elapsed, *container_state(name), reference,
+                                lambda: logs(name), options.expect)
 
-        return run_probes(name, slim_id, config, options, exited, lambda: exited() is None)
+        return run_probes(name, slim_id, config, options, poll,
+                          max(options.continue_after, reference.watched),
+                          lambda: container_state(name)[0])
     finally:
         docker("rm", "-f", name, check=False)
 
@@ -479,8 +531,9 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         print("docker-ros slim: ignoring options that do not apply here: "
               + ", ".join(options.ignored), flush=True)
     if dry_run:
-        print(f"[dry-run] slim: trace {run_ref} for {options.continue_after:g} s, keep what it "
-              f"uses, check and tag {slim_ref}")
+        print(f"[dry-run] slim: trace {run_ref} for at most {options.continue_after:g} s (until "
+              f"no new file for {options.settle:g} s), keep what it uses, check and tag "
+              f"{slim_ref}")
         return SlimResult(slim_ref, platform, 0.0, False)
     if platform != host_platform():
         raise SlimError(f"slimming a {platform} image on this {host_platform()} machine is not "
@@ -499,14 +552,17 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         traced_at = time.monotonic()
         reference, keep, figures = trace(run["Id"], config, options, Path(tmp))
         trace_seconds = time.monotonic() - traced_at
+    print(trace_report(trace_seconds, reference, figures, options), flush=True)
     if figures.get("overflow"):
         print("docker-ros slim: warning: the trace lost events (queue overflow); the check "
               "below decides", flush=True)
     labels = {LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp}
+    made_at = time.monotonic()
     slim_id, kept, total = export_filtered(run["Id"], keep, plan_changes(config, labels))
+    made_seconds = time.monotonic() - made_at
     checked_at = time.monotonic()
     try:
-        diffs = compare_probes(reference, check(slim_id, config, options), options)
+        diffs = compare_probes(reference, check(slim_id, config, options, reference), options)
     except BaseException:
         docker("image", "rm", "-f", slim_id, check=False)
         raise
@@ -520,25 +576,44 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
                         f"{stale}: " + "; ".join(diffs)
                         + ". Keep what is missing with --include-path in "
                         "ADDITIONAL_SLIM_BUILD_ARGS, or set ENABLE_SLIM=false")
+    print(check_report(check_seconds, reference, options), flush=True)
     docker("tag", slim_id, slim_ref)
-    print(report(run_ref, slim_ref, kept, total, trace_seconds, check_seconds, reference,
-                 options), flush=True)
+    print(size_report(run_ref, slim_ref, kept, total, made_seconds), flush=True)
     return SlimResult(slim_ref, platform, time.monotonic() - began, False)
 
 
-def report(run_ref: str, slim_ref: str, kept: int, total: int, trace_seconds: float,
-           check_seconds: float, reference: Probe, options: SlimOptions) -> str:
+def window_words(probe: Probe, options: SlimOptions) -> str:
+    """How long COMMAND was watched, and why not longer."""
+    if probe.ended == "exited":
+        return f"COMMAND exited with {probe.exit_code} after {probe.watched:.1f} s"
+    if probe.ended == "settled":
+        expected = " and every --expect text was printed" if options.expect else ""
+        return (f"COMMAND watched {probe.watched:.1f} s, until no new file was opened for "
+                f"{options.settle:g} s{expected}")
+    return f"COMMAND watched {probe.watched:.1f} s (--continue-after)"
+
+
+def trace_report(seconds: float, reference: Probe, figures: Mapping, options: SlimOptions
+                 ) -> str:
+    """The trace in one line: its time, the window, what the tracer saw."""
+    return (f"slim: trace {seconds:.1f} s: {window_words(reference, options)}; "
+            f"{figures.get('traced', 0)} files opened, {figures.get('kept', 0)} kept "
+            f"(keep set {figures.get('keep_seconds', 0):.1f} s)")
+
+
+def check_report(seconds: float, reference: Probe, options: SlimOptions) -> str:
+    """The functional check in one line."""
+    behaviour = describe_exit(reference.exit_code, round(reference.watched, 1))
+    return (f"slim: functional check {seconds:.1f} s passed (COMMAND {behaviour} in both; "
+            f"{len(options.execs)} exec(s), {len(options.expect)} expectation(s))")
+
+
+def size_report(run_ref: str, slim_ref: str, kept: int, total: int, seconds: float) -> str:
     run_size = image_size(run_ref)
     slim_size = image_size(slim_ref)
     ratio = run_size / slim_size if slim_size else 0.0
-    behaviour = describe_exit(reference.exit_code, options.continue_after)
     return (
         f"slim: {run_ref} {run_size / 1e6:.0f} MB -> {slim_ref} {slim_size / 1e6:.0f} MB "
         f"(ratio {ratio:.1f}x, {100 * (1 - slim_size / run_size) if run_size else 0:.0f} % "
-        f"smaller); {kept} of {total} files kept\n"
-        f"slim: trace {trace_seconds:.1f} s, functional check {check_seconds:.1f} s passed "
-        f"(COMMAND {behaviour} in both; {len(options.execs)} exec(s), "
-        f"{len(options.expect)} expectation(s))"
+        f"smaller); {kept} of {total} files kept (image made in {seconds:.1f} s)"
     )
-
-

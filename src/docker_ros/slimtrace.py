@@ -8,7 +8,9 @@ the host side (docker_ros.slim) together with an exchange folder:
 1. marks the container's root mount with fanotify (needs CAP_SYS_ADMIN) and starts the command;
 2. records every path opened or executed on that mount, by the command and by anything the host
    runs with `docker exec` meanwhile, until it gets SIGTERM (`docker kill -s TERM`); when the
-   command exits it says so on stderr (EXITED) and stays up for the execs;
+   command exits it says so on stderr (EXITED) and stays up for the execs; when the set of
+   traced files has not grown for spec["settle_seconds"], it says that too (SETTLED), so that
+   the host stops watching a command that has started all it needs;
 3. stops the command and writes DIR/keep.txt: the traced files plus the include paths and
    essentials of DIR/spec.json, closed over ELF DT_NEEDED (ld.so search rules), Python sources
    beside their bytecode, symlinks leading to kept files, hard links, parent directories;
@@ -18,6 +20,7 @@ the host side (docker_ros.slim) together with an exchange folder:
 import ctypes
 import glob
 import json
+import mmap
 import os
 import re
 import select
@@ -43,6 +46,7 @@ DEFAULT_LIB_DIRS = ("/lib", "/usr/lib", "/lib64", "/usr/lib64")
 # Never walked: kernel file systems and our own exchange folder.
 SKIP_DIRS = ("/proc", "/sys", "/dev", "/docker-ros-slim")
 EXITED = "command exited with status "
+SETTLED = "traced files settled after "
 
 
 def log(message: str) -> None:
@@ -133,16 +137,26 @@ def reap(child: subprocess.Popen, status: Optional[int]) -> Optional[int]:
                 status = 128 - status
 
 
-def trace(command: List[str], max_seconds: float) -> Tuple[Set[str], List[str], bool]:
-    """Trace until SIGTERM (or max_seconds); return (paths, library_path, overflow)."""
+def trace(command: List[str], max_seconds: float,
+          settle_seconds: float = 0.0) -> Tuple[Set[str], List[str], bool]:
+    """Trace until SIGTERM (or max_seconds); return (paths, library_path, overflow). Say once
+    (SETTLED) when no new file was opened for settle_seconds (0: never)."""
     stop: List[bool] = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
     notify = Fanotify("/")
     child = subprocess.Popen(command, start_new_session=True)
     status = None
-    deadline = time.monotonic() + max_seconds
+    began = time.monotonic()
+    deadline = began + max_seconds
+    grown, count, settled = began, 0, False
     while not stop and time.monotonic() < deadline:
         notify.read(0.2)
+        now = time.monotonic()
+        if len(notify.paths) != count:
+            grown, count = now, len(notify.paths)
+        elif settle_seconds and not settled and status is None and now - grown >= settle_seconds:
+            settled = True
+            log(f"{SETTLED}{grown - began:.1f} s ({count} files)")
         if status is None:
             status = reap(child, status)
             if status is not None:
@@ -229,7 +243,8 @@ def parse_elf(data: bytes) -> Optional[Elf]:
         return None
 
     def string(offset: int) -> str:
-        return data[base + offset:data.index(b"\0", base + offset)].decode(errors="replace")
+        end = data.find(b"\0", base + offset)  # bytes and mmap both have find
+        return data[base + offset:end if end >= 0 else len(data)].decode(errors="replace")
 
     def strings(wanted: int) -> List[str]:
         return [string(value) for tag, value in tags if tag == wanted]
@@ -240,13 +255,15 @@ def parse_elf(data: bytes) -> Optional[Elf]:
 
 
 def read_elf(path: str) -> Optional[Elf]:
+    """parse_elf of a file, mapped rather than read: only the pages holding the headers and the
+    dynamic section are loaded, not a whole library."""
     try:
         with open(path, "rb") as handle:
-            head = handle.read(4)
-            if head != b"\x7fELF":
+            if handle.read(4) != b"\x7fELF":
                 return None
-            return parse_elf(head + handle.read())
-    except OSError:
+            with mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) as data:
+                return parse_elf(data)  # type: ignore[arg-type]
+    except (OSError, ValueError):
         return None
 
 
@@ -294,8 +311,9 @@ def find_library(name: str, elf: Elf, path: str, library_path: List[str],
 
 
 # ----------------------------------------------------------------------------- keep set
-def glob_regex(pattern: str) -> "re.Pattern[str]":
-    """Glob as in docker-slim's --exclude-pattern: `**` crosses `/`, `*` and `?` do not."""
+def glob_source(pattern: str) -> str:
+    """Glob as in docker-slim's --exclude-pattern, as regex source: `**` crosses `/`, `*` and
+    `?` do not."""
     out, index = [], 0
     while index < len(pattern):
         if pattern.startswith("**", index):
@@ -310,18 +328,25 @@ def glob_regex(pattern: str) -> "re.Pattern[str]":
         else:
             out.append(re.escape(pattern[index]))
             index += 1
-    return re.compile("".join(out) + r"\Z")
+    return "".join(out)
 
 
-def matches_any(path: str, regexes: List["re.Pattern[str]"]) -> bool:
-    """True if the path or one of its parent folders matches."""
-    if not regexes:
-        return False
-    while path and path != "/":
-        if any(r.match(path) for r in regexes):
-            return True
-        path = os.path.dirname(path)
-    return False
+def glob_regex(pattern: str) -> "re.Pattern[str]":
+    return re.compile(glob_source(pattern) + r"\Z")
+
+
+def globs_regex(patterns: List[str]) -> "Optional[re.Pattern[str]]":
+    """One regex for paths that match one of the globs or lie below a path that does (one
+    match per path: the keep set tests every file of the image against the include paths)."""
+    if not patterns:
+        return None
+    body = "|".join(glob_source(p.rstrip("/") or "/") for p in patterns)
+    return re.compile(f"(?:{body})(?:/.*)?\\Z", re.DOTALL)
+
+
+def matches_any(path: str, regex: "Optional[re.Pattern[str]]") -> bool:
+    """True if the path or one of its parent folders matches (regex: globs_regex)."""
+    return regex is not None and path != "/" and regex.match(path) is not None
 
 
 def link_chain(path: str) -> List[str]:
@@ -380,12 +405,29 @@ def python_companions(path: str) -> List[str]:
     return []
 
 
-def walk(root: str, skip: Set[str]) -> Iterator[str]:
-    """Every path below root (not following symlinks), pruning the skipped folders."""
-    for folder, dirs, files in os.walk(root):
-        dirs[:] = [d for d in dirs if os.path.join(folder, d) not in skip]
-        for name in dirs + files:
-            yield os.path.join(folder, name)
+Entry = Tuple[str, str, int]  # path, kind ("dir", "link" or "file"), inode number
+
+
+def walk(root: str, skip: Set[str]) -> Iterator[Entry]:
+    """Every path below root (not following symlinks), pruning the skipped folders; the kind
+    and inode come from the directory listing (no stat call per file)."""
+    pending = [root]
+    while pending:
+        try:
+            entries = list(os.scandir(pending.pop()))
+        except OSError:
+            continue
+        for entry in entries:
+            if entry.path in skip:
+                continue
+            try:
+                kind = ("link" if entry.is_symlink() else
+                        "dir" if entry.is_dir(follow_symlinks=False) else "file")
+                yield entry.path, kind, entry.inode()
+            except OSError:
+                continue
+            if kind == "dir":
+                pending.append(entry.path)
 
 
 def mount_points() -> Set[str]:
@@ -399,12 +441,11 @@ def mount_points() -> Set[str]:
 def keep_set(spec: Dict[str, Any], traced: Set[str], library_path: List[str]) -> Set[str]:
     """Absolute paths to keep (files, symlinks, folders); see the module docstring."""
     skip = set(SKIP_DIRS) | {m for m in mount_points() if os.path.isdir(m)}
-    includes = [glob_regex(q.rstrip("/") or "/") for p in spec["include"]
-                for q in {p, canonical(p)}]
-    excludes = [glob_regex(p.rstrip("/") or "/") for p in spec["exclude"]]
+    includes = globs_regex([q for p in spec["include"] for q in {p, canonical(p)}])
+    excludes = globs_regex(spec["exclude"])
     roots = set(p for p in traced if not any(p == s or p.startswith(s + "/") for s in skip))
     everything = list(walk("/", skip))
-    roots.update(p for p in everything if matches_any(p, includes))
+    roots.update(p for p, _, _ in everything if matches_any(p, includes))
     path_env = spec.get("path", "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin")
     for exe in spec["executables"]:
         found = which(exe, path_env)
@@ -442,21 +483,28 @@ def keep_set(spec: Dict[str, Any], traced: Set[str], library_path: List[str]) ->
             continue
         if info.st_nlink > 1 and not os.path.isdir(path):
             inodes.add((info.st_dev, info.st_ino))
-    for path in everything:
+    numbers = {number for _, number in inodes}
+    for path, kind, number in everything:
         if path in keep or matches_any(path, excludes):
             continue
-        try:
-            info = os.lstat(path)
-        except OSError:
-            continue
-        if os.path.islink(path) and os.path.realpath(path) in kept_real:
-            keep.add(path)  # e.g. libfoo.so.1 -> libfoo.so.1.2, /usr/bin/python3 -> python3.11
-        elif (info.st_dev, info.st_ino) in inodes:
+        if kind == "link":
+            if os.path.realpath(path) in kept_real:
+                keep.add(path)  # e.g. libfoo.so.1 -> libfoo.so.1.2, /usr/bin/python3 -> python3.11
+        elif kind == "dir":
+            if path.count("/") <= 2:
+                keep.add(path)  # the folder skeleton: /var/tmp, /etc/skel, /usr/share...
+        elif number in numbers and same_file(path, inodes):
             keep.add(path)  # the other names of a kept hard-linked file
-        elif path.count("/") <= 2 and os.path.isdir(path) and not os.path.islink(path):
-            keep.add(path)  # the folder skeleton: /var/tmp, /etc/skel, /usr/share...
     keep |= ancestors(keep)
     return {p for p in keep if p != "/" and os.path.lexists(p)}
+
+
+def same_file(path: str, inodes: Set[Tuple[int, int]]) -> bool:
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return False
+    return (info.st_dev, info.st_ino) in inodes
 
 
 def ancestors(paths: Set[str]) -> Set[str]:
@@ -498,13 +546,16 @@ def main(argv: List[str]) -> int:
         with open(out + "/spec.json") as handle:
             spec = json.load(handle)
         began = time.monotonic()
-        paths, library_path, overflow = trace(command, spec["max_seconds"])
+        paths, library_path, overflow = trace(command, spec["max_seconds"],
+                                              spec.get("settle_seconds", 0.0))
         traced_seconds = time.monotonic() - began
         keep = keep_set(spec, paths, library_path)
+        keep_seconds = time.monotonic() - began - traced_seconds
         write(out + "/keep.txt", "".join(p + "\n" for p in sorted(keep)))
         write(out + "/done", json.dumps({
             "traced": len(paths), "kept": len(keep), "overflow": overflow,
             "library_path": library_path, "trace_seconds": round(traced_seconds, 1),
+            "keep_seconds": round(keep_seconds, 1),
         }))
     except Exception as exc:  # reported to the host, which names it in one line
         write(out + "/error", f"{type(exc).__name__}: {exc}\n")

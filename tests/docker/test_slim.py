@@ -68,8 +68,18 @@ def test_build_slims_the_run_image_and_reports_it(ros1: dict) -> None:
     line = report(ros1["log"])
     assert "docker-ros slim: ignoring options that do not apply here: --sensor-ipc-mode, " \
            "--show-clogs, --http-probe" in ros1["log"]
-    assert re.search(r"functional check [\d.]+ s passed \(COMMAND still running after 10 s in "
-                     r"both; 2 exec\(s\), 1 expectation\(s\)\)", ros1["log"]), ros1["log"][-2000:]
+    # the window ends once the traced files settled and the listener was heard, well before
+    # --continue-after=10; the check watches as long (one line each, with their times)
+    trace = re.search(r"slim: trace ([\d.]+) s: COMMAND watched ([\d.]+) s, until no new file "
+                      r"was opened for 3 s and every --expect text was printed; \d+ files "
+                      r"opened, \d+ kept \(keep set [\d.]+ s\)", ros1["log"])
+    assert trace, ros1["log"][-2000:]
+    assert float(trace.group(2)) < 10
+    check = re.search(r"slim: functional check ([\d.]+) s passed \(COMMAND still running after "
+                      r"([\d.]+) s in both; 2 exec\(s\), 1 expectation\(s\)\)", ros1["log"])
+    assert check and check.group(2) == f"{float(trace.group(2)):g}", ros1["log"][-2000:]
+    print(f"\nSLIM TIMES trace {trace.group(1)} s (window {trace.group(2)} s), check "
+          f"{check.group(1)} s")
     run_mb, slim_mb = (int(n) for n in re.findall(r"(\d+) MB", line))
     assert slim_mb * 3 < run_mb, line
     assert "latest-slim  amd64" in ros1["log"][ros1["log"].rindex("IMAGE "):]

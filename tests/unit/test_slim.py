@@ -16,6 +16,8 @@ from docker_ros.slim import (
     Probe,
     SlimError,
     SlimOptions,
+    check_ending,
+    check_report,
     compare_probes,
     exec_prefix,
     filter_tar,
@@ -23,7 +25,10 @@ from docker_ros.slim import (
     parse_slim_args,
     plan_changes,
     plan_trace_container,
+    trace_ending,
+    trace_report,
     tracer_spec,
+    watch,
 )
 
 # docker-ros's current GitLab default (its action/older default is SLIM_BUILD_ARGS_DEFAULT)
@@ -58,11 +63,13 @@ def test_ours_exec_expect_and_include_exe() -> None:
     assert options.expect == ("I heard",)
     assert options.executables == ("ls",)
     assert options.continue_after == 2.5
+    assert options.settle == 3 and parse_slim_args("--settle=0.5").settle == 0.5
 
 
 @pytest.mark.parametrize("text, message", [
     ("--frobnicate --include-path /x --bogus=1", "unknown option(s) --frobnicate, --bogus=1"),
     ("--continue-after=probe", "give a number of seconds"),
+    ("--settle never", "--settle='never': give a number of seconds"),
     ("--env FOO", "use NAME=VALUE"),
     ("--include-path", "--include-path needs a value"),
     ("--tag x:y", "--tag is set by docker-ros"),
@@ -137,6 +144,7 @@ def test_compare_names_every_difference() -> None:
     run = Probe(0, [("rosnode list", 0, "/talker\n")], (0, "23456"), "ok\n")
     slim = Probe(127, [("rosnode list", 1, "ImportError: rosnode\n")], (1, "useradd: not found"),
                  "talker: error while loading shared libraries: libroscpp.so\n")
+    run.watched, slim.watched = 4.25, 0.5
     diffs = compare_probes(run, slim, SlimOptions(continue_after=5, expect=("ok", "never")))
     text = "\n".join(diffs)
     assert "COMMAND exited with 0 in the run image but exited with 127 in the slim image" in text
@@ -199,6 +207,54 @@ def test_filter_tar_keeps_listed_members_and_their_hard_links() -> None:
         assert tar.extractfile("etc/passwd").read() == b"root\n"  # type: ignore[union-attr]
 
 
+def test_the_trace_window_ends_when_the_traced_files_settle() -> None:
+    started = "docker-ros slimtrace: mark\n[talker] hello\n"
+    settled = started + "docker-ros slimtrace: traced files settled after 2.1 s (412 files)\n"
+    assert trace_ending(started, True, 0, ()) is None
+    assert trace_ending(settled, True, 0, ()) == ("settled", None)
+    assert trace_ending(settled, True, 0, ("I heard",)) is None  # until every --expect text
+    assert trace_ending(settled + "I heard: 1\n", True, 0, ("I heard",)) == ("settled", None)
+    exited = started + "docker-ros slimtrace: command exited with status 3\n"
+    assert trace_ending(exited, True, 0, ("never",)) == ("exited", 3)
+    with pytest.raises(SlimError, match="the tracer stopped early \\(exit code 1\\)"):
+        trace_ending(started, False, 1, ())
+
+
+def test_the_check_watches_as_long_as_the_trace_did() -> None:
+    running = Probe(None, watched=4.0, ended="settled")
+    assert check_ending(3.9, True, 0, running, lambda: "", ()) is None
+    assert check_ending(4.0, True, 0, running, lambda: "", ()) == ("settled", None)
+    assert check_ending(4.5, True, 0, running, lambda: "no", ("I heard",)) is None
+    assert check_ending(4.5, True, 0, running, lambda: "I heard", ("I heard",)) == (
+        "settled", None)
+    assert check_ending(1.0, False, 127, running, lambda: "", ()) == ("exited", 127)
+    exited = Probe(0, watched=1.0, ended="exited")  # waits for the slim image to exit too
+    assert check_ending(9.0, True, 0, exited, lambda: "", ()) is None
+    assert check_ending(9.0, False, 0, exited, lambda: "", ()) == ("exited", 0)
+
+
+def test_watch_stops_at_the_first_ending_or_the_limit() -> None:
+    assert watch(lambda elapsed: ("exited", 0), 10)[:2] == ("exited", 0)
+    why, code, seconds = watch(lambda elapsed: None, 0.0)
+    assert (why, code) == ("window", None) and seconds < 1
+
+
+def test_trace_and_check_are_reported_one_line_each() -> None:
+    options = SlimOptions(settle=3, execs=("rosnode list",), expect=("I heard",))
+    settled = Probe(None, watched=5.04, ended="settled")
+    figures = {"traced": 412, "kept": 2101, "keep_seconds": 2.46}
+    assert trace_report(7.23, settled, figures, options) == (
+        "slim: trace 7.2 s: COMMAND watched 5.0 s, until no new file was opened for 3 s and "
+        "every --expect text was printed; 412 files opened, 2101 kept (keep set 2.5 s)")
+    assert check_report(6.01, settled, options) == (
+        "slim: functional check 6.0 s passed (COMMAND still running after 5 s in both; "
+        "1 exec(s), 1 expectation(s))")
+    exited = Probe(0, watched=0.84, ended="exited")
+    assert "COMMAND exited with 0 after 0.8 s;" in trace_report(2, exited, figures, options)
+    whole = Probe(None, watched=10.2, ended="window")
+    assert "COMMAND watched 10.2 s (--continue-after);" in trace_report(12, whole, {}, options)
+
+
 # --------------------------------------------------------------------------- in-image code
 def test_parse_elf_of_a_real_executable() -> None:
     python = Path("/proc/self/exe").resolve()
@@ -226,9 +282,18 @@ def test_glob_regex_like_docker_slim() -> None:
     assert slimtrace.glob_regex("/home/x/**").match("/home/x/a/b")
     assert not slimtrace.glob_regex("/usr/lib/*.so").match("/usr/lib/sub/a.so")
     assert slimtrace.glob_regex("/usr/lib/libfoo.so*").match("/usr/lib/libfoo.so.1.2")
-    regexes = [slimtrace.glob_regex("/usr/share/doc")]
-    assert slimtrace.matches_any("/usr/share/doc/bash/README", regexes)
-    assert not slimtrace.matches_any("/usr/share/docs", regexes)
+    one = slimtrace.globs_regex(["/usr/share/doc/"])
+    assert slimtrace.matches_any("/usr/share/doc/bash/README", one)
+    assert slimtrace.matches_any("/usr/share/doc", one)
+    assert not slimtrace.matches_any("/usr/share/docs", one)
+    assert not slimtrace.matches_any("/usr/share", one)
+    several = slimtrace.globs_regex(["/opt/ros", "/usr/lib/*.so", "/home/**/x", "/"])
+    assert slimtrace.matches_any("/opt/ros/lib/a.so", several)
+    assert slimtrace.matches_any("/usr/lib/a.so/inside", several)  # below a match
+    assert not slimtrace.matches_any("/usr/lib/sub/a.so", several)
+    assert slimtrace.matches_any("/home/a/b/x/y", several)
+    assert not slimtrace.matches_any("/usr", several) and not slimtrace.matches_any("/", several)
+    assert not slimtrace.matches_any("/x", slimtrace.globs_regex([]))
 
 
 def test_link_chain_and_python_companions(tmp_path: Path) -> None:
