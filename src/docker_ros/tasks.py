@@ -75,7 +75,7 @@ PUSH_SETTINGS = settings_where("flags", "push")
 SET: Flag = ("set", None, "Any setting, as NAME=VALUE (repeatable), e.g. --set ENABLE_SLIM=false")
 # Secrets are never flags (a command line is visible to every process on the machine); every
 # task still parses them, hidden from --help, to say so instead of invoke's "No idea what".
-SECRETS = tuple(n for n in FIELDS if is_secret(n))
+SECRETS = settings_where("secret", True)
 
 
 def secret_flag_refusal(task: str, given: Sequence[str]) -> str:
