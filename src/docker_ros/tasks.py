@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any, Callable, Dict, Iterator, List, Mapping, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
-from invoke.parser import ParserContext
 
 from docker_ros import build, engine
 from docker_ros.build import BuiltImage
@@ -74,7 +73,7 @@ HOST_SETTINGS = settings_where("flags", "host")
 PUSH_SETTINGS = settings_where("flags", "push")
 SET: Flag = ("set", None, "Any setting, as NAME=VALUE (repeatable), e.g. --set ENABLE_SLIM=false")
 # Secrets are never flags (a command line is visible to every process on the machine); every
-# task still parses them, hidden from --help, to say so instead of invoke's "No idea what".
+# task still parses them, to say so (and where they go) instead of invoke's "No idea what".
 SECRETS = settings_where("secret", True)
 
 
@@ -165,6 +164,9 @@ def settings_task(
         help_map: Dict[str, str] = {n: h for n, _, h in [*flags, SET]}
         for n in settings_flags:
             help_map[n] = setting_help(n)
+        for n in SECRETS:
+            help_map[n] = (f"Refused: a secret is never a flag; set {env_name(n)} in the "
+                           "environment or .env")
         repeatable = ["set"] + [n for n, d, _ in flags if isinstance(d, list)]
         # `--enable-slim` alone means true; `--enable-slim=false` (or a value after it) too.
         optional = [n for n in settings_flags if kind_of(n) == "bool"] + list(SECRETS)
@@ -172,25 +174,6 @@ def settings_task(
                             iterable=repeatable, optional=optional, shortflags=shortflags)
 
     return decorate
-
-
-class SettingsContext(ParserContext):
-    """A task's flags as the parser knows them, its --help without the secrets' flags (they
-    exist only to be refused, see SECRETS)."""
-
-    def help_tuples(self) -> List[Tuple[str, Any]]:
-        hidden = tuple(flag_name(n) for n in SECRETS)
-        return [(names, text) for names, text in super().help_tuples()
-                if not names.startswith(hidden)]
-
-
-class SettingsCollection(Collection):
-    """The tasks, parsed with SettingsContext."""
-
-    def to_contexts(self, ignore_unknown_help: Any = None) -> List[ParserContext]:
-        return [SettingsContext(name=primary, aliases=aliases, args=self[primary].get_arguments(
-                    ignore_unknown_help=ignore_unknown_help))
-                for primary, aliases in self.task_names.items()]
 
 
 def hear_interrupts() -> None:
@@ -787,7 +770,7 @@ def example(c: Context, settings: Settings, *, seconds: int) -> None:
 
 
 def collection() -> Collection:
-    ns = SettingsCollection()
+    ns = Collection()
     for step in STEPS:
         ns.add_task(make_step_task(step))
     for task in (config, dev, run, build_task, test_task, slim_task, push_task, manifest_task,
