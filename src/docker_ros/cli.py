@@ -12,10 +12,20 @@ from docker_ros import __version__
 from docker_ros.tasks import ns
 
 
+class DockerRosProgram(Program):
+    """invoke's Program over our bundled tasks, reading invoke.yaml (key docker_ros) from the
+    project we run in, as `inv` does next to tasks.py (a Program given its namespace loads no
+    project configuration by itself)."""
+
+    def parse_collection(self) -> None:
+        super().parse_collection()
+        self.config.set_project_location(os.getcwd())
+        self.config.load_project()
+
+
 def main(argv: Optional[List[str]] = None) -> None:
-    # Read invoke.yaml (key docker_ros) from the project we run in, as `inv` does next to tasks.py.
     ns.loaded_from = os.getcwd()
-    program = Program(namespace=ns, name="docker-ros", binary="docker-ros", version=__version__)
+    program = DockerRosProgram(namespace=ns, name="docker-ros", binary="docker-ros", version=__version__)
     try:
         program.run(None if argv is None else ["docker-ros", *argv])
     except BrokenPipeError:

@@ -74,3 +74,13 @@ def test_set_reaches_any_setting_and_refuses_secrets(tmp_path: Path) -> None:
                     "--set", "BASE_IMAGE=x", "--set", "COMMAND=true", cwd=tmp_path)
     assert flag_wins.returncode == 0, flag_wins.stderr
     assert ':a"' in flag_wins.stdout and ':b"' not in flag_wins.stdout
+
+
+def test_the_console_script_reads_the_projects_invoke_yaml(tmp_path: Path) -> None:
+    """`docker-ros` (a Program with its tasks bundled) reads invoke.yaml where it runs, as
+    `inv` does next to tasks.py."""
+    (tmp_path / "invoke.yaml").write_text("docker_ros:\n  base_image: from-invoke-yaml/x:1\n")
+    result = cli("config", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    row = next(line for line in result.stdout.splitlines() if line.startswith("BASE_IMAGE "))
+    assert row.split()[1:] == ["from-invoke-yaml/x:1", "invoke.yaml"], row
