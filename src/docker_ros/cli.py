@@ -25,7 +25,8 @@ class DockerRosProgram(Program):
 
 def main(argv: Optional[List[str]] = None) -> None:
     ns.loaded_from = os.getcwd()
-    program = DockerRosProgram(namespace=ns, name="docker-ros", binary="docker-ros", version=__version__)
+    program = DockerRosProgram(namespace=ns, name="docker-ros", binary="docker-ros",
+                               version=__version__)
     try:
         program.run(None if argv is None else ["docker-ros", *argv])
     except BrokenPipeError:
