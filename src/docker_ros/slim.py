@@ -8,23 +8,25 @@ the same probe as the traced run, and only if it behaves the same is it tagged.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
 import os
 import re
 import shlex
-import subprocess
 import tarfile
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Callable, Dict, List, Mapping, Optional, Sequence, Set, Tuple
+from typing import IO, Any, Callable, Dict, Iterator, List, Mapping, Optional, Sequence, Set, Tuple
+
+from docker.errors import DockerException
+from docker.models.containers import Container
 
 from docker_ros.build import PACKAGE_DIR, image_ref, image_size, platform_ref
-from docker_ros.engine import inspect_image
-from docker_ros.runtime.workspace import format_argv
+from docker_ros.engine import client, inspect_image, tag
 from docker_ros.settings import Settings, host_platform
 
 TRACER = PACKAGE_DIR / "slimtrace.py"
@@ -189,22 +191,16 @@ def maps_users(entrypoint: Sequence[str]) -> bool:
     return any(item.endswith("docker-ros/entrypoint.sh") for item in entrypoint)
 
 
-def env_args(env: Sequence[str]) -> List[str]:
-    return [arg for pair in env for arg in ("-e", pair)]
-
-
 def plan_trace_container(run_id: str, config: Mapping, options: SlimOptions,
-                         name: str) -> List[str]:
-    """`docker create` of the trace container: the tracer (PID 1, root, CAP_SYS_ADMIN for
-    fanotify) starts the image's entrypoint and command."""
+                         name: str) -> Dict[str, object]:
+    """The trace container (arguments of the SDK's containers.create): the tracer (PID 1,
+    root, CAP_SYS_ADMIN for fanotify) starts the image's entrypoint and command."""
     command = list(config.get("Entrypoint") or []) + list(config.get("Cmd") or [])
     if not command:
         raise SlimError("the run image has neither ENTRYPOINT nor CMD: nothing to trace")
-    argv = ["docker", "create", "--name", name, "--cap-add", "SYS_ADMIN", "--user", "0:0"]
-    argv += env_args(options.env)
-    argv += ["--entrypoint", "python3", run_id, f"{EXCHANGE}/slimtrace.py", "--out", EXCHANGE,
-             "--", *command]
-    return argv
+    return {"image": run_id, "name": name, "cap_add": ["SYS_ADMIN"], "user": "0:0",
+            "environment": list(options.env), "entrypoint": ["python3"],
+            "command": [f"{EXCHANGE}/slimtrace.py", "--out", EXCHANGE, "--", *command]}
 
 
 def tracer_spec(config: Mapping, options: SlimOptions) -> Dict[str, object]:
@@ -226,7 +222,8 @@ def dockerfile_quote(text: str) -> str:
 
 
 def plan_changes(config: Mapping, labels: Mapping[str, str]) -> List[str]:
-    """`docker import --change` instructions that give the slim image the run image's config."""
+    """The import's change instructions (`docker import --change`) that give the slim image
+    the run image's config."""
     changes = []
     for entry in config.get("Env") or []:
         name, _, value = entry.partition("=")
@@ -247,7 +244,7 @@ def plan_changes(config: Mapping, labels: Mapping[str, str]) -> List[str]:
         changes.append(f"VOLUME {json.dumps(sorted(config['Volumes']))}")
     for key, value in sorted({**(config.get("Labels") or {}), **labels}.items()):
         changes.append(f"LABEL {dockerfile_quote(key)}={dockerfile_quote(value)}")
-    return [arg for change in changes for arg in ("--change", change)]
+    return changes
 
 
 def fingerprint(run_id: str, options: SlimOptions) -> str:
@@ -322,25 +319,51 @@ def compare_probes(reference: Probe, slim: Probe, options: SlimOptions) -> List[
 
 
 # ------------------------------------------------------------------------------ docker
-def docker(*args: str, check: bool = True, timeout: float = 600,
-           input: Optional[bytes] = None) -> subprocess.CompletedProcess:
-    proc = subprocess.run(["docker", *args], capture_output=True, timeout=timeout, input=input)
-    if check and proc.returncode != 0:
-        reason = proc.stderr.decode(errors="replace").strip().splitlines()
-        raise SlimError(f"`{format_argv(['docker', *args])[:200]}` failed with exit code "
-                        f"{proc.returncode}: {reason[-1] if reason else 'no reason given'}")
-    return proc
+# Containers and images through the Engine API (docker SDK), as engine.py does.
+@contextlib.contextmanager
+def engine_errors(doing: str) -> Iterator[None]:
+    """An Engine API error while `doing` something becomes a SlimError saying what and why."""
+    try:
+        yield
+    except DockerException as exc:
+        raise SlimError(f"{doing} failed: {getattr(exc, 'explanation', None) or exc}") from None
+
+
+def container(name: str) -> Container:
+    with engine_errors(f"inspecting container {name}"):
+        return client().containers.get(name)
+
+
+def remove_container(name: str) -> None:
+    with contextlib.suppress(DockerException):
+        client().containers.get(name).remove(force=True)
+
+
+def remove_image(ref: str, *, force: bool = True) -> None:
+    with contextlib.suppress(DockerException):
+        client().images.remove(ref, force=force)
 
 
 def container_state(name: str) -> Tuple[bool, int]:
-    proc = docker("inspect", "--format", "{{.State.Running}} {{.State.ExitCode}}", name)
-    running, code = proc.stdout.decode().split()
-    return running == "true", int(code)
+    state = container(name).attrs["State"]
+    return bool(state["Running"]), int(state["ExitCode"])
 
 
 def logs(name: str) -> str:
-    proc = docker("logs", name, check=False)
-    return proc.stdout.decode(errors="replace") + proc.stderr.decode(errors="replace")
+    with engine_errors(f"reading the logs of {name}"):
+        return bytes(container(name).logs(stdout=True, stderr=True)).decode(errors="replace")
+
+
+def run_once(image: str, argv: Sequence[str], env: Sequence[str]) -> Tuple[int, str]:
+    """`docker run --rm`: a container of image running argv; (exit status, its output)."""
+    with engine_errors(f"running {shlex.join(argv)[:100]} in {image}"):
+        once = client().containers.create(image, list(argv), environment=list(env))
+        try:
+            once.start()
+            code = int(once.wait(timeout=300)["StatusCode"])
+            return code, bytes(once.logs(stdout=True, stderr=True)).decode(errors="replace")
+        finally:
+            once.remove(force=True)
 
 
 Ending = Optional[Tuple[str, Optional[int]]]  # why a window ends, COMMAND's exit status
@@ -398,13 +421,11 @@ def run_probes(name: str, image: str, config: Mapping, options: SlimOptions,
     prefix = exec_prefix(config.get("Entrypoint") or [])
 
     def in_image(env: Sequence[str], argv: Sequence[str]) -> Tuple[int, str]:
-        if alive():
-            full = ["exec", *env_args(env), name, *prefix, *argv]
-        else:
-            full = ["run", "--rm", *env_args(env), image, *argv]
-        proc = docker(*full, check=False, timeout=300)
-        out = proc.stdout.decode(errors="replace") + proc.stderr.decode(errors="replace")
-        return proc.returncode, out
+        if not alive():
+            return run_once(image, argv, env)
+        with engine_errors(f"running {shlex.join(argv)[:100]} in {name}"):
+            code, out = container(name).exec_run([*prefix, *argv], environment=list(env))
+        return int(code), bytes(out).decode(errors="replace")
 
     for command in options.execs:
         code, out = in_image(options.env, ["bash", "-c", command])
@@ -422,7 +443,9 @@ def trace(run_id: str, config: Mapping, options: SlimOptions, workdir: Path) -> 
         Probe, Set[str], dict]:
     """Trace the run image: its probe (the reference), the keep set, the tracer's figures."""
     name = f"docker-ros-slim-trace-{os.getpid()}-{int(time.time() * 1000)}"
-    docker(*plan_trace_container(run_id, config, options, name)[1:])
+    with engine_errors("creating the trace container"):
+        traced = client().containers.create(**plan_trace_container(run_id, config, options,
+                                                                   name))
     try:
         exchange = io.BytesIO()
         with tarfile.open(fileobj=exchange, mode="w") as tar:
@@ -431,8 +454,9 @@ def trace(run_id: str, config: Mapping, options: SlimOptions, workdir: Path) -> 
             info = tarfile.TarInfo(f"{EXCHANGE[1:]}/spec.json")
             info.size = len(spec)
             tar.addfile(info, io.BytesIO(spec))
-        docker("cp", "-", f"{name}:/", input=exchange.getvalue())
-        docker("start", name)
+        with engine_errors("starting the trace container"):
+            traced.put_archive("/", exchange.getvalue())
+            traced.start()
 
         def poll(elapsed: float) -> Ending:
             log = logs(name)
@@ -440,13 +464,15 @@ def trace(run_id: str, config: Mapping, options: SlimOptions, workdir: Path) -> 
 
         probe = run_probes(name, run_id, config, options, poll, options.continue_after,
                            lambda: container_state(name)[0])
-        docker("kill", "--signal", "TERM", name)
-        docker("wait", name, timeout=300)
-        result = docker("cp", f"{name}:{EXCHANGE}", "-")
-        with tarfile.open(fileobj=io.BytesIO(result.stdout)) as tar:
+        with engine_errors("stopping the trace container"):
+            traced.kill(signal="SIGTERM")
+            traced.wait(timeout=300)
+            stream, _ = traced.get_archive(EXCHANGE)
+            result = b"".join(stream)
+        with tarfile.open(fileobj=io.BytesIO(result)) as tar:
             tar.extractall(workdir)
     finally:
-        docker("rm", "-f", name, check=False)
+        remove_container(name)
     folder = workdir / EXCHANGE.lstrip("/")
     if (folder / "error").is_file() or not (folder / "done").is_file():
         reason = (folder / "error").read_text().strip() if (folder / "error").is_file() \
@@ -475,32 +501,56 @@ def filter_tar(source: IO[bytes], destination: IO[bytes], keep: Set[str]) -> Tup
     return kept, total
 
 
+class ChunkReader(io.RawIOBase):
+    """A readable stream over an iterator of byte chunks (the SDK's container export)."""
+
+    def __init__(self, chunks: Iterator[bytes]) -> None:
+        self.chunks, self.rest = chunks, b""
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        while not self.rest:
+            self.rest = next(self.chunks, b"")
+            if not self.rest:
+                return 0
+        size = min(len(buffer), len(self.rest))
+        buffer[:size], self.rest = self.rest[:size], self.rest[size:]
+        return size
+
+
+def imported_id(output: str) -> str:
+    """The image ID in the Engine API's answer to an import (JSON lines, the last one's
+    status)."""
+    for line in reversed(output.strip().splitlines()):
+        status = str(json.loads(line).get("status", ""))
+        if status.startswith("sha256:"):
+            return status
+    raise SlimError(f"importing the slim image gave no image ID: {output.strip()[-300:]}")
+
+
 def export_filtered(run_id: str, keep: Set[str], changes: Sequence[str]) -> Tuple[str, int, int]:
-    """docker export of a container of the run image | keep-filter | docker import."""
-    created = docker("create", run_id).stdout.decode().strip()
-    try:
-        export = subprocess.Popen(["docker", "export", created], stdout=subprocess.PIPE)
-        importer = subprocess.Popen(["docker", "import", *changes, "-"], stdin=subprocess.PIPE,
-                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        assert export.stdout is not None and importer.stdin is not None
+    """The export of a container of the run image, keep-filtered into a file, imported as an
+    image with the run image's config (`changes`)."""
+    with engine_errors("exporting the run image's files"), \
+            tempfile.NamedTemporaryFile(prefix="docker-ros-slim-", suffix=".tar") as filtered:
+        created = client().containers.create(run_id)
         try:
-            kept, total = filter_tar(export.stdout, importer.stdin, keep)
+            kept, total = filter_tar(io.BufferedReader(ChunkReader(created.export())),
+                                     filtered, keep)
         finally:
-            importer.stdin.close()
-            export.stdout.close()
-        assert importer.stdout is not None and importer.stderr is not None
-        out, err = importer.stdout.read(), importer.stderr.read()
-        if export.wait() != 0 or importer.wait() != 0:
-            raise SlimError(f"docker export | docker import failed: {err.decode().strip()}")
-    finally:
-        docker("rm", "-f", created, check=False)
-    return out.decode().strip(), kept, total
+            created.remove(force=True)
+        filtered.flush()
+        answer = client().api.import_image(src=filtered.name, changes=list(changes))
+    return imported_id(str(answer)), kept, total
 
 
 def check(slim_id: str, config: Mapping, options: SlimOptions, reference: Probe) -> Probe:
     """Run the slim image as the run image was run (same command, env and window)."""
     name = f"docker-ros-slim-check-{os.getpid()}-{int(time.time() * 1000)}"
-    docker("run", "-d", "--name", name, *env_args(options.env), slim_id)
+    with engine_errors("starting the slim image"):
+        client().containers.run(slim_id, detach=True, name=name, environment=list(options.env))
     try:
         def poll(elapsed: float) -> Ending:
             return check_ending(elapsed, *container_state(name), reference,
@@ -510,7 +560,7 @@ def check(slim_id: str, config: Mapping, options: SlimOptions, reference: Probe)
                           max(options.continue_after, reference.watched),
                           lambda: container_state(name)[0])
     finally:
-        docker("rm", "-f", name, check=False)
+        remove_container(name)
 
 
 @dataclass(frozen=True)
@@ -564,20 +614,20 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
     try:
         diffs = compare_probes(reference, check(slim_id, config, options, reference), options)
     except BaseException:
-        docker("image", "rm", "-f", slim_id, check=False)
+        remove_image(slim_id)
         raise
     check_seconds = time.monotonic() - checked_at
     if diffs:
-        docker("image", "rm", "-f", slim_id, check=False)
+        remove_image(slim_id)
         stale = " (removed the stale " + slim_ref + ")" if existing else ""
         if existing:
-            docker("image", "rm", slim_ref, check=False)
+            remove_image(slim_ref, force=False)
         raise SlimError(f"the slim image of {run_ref} does not behave like it, not tagged"
                         f"{stale}: " + "; ".join(diffs)
                         + ". Keep what is missing with --include-path in "
                         "ADDITIONAL_SLIM_BUILD_ARGS, or set ENABLE_SLIM=false")
     print(check_report(check_seconds, reference, options), flush=True)
-    docker("tag", slim_id, slim_ref)
+    tag(slim_id, slim_ref)
     print(size_report(run_ref, slim_ref, kept, total, made_seconds), flush=True)
     return SlimResult(slim_ref, platform, time.monotonic() - began, False)
 
