@@ -106,7 +106,7 @@ class LocalBase:
     """What the local image store holds under a base image's name."""
 
     architecture: str
-    from_registry: bool  # pulled or pushed (it has a repository digest): a registry has it
+    from_registry: bool  # pulled or pushed under this name: its registry has it
 
 
 def choose_base(base_image: str, platform: str,
@@ -141,7 +141,16 @@ def local_base(ref: str) -> Optional[LocalBase]:
     attrs = engine.inspect_image(ref)
     if attrs is None:
         return None
-    return LocalBase(str(attrs.get("Architecture") or ""), bool(attrs.get("RepoDigests")))
+    return LocalBase(str(attrs.get("Architecture") or ""),
+                     from_registry(ref, attrs.get("RepoDigests") or []))
+
+
+def from_registry(ref: str, repo_digests: Sequence[str]) -> bool:
+    """Whether ref's own repository holds the image (a digest of that name; the image's digests
+    are those of every name it was pulled or pushed as, also under other names)."""
+    name = ref.split("@")[0]
+    repository = name.rsplit(":", 1)[0] if ":" in name.rsplit("/", 1)[-1] else name
+    return any(digest.split("@")[0] == repository for digest in repo_digests)
 
 
 def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:

@@ -295,3 +295,11 @@ def test_a_local_base_of_another_architecture_is_never_used_for_a_platform():
     message = str(error.value)
     assert "BASE_IMAGE b:1 is a local amd64 image from no registry" in message
     assert "inv bootstrap-base-image --platform arm64" in message and "b:1-arm64" in message
+
+
+def test_a_base_is_in_a_registry_only_under_a_name_it_was_pulled_or_pushed_as():
+    digests = ["127.0.0.1:5000/other@sha256:1", "ros@sha256:2"]
+    assert build.from_registry("ros:noetic", digests)
+    assert build.from_registry("127.0.0.1:5000/other:tag", digests)
+    assert not build.from_registry("docker-ros/ros1:bookworm", digests)
+    assert not build.from_registry("127.0.0.1:5000/ros:noetic", digests)
