@@ -101,6 +101,14 @@ def ros1_base_image(docker_client: docker.DockerClient) -> str:
 
 
 @pytest.fixture(scope="session")
+def ros1_arm64_base_image(ros1_base_image: str) -> str:
+    """The arm64 image of the ROS 1 base: `<ROS1_BASE_IMAGE>-arm64` (bootstrap tags another
+    architecture's image so, and a build for arm64 with BASE_IMAGE=ROS1_BASE_IMAGE finds it);
+    built under QEMU once (about 5 minutes), then reused while its recipe is unchanged."""
+    return baseimage.bootstrap("ros1", tag=ROS1_BASE_IMAGE, platform="arm64")
+
+
+@pytest.fixture(scope="session")
 def ros2_base_image(docker_client: docker.DockerClient) -> str:
     """Tag of a Debian trixie image with ROS 2 build tooling (ament, colcon); built once."""
     return baseimage.bootstrap("ros2", tag=ROS2_BASE_IMAGE)

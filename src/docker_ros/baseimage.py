@@ -74,19 +74,36 @@ def default_tag(flavor: str) -> str:
     return f"docker-ros/{flavor}:{FLAVORS[flavor].suite}"
 
 
+def arch_ref(ref: str, platform: str) -> str:
+    """The local name of ref's image for another architecture: `<ref>-<arch>` (`name` without
+    a tag: `name:latest-<arch>`). The classic image store holds one image per tag, so the
+    images of several architectures need a tag each."""
+    return f"{ref}-{platform}" if ":" in ref.rsplit("/", 1)[-1] else f"{ref}:latest-{platform}"
+
+
+def platform_tag(tag: str, platform: str, host: str) -> str:
+    """The tag bootstrap gives the image of platform: `tag` for the host's architecture,
+    arch_ref for any other, so that no architecture's image replaces another's."""
+    return tag if platform == host else arch_ref(tag, platform)
+
+
 def bootstrap(
     flavor: str,
     *,
     tag: str,
     mirror: str = DEFAULT_MIRROR,
-    platform: str = "amd64",
+    platform: str = "",
     ca_bundle: Optional[Path] = None,
     force: bool = False,
 ) -> str:
-    """Build the base image `tag` for `flavor` ("ros1" or "ros2"); reuse it when it exists and
-    was built from the current recipe (RECIPE_LABEL), else rebuild it."""
+    """Build the base image of `flavor` ("ros1" or "ros2") for `platform`, tagged `tag` for the
+    host's architecture and `<tag>-<platform>` for another (platform_tag); return that name.
+    Reuse an image of that name built from the current recipe (RECIPE_LABEL), else rebuild it.
+    platform: this machine's architecture unless given."""
     if flavor not in FLAVORS:
         raise StepError(STEP, f"unknown flavor {flavor!r}; choose one of {', '.join(FLAVORS)}")
+    platform = platform or host_platform()
+    tag = platform_tag(tag, platform, host_platform())
     if ca_bundle is not None and not Path(ca_bundle).is_file():
         raise StepError(STEP, f"CA bundle '{ca_bundle}' not found")
     spec = FLAVORS[flavor]

@@ -17,6 +17,7 @@ from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, T
 
 import docker_ros
 from docker_ros import engine
+from docker_ros.baseimage import arch_ref
 from docker_ros.engine import image_exists, image_size
 from docker_ros.lock import locked_build_args
 from docker_ros.runtime.files import walk
@@ -100,6 +101,73 @@ def target_ref(settings: Settings, target: str, platform: str) -> str:
         ref, platform, settings.platform)
 
 
+@dataclass(frozen=True)
+class LocalBase:
+    """What the local image store holds under a base image's name."""
+
+    architecture: str
+    from_registry: bool  # pulled or pushed under this name: its registry has it
+
+
+def choose_base(base_image: str, platform: str,
+                local: Mapping[str, Optional[LocalBase]]) -> Tuple[str, str]:
+    """The image the build FROMs for platform, and a line saying why when that is not
+    BASE_IMAGE's local image ('' when it is). local: the local images of BASE_IMAGE and of its
+    arch_ref (None: not local). The classic image store holds one architecture per tag; a
+    local image of another architecture is used only as its registry's multi-arch name
+    (BuildKit then pulls the platform's image), never as the platform's image."""
+    own, tagged = local.get(base_image), local.get(arch_ref(base_image, platform))
+    if own is not None and own.architecture == platform:
+        return base_image, ""
+    if tagged is not None and tagged.architecture == platform:
+        return arch_ref(base_image, platform), (
+            f"base image ({platform}): {arch_ref(base_image, platform)}, the {platform} image "
+            f"of BASE_IMAGE {base_image}")
+    if own is None:
+        return base_image, ""  # a registry's name: BuildKit pulls the platform's image
+    if own.from_registry:
+        return base_image, (
+            f"base image ({platform}): {base_image} is a local {own.architecture} image; "
+            f"BuildKit pulls its {platform} image from its registry")
+    raise BuildError(
+        f"BASE_IMAGE {base_image} is a local {own.architecture or 'unknown'} image from no "
+        f"registry, and no {platform} image is tagged {arch_ref(base_image, platform)}: make "
+        f"one with `inv bootstrap-base-image --platform {platform}` (which tags it so), tag "
+        f"your {platform} base image {arch_ref(base_image, platform)}, or set BASE_IMAGE to a "
+        "multi-arch image in a registry")
+
+
+def local_base(ref: str) -> Optional[LocalBase]:
+    attrs = engine.inspect_image(ref)
+    if attrs is None:
+        return None
+    return LocalBase(str(attrs.get("Architecture") or ""),
+                     from_registry(ref, attrs.get("RepoDigests") or []))
+
+
+def from_registry(ref: str, repo_digests: Sequence[str]) -> bool:
+    """Whether ref's own repository holds the image (a digest of that name; the image's digests
+    are those of every name it was pulled or pushed as, also under other names)."""
+    name = ref.split("@")[0]
+    repository = name.rsplit(":", 1)[0] if ":" in name.rsplit("/", 1)[-1] else name
+    return any(digest.split("@")[0] == repository for digest in repo_digests)
+
+
+def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:
+    """choose_base with what this engine holds; a BASE_IMAGE that is neither local (under
+    either name) nor pullable is a BuildError."""
+    base = settings.base_image or ""
+    names = (base, arch_ref(base, platform))
+    local = {name: local_base(name) for name in names}
+    if not any(local.values()):
+        if not engine.pull(base):
+            raise BuildError(
+                f"BASE_IMAGE '{base}' is neither a local image nor pullable: check the name, "
+                "`docker login`, or make one with `inv bootstrap-base-image`")
+        local[base] = local_base(base)
+    return choose_base(base, platform, local)
+
+
 def build_state_seed(settings: Settings, platform: str, out: IO[str]) -> Dict[str, str]:
     """The build argument that seeds an empty build cache with the first pullable
     BUILD_STATE_FROM image of this platform; none when none can be pulled (colcon then builds
@@ -135,11 +203,14 @@ def definition(
     output: str = "",
     extra_build_args: Mapping[str, str] = {},
     imports_image: str = f"{IMPORTS_REPOSITORY}:<hash>",
+    base_image: str = "",
 ) -> Dict[str, Any]:
     """One target and platform as a `docker buildx bake` target: the single description behind
     both plan_build (one `buildx build`) and plan_bake (several targets in one BuildKit run).
-    `output`: an --output exporter instead of loading or pushing the image."""
-    args = {"BASE_IMAGE": settings.base_image or "", "DOCKER_ROS_TOOLS": tools_image,
+    `output`: an --output exporter instead of loading or pushing the image; `base_image`: the
+    platform's base (platform_base) when it is not BASE_IMAGE."""
+    args = {"BASE_IMAGE": base_image or settings.base_image or "",
+            "DOCKER_ROS_TOOLS": tools_image,
             "DOCKER_ROS_IMPORTS": imports_image,
             "DOCKER_ROS_RUN_RESOLUTION": run_resolution(settings),
             "DOCKER_ROS_RUN_BASE": run_base(settings),
@@ -609,12 +680,15 @@ def build_images(
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
         seed = build_state_seed(settings, platform, out) if "run" in targets else {}
+        base, why = platform_base(settings, platform)
+        if why:
+            print(why, file=out)
         specs = {target: definition(settings, target=target, platform=platform,
                                     tools_image=tools, tag=tag,
                                     secrets=plan_secrets(settings, bundle), push=push,
                                     dockerfile=dockerfile, output=output,
                                     extra_build_args={**extra_build_args, **seed},
-                                    imports_image=imports)
+                                    imports_image=imports, base_image=base)
                  for target, tag in targets.items()}
         if bake and can_bake(settings):
             definition_file = Path(tmp) / "docker-ros.bake.json"

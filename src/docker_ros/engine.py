@@ -1,6 +1,7 @@
 """The Docker Engine API (docker SDK) for what it does well: ping, inspect, pull, tag, push and
 remove. Builds go through the buildx CLI (the SDK drives only the legacy builder: no BuildKit
-mounts or secrets) and manifest lists through `docker manifest` (the Engine API has none)."""
+mounts or secrets) and manifest lists through `docker buildx imagetools` (the Engine API has
+none)."""
 
 from __future__ import annotations
 

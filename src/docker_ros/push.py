@@ -11,10 +11,6 @@ from docker_ros.build import BuildError, image_ref, platform_ref, target_ref
 from docker_ros.runtime.workspace import format_argv
 from docker_ros.settings import Settings, made_images
 
-LOCAL_REGISTRIES = ("localhost", "127.0.0.1")
-# Commands whose failure changes nothing: removing a list the local store does not hold.
-TOLERATED = {("docker", "manifest", "rm")}
-
 
 def also_ref(ref: str, tag: str, target: str) -> str:
     """The name pushed for an extra tag (`latest`, a git tag): `<tag>` for run, `<tag>-dev`,
@@ -37,12 +33,6 @@ def push_targets(settings: Settings) -> List[str]:
     return targets
 
 
-def insecure(ref: str) -> List[str]:
-    """`docker manifest` talks plain http to a loopback registry only with --insecure."""
-    host = ref.split("/", 1)[0].split(":")[0]
-    return ["--insecure"] if "/" in ref and host in LOCAL_REGISTRIES else []
-
-
 def pushed_names(settings: Settings, target: str) -> List[str]:
     """The configured name of a target and its extra tags (Settings.push_also_as)."""
     ref = image_ref(settings, target)
@@ -53,16 +43,13 @@ def pushed_names(settings: Settings, target: str) -> List[str]:
 def manifest_commands(names: Sequence[str], arch_refs: Sequence[str]) -> List[List[str]]:
     """One manifest list per name over the per-architecture images (already in the registry).
 
-    The docker CLI keeps lists in a local store (`~/.docker/manifests`) and, when it finds an
-    image there, takes its digest from there instead of the registry: a list left by an earlier
-    run of the same name made a push fail with "manifest blob unknown". So each list is removed
-    from the store first (a missing one is fine, see TOLERATED) and purged after its push."""
-    commands: List[List[str]] = []
-    for name in names:
-        commands.append(["docker", "manifest", "rm", name])
-        commands.append(["docker", "manifest", "create", *insecure(name), name, *arch_refs])
-        commands.append(["docker", "manifest", "push", *insecure(name), "--purge", name])
-    return commands
+    `docker buildx imagetools create` works in the registry only: it keeps no local store whose
+    stale lists could stand for what the registry holds now (`docker manifest` does), it takes
+    per-architecture refs that are themselves image indexes (attestations, the containerd
+    image store) and lists their platform images, where `docker manifest create` refuses them,
+    and it talks plain http to a loopback registry without flags."""
+    return [["docker", "buildx", "imagetools", "create", "--tag", name, *arch_refs]
+            for name in names]
 
 
 def plan_push(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
@@ -140,7 +127,7 @@ def auth_config(settings: Settings) -> Optional[Dict[str, str]]:
 
 def login(settings: Settings) -> None:
     """`docker login` with the password on standard input (never a command line or log), for
-    `docker manifest push`, which reads the CLI's credentials: only when writing manifests."""
+    `docker buildx imagetools`, which reads the CLI's credentials: only when writing manifests."""
     if not (settings.registry_user and settings.registry_password):
         return
     argv = ["docker", "login", "--username", settings.registry_user, "--password-stdin"]
@@ -165,7 +152,7 @@ def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> Li
 
 def execute(argv: List[str], auth: Optional[Dict[str, str]]) -> None:
     """One planned command: tag and push through the Engine API (credentials in the request),
-    manifest lists through the CLI (the API has none)."""
+    manifest lists through buildx (the API has none)."""
     try:
         if argv[:2] == ["docker", "tag"]:
             engine.tag(argv[2], argv[3])
@@ -176,10 +163,14 @@ def execute(argv: List[str], auth: Optional[Dict[str, str]]) -> None:
     except engine.EngineError as exc:
         raise BuildError(str(exc)) from None
     proc = subprocess.run(argv, capture_output=True, text=True)
-    if proc.returncode != 0 and tuple(argv[:3]) not in TOLERATED:
+    if proc.returncode != 0:
         reason = (proc.stderr.strip() or proc.stdout.strip()).splitlines()
         raise BuildError(f"{format_argv(argv)} failed with exit code {proc.returncode}: "
                          f"{reason[-1] if reason else 'no reason given'}")
+
+
+def is_manifest(argv: Sequence[str]) -> bool:
+    return list(argv[:4]) == ["docker", "buildx", "imagetools", "create"]
 
 
 def run_commands(
@@ -190,13 +181,15 @@ def run_commands(
         for argv in commands:
             print(f"[dry-run] {label}:", format_argv(argv))
         return []
-    if any(argv[:2] == ["docker", "manifest"] for argv in commands):
+    if any(is_manifest(argv) for argv in commands):
         login(settings)
     auth = auth_config(settings)
     pushed = []
     for argv in commands:
         print(f"{label}:", format_argv(argv), flush=True)
         execute(argv, auth)
-        if argv[1] == "push" or argv[:3] == ["docker", "manifest", "push"]:
+        if argv[1] == "push":
             pushed.append(argv[-1])
+        elif is_manifest(argv):
+            pushed.append(argv[argv.index("--tag") + 1])
     return pushed

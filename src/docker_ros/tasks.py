@@ -391,11 +391,12 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             build.check_engine()
         except build.BuildError as exc:
             raise TaskError(str(exc)) from None
-    if not dry_run and not engine.local_or_pulled(settings.base_image):
-        raise TaskError(
-            f"BASE_IMAGE '{settings.base_image}' is neither a local image nor pullable: check "
-            "the name, `docker login`, or make one with `inv bootstrap-base-image`"
-        )
+    if not dry_run:
+        try:  # every platform's base before the first build (build_images says which)
+            for platform in settings.platform:
+                build.platform_base(settings, platform)
+        except build.BuildError as exc:
+            raise TaskError(str(exc)) from None
     built: List[BuiltImage] = []
     for platform in settings.platform:
         # BUILD_STATE_FROM: the run image's build state too, for the next job's `push`
@@ -725,7 +726,9 @@ def dev_shell(
     "Build a ROS base image from a Debian mirror (debootstrap, no registry)",
     [
         ("flavor", "ros1", "ros1 (Debian bookworm + ROS 1) or ros2 (Debian trixie + ament/colcon)"),
-        ("tag", "", "Image tag (default docker-ros/<flavor>:<suite>)"),
+        ("tag", "", "Image tag (default docker-ros/<flavor>:<suite>); the image of another "
+         "architecture than this machine's is tagged <tag>-<arch> (a BASE_IMAGE of <tag> finds "
+         "it when building for that PLATFORM)"),
         ("mirror", "http://deb.debian.org/debian", "Debian mirror"),
         ("force", False, "Rebuild even if the tag exists"),
     ],
@@ -740,8 +743,7 @@ def bootstrap_base_image(
         raise TaskError(f"--flavor {flavor!r}: use one of {', '.join(baseimage.FLAVORS)}")
     tag = tag or baseimage.default_tag(flavor)
     for platform in settings.platform:
-        ref = tag if len(settings.platform) == 1 else f"{tag}-{platform}"
-        print(baseimage.bootstrap(flavor, tag=ref, mirror=mirror, platform=platform, force=force))
+        print(baseimage.bootstrap(flavor, tag=tag, mirror=mirror, platform=platform, force=force))
 
 
 @settings_task(

@@ -3,12 +3,6 @@ on a copy of example/ (a git repository with an origin), pushing to a local regi
 
 from __future__ import annotations
 
-import os
-import shutil
-import subprocess
-from pathlib import Path
-from typing import Dict
-
 import pytest
 
 from tests.ci.cihelp import (
@@ -16,6 +10,8 @@ from tests.ci.cihelp import (
     assert_pulled_image_runs,
     example_repository,
     git,
+    gitlab_ci_local,
+    include_gitlab_template,
     manifest_architectures,
     registry_tags,
 )
@@ -26,36 +22,13 @@ IMAGE = "docker-ros-test/ci-gitlab"
 FEATURE = "Feature/GitLab_Test"
 
 
-def gitlab_ci_local(repo: Path, variables: Dict[str, str]) -> subprocess.CompletedProcess:
-    """The whole pipeline, every job through the shell executor (the template's docker:dind
-    image cannot be pulled here; a shell runner is a supported way to run it)."""
-    executable = shutil.which("gitlab-ci-local")
-    if executable is None:
-        pytest.fail("gitlab-ci-local (npm) is not installed; run `bash scripts/setup.sh` first")
-    argv = [executable, "--force-shell-executor", "--no-color",
-            "--ignore-predefined-vars", "GITLAB_CI"]
-    for key, value in variables.items():
-        argv += ["--variable", f"{key}={value}"]
-    env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
-    return subprocess.run(argv, cwd=repo, env=env, stdout=subprocess.PIPE,
-                          stderr=subprocess.STDOUT, text=True, timeout=1800)
-
-
 @pytest.fixture(scope="module")
 def pipelines(ros1_base_image: str, local_registry: str,
               tmp_path_factory: pytest.TempPathFactory) -> dict:
     """The template included by a repository; one pipeline on a feature branch, one on main."""
     repo = example_repository(tmp_path_factory.mktemp("gitlab"), ros1_base_image)
-    (repo / ".gitlab-ci").mkdir()
-    shutil.copy(REPO / ".gitlab-ci" / "docker-ros.yml", repo / ".gitlab-ci" / "docker-ros.yml")
-    (repo / ".gitlab-ci.yml").write_text(
-        "include:\n  - local: .gitlab-ci/docker-ros.yml\n\n"
-        # A shell runner ignores services; gitlab-ci-local would try to pull docker:dind.
-        "default:\n  services: []\n\n"
-        "variables:\n  TARGET: dev,run\n  ENABLE_SLIM: 'false'\n  ENABLE_INDUSTRIAL_CI: 'false'\n"
-    )
-    git(repo, "add", "-A")
-    git(repo, "commit", "-qm", "ci")
+    include_gitlab_template(repo, {"TARGET": "dev,run", "ENABLE_SLIM": "false",
+                                   "ENABLE_INDUSTRIAL_CI": "false"})
     variables = {
         "GITLAB_CI": "true",  # gitlab-ci-local says false; GitLab says true
         "IMAGE_NAME": f"{local_registry}/{IMAGE}",

@@ -75,3 +75,26 @@ def test_ctrl_c_exits_130_tags_nothing_leaves_nothing(ros1_base_image: str, tmp_
     assert left.stdout == "", "the hook still runs in the build container"
     group = subprocess.run(["pgrep", "-g", str(proc.pid)], capture_output=True, text=True)
     assert group.stdout == "", "processes of the interrupted build are left"
+
+
+def test_a_local_base_image_of_another_architecture_is_refused_before_any_build(
+    ros1_base_image: str, tmp_path: Path
+) -> None:
+    """The classic store's BASE_IMAGE is amd64 and came from no registry; PLATFORM=amd64,arm64
+    without `<BASE_IMAGE>-arm64` stops at once with what to do (building from it would pull
+    it from Docker Hub, or an engine that cannot would use the wrong architecture)."""
+    base = f"docker-ros-test/base-{uuid.uuid4().hex[:8]}:1"
+    subprocess.run(["docker", "tag", ros1_base_image, base], check=True)
+    try:
+        make_package(tmp_path / "pkg", "pkg")
+        write_env(tmp_path, BASE_IMAGE=base, IMAGE="docker-ros-test/wrong-arch:1",
+                  COMMAND="true", PLATFORM="amd64,arm64")
+        result = docker_ros(tmp_path, "build")
+    finally:
+        subprocess.run(["docker", "image", "rm", base], capture_output=True)
+    assert result.returncode != 0
+    last = result.stdout.strip().splitlines()[-1]
+    assert f"BASE_IMAGE {base} is a local amd64 image from no registry" in last, last
+    assert "`inv bootstrap-base-image --platform arm64`" in last and f"{base}-arm64" in last
+    assert "==> docker-ros build" not in result.stdout  # not even the amd64 build started
+    assert not image_exists("docker-ros-test/wrong-arch:1-amd64")

@@ -1,63 +1,74 @@
-"""`docker-ros manifest` against a real registry: the list names what the registry holds now,
-whatever the docker CLI's local manifest store kept from an earlier run."""
+"""`docker-ros manifest` against a real registry: one list per name over the platform images the
+registry holds now, also where a per-architecture ref is itself an index (as the containerd
+image store and attestations push them; `docker manifest create` refuses those)."""
 
 from __future__ import annotations
 
-import contextlib
+import hashlib
 import json
+import os
 import subprocess
 import uuid
 from pathlib import Path
+from typing import Tuple
 
-import docker
 import pytest
 
 from docker_ros.push import manifest
 from docker_ros.settings import load_settings
-from tests.docker.buildhelp import import_one_file_image
 
 pytestmark = pytest.mark.docker
 
-
-def pushed_one_file_image(client: docker.DockerClient, ref: str, content: str) -> None:
-    import_one_file_image(client, ref, content)
-    repository, tag = ref.rsplit(":", 1)
-    for line in client.images.push(repository, tag=tag, stream=True, decode=True):
-        assert "error" not in line, line
+LIST_TYPES = ("application/vnd.docker.distribution.manifest.list.v2+json",
+              "application/vnd.oci.image.index.v1+json")
 
 
-def manifest_inspect(ref: str, *flags: str) -> dict:
-    out = subprocess.run(["docker", "manifest", "inspect", "--insecure", *flags, ref],
-                         capture_output=True, text=True, check=True).stdout
-    return json.loads(out)
+def push_one_file_image(ref: str, platform: str, content: str, context: Path) -> str:
+    """Build an image of one file for platform straight into the registry; its digest."""
+    context.mkdir(exist_ok=True)
+    (context / "hello.txt").write_text(content)
+    (context / "Dockerfile").write_text("FROM scratch\nCOPY hello.txt /\n")
+    subprocess.run(["docker", "buildx", "build", "--quiet", "--provenance=false", "--platform",
+                    f"linux/{platform}", "--tag", ref, "--push", str(context)],
+                   check=True, capture_output=True)
+    return raw_manifest(ref)[0]
 
 
-def test_manifest_ignores_a_stale_local_list(
-    docker_client: docker.DockerClient, local_registry: str, tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
+def raw_manifest(ref: str) -> Tuple[str, dict]:
+    """(digest, manifest) of ref as the registry holds it."""
+    raw = subprocess.run(["docker", "buildx", "imagetools", "inspect", "--raw", ref],
+                         check=True, capture_output=True).stdout
+    return "sha256:" + hashlib.sha256(raw).hexdigest(), json.loads(raw)
+
+
+def wrap_in_index(ref: str, source: str, config: Path) -> None:
+    """ref: a list holding only source (what a per-architecture push of the containerd store
+    looks like), written with the CLI's own manifest store in config."""
+    env = {**os.environ, "DOCKER_CONFIG": str(config)}
+    for argv in (["create", "--insecure", ref, source], ["push", "--insecure", "--purge", ref]):
+        subprocess.run(["docker", "manifest", *argv], env=env, check=True, capture_output=True)
+
+
+def test_manifest_lists_the_platform_images_the_registry_holds_now(
+    local_registry: str, tmp_path: Path
 ) -> None:
-    config = tmp_path / "docker-config"  # the CLI's manifest store of this test only
-    config.mkdir()
-    monkeypatch.setenv("DOCKER_CONFIG", str(config))  # for every docker command below
     name = f"{local_registry}/docker-ros-test/manifest:{uuid.uuid4().hex[:8]}"
-    arch = docker_client.version()["Arch"]
-    arch_ref = f"{name}-{arch}"
-    try:
-        pushed_one_file_image(docker_client, arch_ref, "first build\n")
-        stale = subprocess.run(["docker", "manifest", "create", "--insecure", name, arch_ref],
-                               capture_output=True, text=True)
-        assert stale.returncode == 0, stale.stderr
-        assert any((config / "manifests").iterdir())
-        pushed_one_file_image(docker_client, arch_ref, "second build\n")  # the CI's new image
-        current = manifest_inspect(arch_ref, "--verbose")["Descriptor"]["digest"]
+    first = push_one_file_image(f"{name}-amd64", "amd64", "first build\n", tmp_path / "a")
+    arm64 = push_one_file_image(f"{name}-arm64-image", "arm64", "arm64\n", tmp_path / "b")
+    wrap_in_index(f"{name}-arm64", f"{name}-arm64-image", tmp_path / "docker-config")
+    assert raw_manifest(f"{name}-arm64")[1]["mediaType"] in LIST_TYPES
+    settings = load_settings(environ={"BASE_IMAGE": "b:1", "COMMAND": "c", "IMAGE": name,
+                                      "TARGET": "run", "PLATFORM": "amd64,arm64"},
+                             project_dir=tmp_path)
 
-        settings = load_settings(environ={"BASE_IMAGE": "b:1", "COMMAND": "c", "IMAGE": name,
-                                          "TARGET": "run", "PLATFORM": arch},
-                                 project_dir=tmp_path)
-        assert manifest(settings, ["run"], dry_run=False) == [name]
+    def listed() -> dict:
+        entries = raw_manifest(name)[1]["manifests"]
+        assert all(e["mediaType"] not in LIST_TYPES for e in entries), entries  # flat
+        return {e["platform"]["architecture"]: e["digest"] for e in entries}
 
-        assert [m["digest"] for m in manifest_inspect(name)["manifests"]] == [current]
-        assert not any((config / "manifests").iterdir())  # pushed lists are purged
-    finally:
-        with contextlib.suppress(docker.errors.APIError):
-            docker_client.images.remove(arch_ref, force=True)
+    assert manifest(settings, ["run"], dry_run=False) == [name]
+    assert listed() == {"amd64": first, "arm64": arm64}
+    # The next pipeline's amd64 image: the list written again names it, not the first one.
+    second = push_one_file_image(f"{name}-amd64", "amd64", "second build\n", tmp_path / "a")
+    assert manifest(settings, ["run"], dry_run=False) == [name]
+    assert listed() == {"amd64": second, "arm64": arm64}

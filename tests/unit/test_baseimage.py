@@ -74,3 +74,14 @@ def test_existing_base_image_is_reused_only_for_the_same_recipe_and_architecture
     assert "amd64, not arm64" in other_arch
     assert "recipe" in baseimage.stale_reason("r0", "arm64", recipe="r1", platform="arm64")
     assert "unknown" in baseimage.stale_reason(None, None, recipe="r1", platform="amd64")
+
+
+def test_an_architecture_other_than_the_hosts_gets_a_tag_of_its_own() -> None:
+    """Bootstrapping arm64 never replaces the amd64 image of the same name (and back)."""
+    assert baseimage.platform_tag("docker-ros/ros1:bookworm", "amd64", "amd64") == (
+        "docker-ros/ros1:bookworm")
+    assert baseimage.platform_tag("docker-ros/ros1:bookworm", "arm64", "amd64") == (
+        "docker-ros/ros1:bookworm-arm64")
+    assert baseimage.platform_tag("docker-ros/ros1:bookworm", "amd64", "arm64") == (
+        "docker-ros/ros1:bookworm-amd64")
+    assert baseimage.arch_ref("127.0.0.1:5000/ros", "arm64") == "127.0.0.1:5000/ros:latest-arm64"

@@ -4,6 +4,8 @@ import io
 import re
 from pathlib import Path
 
+import pytest
+
 from docker_ros import build
 from docker_ros.settings import FIELDS, load_settings
 
@@ -271,3 +273,33 @@ def test_an_interrupted_buildx_is_told_from_a_failed_one():
               "successfully: exit code: 1\n"]
     assert not build.cancelled(failed)
     assert not build.cancelled(["#5 0.1 ERROR: context canceled\n"])
+
+
+def test_each_platform_builds_from_its_own_base_image():
+    amd64, arm64 = build.LocalBase("amd64", False), build.LocalBase("arm64", False)
+    both = {"b:1": amd64, "b:1-arm64": arm64}
+    assert build.choose_base("b:1", "amd64", both) == ("b:1", "")
+    base, why = build.choose_base("b:1", "arm64", both)
+    assert base == "b:1-arm64" and why.startswith("base image (arm64): b:1-arm64")
+    # a name only a registry holds, or holds as a multi-arch list: BuildKit picks the platform
+    assert build.choose_base("reg/b:1", "arm64", {}) == ("reg/b:1", "")
+    pulled = {"reg/b:1": build.LocalBase("amd64", True)}
+    base, why = build.choose_base("reg/b:1", "arm64", pulled)
+    assert base == "reg/b:1" and "pulls its arm64 image from its registry" in why
+
+
+def test_a_local_base_of_another_architecture_is_never_used_for_a_platform():
+    local = {"b:1": build.LocalBase("amd64", False), "b:1-arm64": build.LocalBase("amd64", False)}
+    with pytest.raises(build.BuildError) as error:
+        build.choose_base("b:1", "arm64", local)
+    message = str(error.value)
+    assert "BASE_IMAGE b:1 is a local amd64 image from no registry" in message
+    assert "inv bootstrap-base-image --platform arm64" in message and "b:1-arm64" in message
+
+
+def test_a_base_is_in_a_registry_only_under_a_name_it_was_pulled_or_pushed_as():
+    digests = ["127.0.0.1:5000/other@sha256:1", "ros@sha256:2"]
+    assert build.from_registry("ros:noetic", digests)
+    assert build.from_registry("127.0.0.1:5000/other:tag", digests)
+    assert not build.from_registry("docker-ros/ros1:bookworm", digests)
+    assert not build.from_registry("127.0.0.1:5000/ros:noetic", digests)

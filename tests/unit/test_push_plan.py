@@ -3,7 +3,6 @@
 from pathlib import Path
 
 from docker_ros.push import (
-    insecure,
     latest_ref,
     plan_manifest,
     plan_outputs,
@@ -41,17 +40,9 @@ def test_several_platforms_push_arch_images_and_one_manifest_list():
     assert plan_push(s, s.target) == [
         ["docker", "push", "127.0.0.1:5000/img:v1-amd64"],
         ["docker", "push", "127.0.0.1:5000/img:v1-arm64"],
-        ["docker", "manifest", "rm", "127.0.0.1:5000/img:v1"],
-        ["docker", "manifest", "create", "--insecure", "127.0.0.1:5000/img:v1",
+        ["docker", "buildx", "imagetools", "create", "--tag", "127.0.0.1:5000/img:v1",
          "127.0.0.1:5000/img:v1-amd64", "127.0.0.1:5000/img:v1-arm64"],
-        ["docker", "manifest", "push", "--insecure", "--purge", "127.0.0.1:5000/img:v1"],
     ]
-
-
-def test_only_loopback_registries_are_insecure():
-    assert insecure("localhost:5000/a:b") == ["--insecure"]
-    assert insecure("ghcr.io/org/a:b") == []
-    assert insecure("img:latest") == []
 
 
 def test_singlearch_push_pushes_only_the_arch_name_on_arch_specific_runners():
@@ -68,12 +59,9 @@ def test_manifest_joins_the_arch_images_of_every_platform_under_every_name():
                  ENABLE_PUSH_AS_LATEST="true")
     commands = plan_manifest(s, s.target)
     arch = ["127.0.0.1:5000/img:v1-dev-amd64", "127.0.0.1:5000/img:v1-dev-arm64"]
-    assert commands[:3] == [
-        ["docker", "manifest", "rm", "127.0.0.1:5000/img:v1-dev"],
-        ["docker", "manifest", "create", "--insecure", "127.0.0.1:5000/img:v1-dev", *arch],
-        ["docker", "manifest", "push", "--insecure", "--purge", "127.0.0.1:5000/img:v1-dev"],
-    ]
-    created = [c[4] for c in commands if c[2] == "create"]
+    assert commands[0] == [
+        "docker", "buildx", "imagetools", "create", "--tag", "127.0.0.1:5000/img:v1-dev", *arch]
+    created = [c[5] for c in commands]
     assert created == ["127.0.0.1:5000/img:v1-dev", "127.0.0.1:5000/img:latest-dev",
                        "127.0.0.1:5000/img:v1", "127.0.0.1:5000/img:latest"]
 

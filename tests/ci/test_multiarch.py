@@ -1,0 +1,167 @@
+"""Two architectures for real (issue 21): amd64 natively and arm64 under QEMU, each from its
+own base image (`<BASE_IMAGE>-arm64`, as bootstrap tags it), pushed to a local registry with
+one manifest list per image, both by `docker-ros push` with PLATFORM=amd64,arm64 and by the
+GitLab template's per-architecture jobs and its manifest job (gitlab-ci-local). The pulled
+arm64 run image runs its talker and listener.
+
+The workspace is one Python catkin package (a real colcon build, no C++ compile and no -dev
+packages to install under QEMU): the emulated build is the slow part of this module."""
+
+from __future__ import annotations
+
+import subprocess
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.ci.cihelp import (
+    REPO,
+    example_repository,
+    gitlab_ci_local,
+    include_gitlab_template,
+    manifest_architectures,
+    registry_tags,
+)
+from tests.docker.buildhelp import docker_ros, remove_image, run_until, sh
+
+pytestmark = pytest.mark.docker
+
+IMAGE = "docker-ros-test/multiarch"
+COMMAND = "roslaunch tiny_chat chat.launch"
+HEARD = "tiny_chat heard: hello from"
+FILES = {
+    "tiny_chat/package.xml": """\
+        <?xml version="1.0"?>
+        <package format="3">
+          <name>tiny_chat</name>
+          <version>0.1.0</version>
+          <description>multi-arch test: a Python talker and listener (ROS 1)</description>
+          <maintainer email="tests@docker-ros.invalid">tests</maintainer>
+          <license>MIT</license>
+          <buildtool_depend>catkin</buildtool_depend>
+          <exec_depend>rospy</exec_depend>
+          <exec_depend>std_msgs</exec_depend>
+          <exec_depend>roslaunch</exec_depend>
+        </package>
+        """,
+    "tiny_chat/CMakeLists.txt": """\
+        cmake_minimum_required(VERSION 3.10)
+        project(tiny_chat)
+        find_package(catkin REQUIRED)
+        catkin_package()
+        catkin_install_python(PROGRAMS scripts/talker.py scripts/listener.py
+          DESTINATION ${CATKIN_PACKAGE_BIN_DESTINATION})
+        install(DIRECTORY launch DESTINATION ${CATKIN_PACKAGE_SHARE_DESTINATION})
+        """,
+    "tiny_chat/scripts/talker.py": """\
+        #!/usr/bin/env python3
+        import platform
+        import rospy
+        from std_msgs.msg import String
+        rospy.init_node("talker")
+        pub = rospy.Publisher("chat", String, queue_size=10)
+        rate = rospy.Rate(5)
+        while not rospy.is_shutdown():
+            pub.publish("hello from " + platform.machine())
+            rate.sleep()
+        """,
+    "tiny_chat/scripts/listener.py": """\
+        #!/usr/bin/env python3
+        import rospy
+        from std_msgs.msg import String
+        rospy.init_node("listener")
+        rospy.Subscriber("chat", String, lambda m: print("tiny_chat heard: " + m.data, flush=True))
+        rospy.spin()
+        """,
+    "tiny_chat/launch/chat.launch": """\
+        <launch>
+          <node pkg="tiny_chat" type="talker.py" name="talker" output="screen"/>
+          <node pkg="tiny_chat" type="listener.py" name="listener" output="screen"/>
+        </launch>
+        """,
+}
+
+
+def tiny_workspace(root: Path) -> Path:
+    for rel, text in FILES.items():
+        path = root / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(textwrap.dedent(text))
+        if path.suffix == ".py":
+            path.chmod(0o755)
+    return root
+
+
+@pytest.fixture(scope="module")
+def repository(ros1_base_image: str, ros1_arm64_base_image: str,
+               tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The tiny workspace as a git repository; BASE_IMAGE names the amd64 base, whose arm64
+    image bootstrap tagged `<BASE_IMAGE>-arm64`."""
+    assert ros1_arm64_base_image == f"{ros1_base_image}-arm64"
+    root = tmp_path_factory.mktemp("multiarch")
+    source = tiny_workspace(root / "source")
+    return example_repository(root, ros1_base_image, source=source, command=COMMAND)
+
+
+def pulled_architecture(ref: str, platform: str) -> str:
+    """Pull ref's image of platform afresh from the registry; its architecture."""
+    remove_image(ref)
+    subprocess.run(["docker", "pull", "-q", "--platform", f"linux/{platform}", ref],
+                   check=True, capture_output=True)
+    return subprocess.run(["docker", "image", "inspect", "-f", "{{.Architecture}}", ref],
+                          check=True, capture_output=True, text=True).stdout.strip()
+
+
+def test_two_platforms_push_both_images_and_one_manifest_list_per_image(
+    repository: Path, local_registry: str
+) -> None:
+    name = f"{local_registry}/{IMAGE}"
+    began = time.monotonic()
+    # TARGET run only: the dev images would add two pushes of about 1 GB each (the manifest
+    # lists of several images are the same commands per name: tests/unit/test_push_plan.py).
+    result = docker_ros(repository, "push", env={"IMAGE": f"{name}:latest", "TARGET": "run",
+                                                 "PLATFORM": "amd64,arm64"})
+    print(f"docker-ros push, PLATFORM=amd64,arm64: {time.monotonic() - began:.0f} s")
+    assert result.returncode == 0, result.stdout[-6000:]
+    assert "base image (arm64): docker-ros-test/ros1:bookworm-arm64" in result.stdout
+    assert "base image (amd64)" not in result.stdout  # BASE_IMAGE itself
+    assert registry_tags(local_registry, IMAGE) == ["latest", "latest-amd64", "latest-arm64"]
+    ref = f"{name}:latest"
+    assert manifest_architectures(ref) == ["amd64", "arm64"]
+    try:
+        assert pulled_architecture(ref, "arm64") == "arm64"
+        assert sh(ref, "uname -m").stdout.strip() == "aarch64"  # QEMU runs it
+        out = run_until(ref, HEARD, 120)
+        assert f"{HEARD} aarch64" in out, out[-3000:]
+    finally:
+        remove_image(ref)
+
+
+def test_gitlab_jobs_per_architecture_then_the_manifest_job(
+    repository: Path, local_registry: str, tmp_path: Path
+) -> None:
+    """build-amd64 and build-arm64 push `-<arch>` (ENABLE_SINGLEARCH_PUSH), manifest joins."""
+    repo = tmp_path / "repo"
+    subprocess.run(["git", "clone", "-q", str(repository), str(repo)], check=True)
+    include_gitlab_template(repo, {"TARGET": "run", "PLATFORM": "amd64,arm64",
+                                   "ENABLE_SLIM": "false", "ENABLE_INDUSTRIAL_CI": "false"})
+    image = f"{IMAGE}-gitlab"
+    began = time.monotonic()
+    result = gitlab_ci_local(repo, {"GITLAB_CI": "true", "DOCKER_ROS_PIP_SPEC": str(REPO),
+                                    "IMAGE_NAME": f"{local_registry}/{image}"})
+    print(f"gitlab-ci-local, PLATFORM=amd64,arm64: {time.monotonic() - began:.0f} s")
+    assert result.returncode == 0, result.stdout[-6000:]
+    for job in ("build-amd64", "build-arm64", "manifest"):
+        assert f"PASS  {job}" in result.stdout, job
+    assert registry_tags(local_registry, image) == [
+        "latest", "latest-amd64", "latest-arm64",
+        "latest-build-state-amd64", "latest-build-state-arm64",
+    ]
+    assert manifest_architectures(f"{local_registry}/{image}:latest") == ["amd64", "arm64"]
+    ref = f"{local_registry}/{image}:latest"
+    try:
+        assert pulled_architecture(ref, "arm64") == "arm64"
+    finally:
+        remove_image(ref)
