@@ -19,9 +19,10 @@ import docker_ros
 from docker_ros import engine
 from docker_ros.baseimage import arch_ref
 from docker_ros.engine import image_exists, image_size
-from docker_ros.lock import locked_build_args
+from docker_ros.lock import lock_labels, locked_build_args, tag_local_base
 from docker_ros.runtime.files import walk
 from docker_ros.runtime.inputs import resolve_inputs
+from docker_ros.runtime.lock import LOCK_FILE
 from docker_ros.runtime.workspace import StepError, Workspace
 from docker_ros.settings import FIELDS, Settings, as_env, build_secrets, env_name
 
@@ -228,6 +229,9 @@ def definition(
         "secret": [f"id={i},{source}" for i, source in sorted(secrets.items())],
         "output": [output or ("type=registry" if push else "type=docker")],
     }
+    labels = lock_labels(settings, target)
+    if labels:
+        target_def["labels"] = labels
     if settings.build_network:
         target_def["network"] = settings.build_network
     if not settings.buildx_attestations:
@@ -287,6 +291,8 @@ def build_argv(spec: Mapping[str, Any]) -> List[str]:
     argv += ["--tag", spec["tags"][0]]
     for name, value in spec["args"].items():
         argv += ["--build-arg", f"{name}={value}"]
+    for name, value in spec.get("labels", {}).items():
+        argv += ["--label", f"{name}={value}"]
     for secret in spec["secret"]:
         argv += ["--secret", secret]
     if "network" in spec:
@@ -546,7 +552,7 @@ def import_inputs(settings: Settings, repository: Path) -> List[str]:
     hook exists: it runs first and may change them, so the source stage imports instead."""
     if (repository / settings.before_dependency_identification_script).is_file():
         return []
-    found = []
+    found = [LOCK_FILE] if settings.locked and (repository / LOCK_FILE).is_file() else []
     top = repository / settings.vcs_import_file
     if top.is_file():
         found.append(settings.vcs_import_file)
@@ -669,6 +675,7 @@ def build_images(
     environ = os.environ if environ is None else environ
     tools = ensure_tools_image(platform)
     imports = ensure_imports_image(settings, platform)
+    tag_local_base(settings, platform)
     child_env = dict(environ)
     child_env.setdefault("DOCKER_BUILDKIT", "1")
     with tempfile.TemporaryDirectory(prefix="docker-ros-build-") as tmp:

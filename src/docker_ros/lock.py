@@ -1,8 +1,11 @@
-"""Host side of docker-ros.lock: the base image's digest and the imported repositories' commits.
-What images run (parsing apt's and pip's resolution, pins, stale inputs) is runtime/lock.py."""
+"""Host side of docker-ros.lock: `inv lock` resolves each target and platform in image stages
+(lock-results, exported to the host: no image is built) and adds the base image's digest;
+`--host` resolves this machine's entry for the host steps. What images run (apt's and pip's
+resolution, pins, stale inputs) is runtime/lock.py."""
 
-import subprocess
+import json
 import tempfile
+import uuid
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional
@@ -10,15 +13,20 @@ from typing import Any, Dict, List, Mapping, Optional
 from docker_ros import engine
 from docker_ros.runtime.lock import (
     FORMAT,
+    HOST_TARGET,
     LOCK_FILE,
+    LOCKED_ENV,
     LockError,
     apt_closure,
     base_image_ref,
     dump_lock,
     image_repository,
     load_lock,
+    lock_digest,
     locked_target,
+    pip_report,
     recorded_inputs,
+    repository_commits,
     stale_inputs,
     target_key,
 )
@@ -43,36 +51,22 @@ def base_image(ref: str) -> Dict[str, Any]:
     return base_image_record(ref, engine.inspect_image(ref))
 
 
-def _git(repo: Path, *args: str) -> str:
-    return subprocess.run(
-        ["git", "-C", str(repo), *args], check=True, capture_output=True, text=True
-    ).stdout.strip()
-
-
-def repository_commits(root: Path) -> Dict[str, Dict[str, str]]:
-    """path (relative to `root`'s parent, e.g. `upstream/foo`) -> {url, commit} of every git
-    checkout under `root`, nested ones (from nested .repos files) included."""
-    commits: Dict[str, Dict[str, str]] = {}
-    for marker in sorted(root.rglob(".git")):
-        checkout = marker.parent
-        url = subprocess.run(
-            ["git", "-C", str(checkout), "config", "--get", "remote.origin.url"],
-            capture_output=True, text=True,
-        ).stdout.strip()
-        commits[checkout.relative_to(root.parent).as_posix()] = {
-            "url": url, "commit": _git(checkout, "rev-parse", "HEAD"),
-        }
-    return commits
-
-
 def lock_path(settings: Settings) -> Path:
     return Path(settings.build_context) / LOCK_FILE
 
 
+LOCK_LABEL = "io.github.docker-ros.lock"
+IMAGE_TARGETS = ("dev", "run")  # the targets `inv lock` resolves
+
+
 def locked_build_args(settings: Settings, *, target: str, platform: str) -> Dict[str, str]:
-    """Build arguments a locked build overrides (none unless LOCKED): BASE_IMAGE by digest."""
-    if not settings.locked:
+    """Build arguments a locked build overrides (none unless LOCKED): BASE_IMAGE by digest
+    and DOCKER_ROS_LOCKED, which makes the image's steps honour the lock."""
+    if not settings.locked or target not in IMAGE_TARGETS:
         return {}
+    if settings.enable_lean_run_image:
+        raise LockError("LOCKED with ENABLE_LEAN_RUN_IMAGE: the lean run image's packages are "
+                        "known only after the build, so they cannot be locked; unset one")
     entry = locked_target(load_lock(lock_path(settings)), target, platform)
     record = entry.get("base_image") or {}
     if record.get("ref") != settings.base_image:
@@ -80,11 +74,50 @@ def locked_build_args(settings: Settings, *, target: str, platform: str) -> Dict
             f"LOCKED: BASE_IMAGE is {settings.base_image}, docker-ros.lock has {record.get('ref')}:"
             " run `inv lock`"
         )
-    return {"BASE_IMAGE": base_image_ref(settings.base_image or "", record)}
+    return {"BASE_IMAGE": base_image_ref(settings.base_image or "", record), LOCKED_ENV: "true"}
+
+
+def tag_local_base(settings: Settings, platform: str) -> None:
+    """Give a locked local base image (its ID in the lock) the tag base_image_ref names; a
+    lock whose local base image is gone stops the build, naming it."""
+    if not settings.locked:
+        return
+    lock = load_lock(lock_path(settings))
+    for target in IMAGE_TARGETS:
+        record = (lock.get("targets") or {}).get(target_key(target, platform), {}).get(
+            "base_image") or {}
+        if not record.get("local"):
+            continue
+        image_id = str(record.get("digest"))
+        if engine.inspect_image(image_id) is None:
+            raise LockError(f"LOCKED: the local base image {image_id} of docker-ros.lock "
+                            f"({record.get('ref')}, never pushed) no longer exists here: "
+                            "run `inv lock`")
+        engine.tag(image_id, base_image_ref(str(record.get("ref")), record))
+
+
+def lock_labels(settings: Settings, target: str) -> Dict[str, str]:
+    """The label of a locked build's dev and run images: the lock's digest."""
+    if not settings.locked or target not in IMAGE_TARGETS:
+        return {}
+    return {LOCK_LABEL: lock_digest(lock_path(settings).read_text())}
+
+
+def lock_status(settings: Settings) -> str:
+    """One line for the final table and `inv config`: whether a lock is in use."""
+    path = lock_path(settings)
+    if not settings.locked:
+        present = f"; {LOCK_FILE} present" if path.is_file() else ""
+        return f"lock: not in use (LOCKED=false{present})"
+    if not path.is_file():
+        return f"lock: LOCKED=true but {LOCK_FILE} is missing: run `inv lock`"
+    text = path.read_text()
+    return (f"lock: locked build, {LOCK_FILE} {lock_digest(text)} "
+            f"({', '.join(sorted(json.loads(text).get('targets') or {}))})")
 
 
 def host_entry(settings: Settings) -> Dict[str, Any]:
-    """This machine's lock entry (target dev): the repository imported and resolved afresh in a
+    """This machine's lock entry (target host): the repository imported and resolved afresh in a
     throw-away workspace (clone, then the collect phases), then what apt would install for it."""
     from docker_ros.steps import run_step
 
@@ -102,28 +135,71 @@ def host_entry(settings: Settings) -> Dict[str, Any]:
 def _entry(settings: Settings, ws: Workspace) -> Dict[str, Any]:
     inputs = recorded_inputs(ws, Path(settings.build_context) / settings.rosdep_rules_file)
     apt = sorted({*inputs["debs"], *inputs.get("rosdep_apt_all", [])})
+    pip = [*inputs["pip"], *inputs.get("rosdep_pip_all", [])]
     entry: Dict[str, Any] = {"inputs": inputs, "repos": repository_commits(ws.upstream),
-                             "apt": apt_closure(apt), "pip": {}}
+                             "apt": apt_closure(apt),
+                             "pip": pip_report(pip, pip_plan_constraints(ws))}
     if settings.base_image and engine.inspect_image(settings.base_image) is not None:
         entry["base_image"] = base_image(settings.base_image)
     return entry
 
 
-def lock_host(settings: Settings, *, check: bool) -> List[str]:
-    """Write (or with `check`, compare) docker-ros.lock's entry for this machine; the
-    differences from the file's entry, one line each."""
-    path, key = lock_path(settings), target_key("dev", host_platform())
+def pip_plan_constraints(ws: Workspace) -> List[str]:
+    """The constraint lines (nested -c files) the pip step's collect phase read."""
+    plan = ws.read_state("pip.json")
+    return list(plan.get("constraints") or []) if isinstance(plan, dict) else []
+
+
+def image_entries(settings: Settings, platform: str, out: Any) -> Dict[str, Dict[str, Any]]:
+    """The dev and run entries of one platform, resolved in the image's lock stages (their
+    lock-results exported to a folder here: no image is built or tagged), with the base
+    image's digest added."""
+    from docker_ros.build import build_images
+
+    unlocked = replace(settings, locked=False)  # resolve afresh, whatever the lock says
+    with tempfile.TemporaryDirectory(prefix="docker-ros-lock-") as tmp:
+        build_images(unlocked, targets={"lock-results": "docker-ros-lock:unused"},
+                     platform=platform, out=out, output=f"type=local,dest={tmp}",
+                     extra_build_args={"DOCKER_ROS_LOCK_RUN": uuid.uuid4().hex}, bake=False)
+        entries = {target_key(t, platform): json.loads((Path(tmp) / f"{t}.json").read_text())
+                   for t in IMAGE_TARGETS}
+    record = base_image(settings.base_image or "")
+    return {key: {**entry, "base_image": record} for key, entry in entries.items()}
+
+
+def entry_changes(key: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> List[str]:
+    """What differs between two entries of one key, one line each (inputs, commits, the apt
+    and pip versions, the base image)."""
+    changes = [f"{key}: {line}" for line in stale_inputs(old.get("inputs") or {},
+                                                       new.get("inputs") or {})]
+    for kind in ("repos", "apt", "pip"):
+        before, after = old.get(kind) or {}, new.get(kind) or {}
+        changes += [f"{key}: {kind} {name} {before.get(name)} -> {after.get(name)}"
+                    for name in sorted({*before, *after}) if before.get(name) != after.get(name)]
+    if old.get("base_image") != new.get("base_image"):
+        changes.append(f"{key}: base_image {(old.get('base_image') or {}).get('digest')} -> "
+                       f"{(new.get('base_image') or {}).get('digest')}")
+    return changes
+
+
+def lock(settings: Settings, *, check: bool, host: bool, out: Any) -> List[str]:
+    """Write (or with `check`, compare) docker-ros.lock's entries: dev and run of every
+    PLATFORM (images), or with `host` this machine's host entry; the differences from the
+    file's entries, one line each."""
+    path = lock_path(settings)
     current: Dict[str, Any] = (
         load_lock(path) if path.is_file() else {"format": FORMAT, "targets": {}}
     )
     targets: Dict[str, Any] = dict(current.get("targets") or {})
-    old = dict(targets.get(key) or {})
-    new = host_entry(settings)
-    changes = stale_inputs(old.get("inputs") or {}, new["inputs"])
-    changes += [f"repos: {p} {old.get('repos', {}).get(p)} -> {new['repos'].get(p)}"
-                for p in sorted({*old.get("repos", {}), *new["repos"]})
-                if old.get("repos", {}).get(p) != new["repos"].get(p)]
+    if host:
+        new = {target_key(HOST_TARGET, host_platform()): host_entry(settings)}
+    else:
+        new = {}
+        for platform in settings.platform:
+            new.update(image_entries(settings, platform, out))
+    changes = [line for key, entry in sorted(new.items())
+               for line in entry_changes(key, targets.get(key) or {}, entry)]
     if not check:
-        targets[key] = new
+        targets.update(new)
         path.write_text(dump_lock({**current, "targets": targets}))
     return changes

@@ -318,7 +318,7 @@ class Settings:
         False,
         "Build exactly what docker-ros.lock records (base image digest, imported commits, apt"
         " and pip versions); a repository that no longer matches the lock stops the build",
-        group="ours", build="tool",
+        group="ours", build="tool", flags=("image", "host"),
     )
     image_postfix: Optional[str] = setting(
         None,

@@ -25,6 +25,7 @@ from invoke import Collection, Context, Exit, Task
 from docker_ros import build, engine
 from docker_ros.build import BuiltImage
 from docker_ros.config import config_table, input_problems, read_settings
+from docker_ros.lock import lock_status
 from docker_ros.runtime.lock import LockError
 from docker_ros.runtime.workspace import StepError, Workspace, format_argv, setup_logging
 from docker_ros.settings import (
@@ -312,25 +313,40 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
 def config(c: Context, settings: Settings) -> None:
     problems = input_problems(settings, settings.target, images=True)
     print(config_table(settings, problems))
+    print(lock_status(settings))
     messages = [*(why for _, why in settings.problems.values()), *problems.values()]
     if messages:
         raise TaskError("invalid configuration:\n  " + "\n  ".join(messages))
 
 
 @settings_task(
-    "lock", "Write docker-ros.lock for this machine (imported commits, apt versions)\n\n"
-    "Resolves the repository afresh in a throw-away workspace; with --check, writes nothing "
-    "and exits non-zero when the lock differs.",
-    [("check", False, "Compare with docker-ros.lock and print the differences; write nothing")],
-    uses=("build_context", "base_image"),
+    "lock", "Write docker-ros.lock: per target (dev, run) and PLATFORM what a build installs\n\n"
+    "Resolves in the image's lock stages, where the installs run, without building the "
+    "images: imported commits, apt and pip versions (dependencies included), the collect "
+    "phases' inputs and the rosdep rules' digest; the base image's digest from the host. "
+    "--host: this machine's entry, for the host steps. --check: write nothing, print what "
+    "differs and exit non-zero when the lock is stale.",
+    [("check", False, "Compare with docker-ros.lock and print the differences; write nothing"),
+     ("host", False, "Lock this machine's host entry (host steps) instead of the images")],
+    uses=("build_context", "base_image", "platform")
+    + tuple(n for n in IMAGE_SETTINGS if n != "locked"),  # (it resolves afresh, unlocked)
 )
-def lock_task(c: Context, settings: Settings, *, check: bool) -> None:
-    from docker_ros.lock import lock_host
+def lock_task(c: Context, settings: Settings, *, check: bool, host: bool) -> None:
+    from docker_ros.lock import lock
 
     started = time.monotonic()
-    changes = lock_host(settings, check=check)
+    if not host:
+        require(settings, required_for_build(settings))
+        try:
+            build.check_engine()
+        except build.BuildError as exc:
+            raise TaskError(str(exc)) from None
+    try:
+        changes = lock(settings, check=check, host=host, out=sys.stdout)
+    except build.BuildError as exc:
+        raise TaskError(f"resolving the lock failed: {exc}") from None
     print("\n".join(changes) or "docker-ros.lock: up to date")
-    print(f"lock: {time.monotonic() - started:.1f}s")
+    print(f"lock: {time.monotonic() - started:.1f} s")
     if check and changes:
         raise TaskError("docker-ros.lock is stale: run `inv lock`")
 
@@ -426,6 +442,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             built += [] if dry_run else [slimmed]
     if built:
         print(build.summary_table(built))
+        print(lock_status(settings))
     return built
 
 

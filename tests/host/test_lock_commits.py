@@ -5,8 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.lock import repository_commits
-from docker_ros.runtime.lock import dump_repos, pin_repos
+from docker_ros.runtime.lock import dump_repos, host_platform, pin_repos, repository_commits
 from docker_ros.runtime.workspace import Workspace
 
 pytestmark = pytest.mark.host
@@ -72,7 +71,7 @@ def test_locked_clone_step_imports_the_locked_commit_and_unlocked_the_new(tmp_pa
             f"repositories:\n  foo:\n    type: git\n    url: {url}\n    version: main\n")
         entry = {"repos": {"upstream/foo": {"url": remote.as_uri(), "commit": first}}}
         (ws.target / LOCK_FILE).write_text(dump_lock(
-            {"format": 1, "targets": {f"dev/{host_platform()}": entry}}))
+            {"format": 1, "targets": {f"host/{host_platform()}": entry}}))
         settings = load_settings(environ={"LOCKED": str(locked).lower()}, project_dir=ws.target)
         clone.main(ws, settings)
         return ws.upstream / "foo"
@@ -96,7 +95,7 @@ def test_apt_closure_lists_the_package_and_what_apt_pulls_in():
 def test_lock_host_writes_checks_and_then_holds_the_locked_build(project, tmp_path: Path):
     import json
 
-    from docker_ros.lock import lock_host
+    from docker_ros.lock import lock
     from docker_ros.runtime.lock import LOCK_FILE
     from docker_ros.runtime.workspace import StepError
     from docker_ros.steps import clone, debs
@@ -108,20 +107,22 @@ def test_lock_host_writes_checks_and_then_holds_the_locked_build(project, tmp_pa
     env = {"build_context": str(project.repo), "additional_debs_file": "debs.txt"}
     settings = project.settings(**env)
 
-    assert lock_host(settings, check=False)  # a first lock: everything is new
+    assert lock(settings, check=False, host=True, out=None)  # a first lock: everything is new
     entry = next(iter(json.loads((project.repo / LOCK_FILE).read_text())["targets"].values()))
     first = entry["repos"]["upstream/lib_a"]["commit"]
     assert "cmatrix" in entry["apt"] and entry["inputs"]["debs"] == ["cmatrix"]
-    assert lock_host(settings, check=True) == []
+    assert lock(settings, check=True, host=True, out=None) == []
 
     remote = tmp_path / "remotes" / "lib_a"
     (remote / "README").write_text("a2\n")
     git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qam", "two", cwd=remote)
     git("push", "-q", url, "HEAD:main", cwd=remote)
     (project.repo / "debs.txt").write_text("cmatrix\nsl\n")
-    changes = lock_host(settings, check=True)
-    assert "debs: added sl" in changes
-    assert any(c.startswith("repos: upstream/lib_a ") and first in c for c in changes)
+    changes = lock(settings, check=True, host=True, out=None)
+    key = f"host/{host_platform()}"
+    assert f"{key}: debs: added sl" in changes
+    assert any(c.startswith(f"{key}: repos upstream/lib_a ") and first in c for c in changes)
+    assert any(c.startswith(f"{key}: apt sl None -> ") for c in changes)
 
     locked = project.settings(locked="true", **env)
     with pytest.raises(StepError, match="debs: added sl.*run `inv lock`"):

@@ -36,11 +36,18 @@ def test_apt_pins_hold_dependencies_and_name_what_is_not_locked():
         lock.apt_pins(["foo", "bar=2"], locked)
 
 
-def test_pip_pins_skip_options_and_name_what_is_not_locked():
-    locked = {"six": {"version": "1.16.0"}}
-    assert lock.pip_pins(["--extra-index-url", "Six>=1"], locked) == ["six==1.16.0"]
-    with pytest.raises(lock.LockError, match="pip package\\(s\\) toml "):
-        lock.pip_pins(["toml"], locked)
+def test_pip_constraints_hold_every_locked_version_and_need_recorded_versions(tmp_path):
+    from docker_ros.runtime.workspace import Workspace
+
+    locked = {"six": {"version": "1.16.0"}, "idna": {"version": "3.4", "sha256": "ab"}}
+    assert lock.pip_constraints(locked) == ["idna==3.4", "six==1.16.0"]
+    # a lock without pip versions (no report where it was written): installed as written
+    assert lock.pip_constraints({}) is None
+    ws = Workspace(tmp_path)
+    args = lock.constrained(ws, ["six"], ["six==1.16.0"], dry_run=False)
+    assert args[:1] == ["-c"] and args[2:] == ["six"]
+    assert Path(args[1]).read_text() == "six==1.16.0\n"
+    assert lock.constrained(ws, [], ["six==1.16.0"], dry_run=False) == []
 
 
 def test_repos_are_pinned_to_locked_commits_and_a_changed_url_is_stale():
@@ -86,7 +93,8 @@ def test_base_image_by_digest():
     assert lock.base_image_ref("reg:5000/ros:noetic", record) == "reg:5000/ros@sha256:" + "f" * 64
     assert lock.base_image_ref("ros", record) == "ros@sha256:" + "f" * 64
     local = {"digest": "sha256:" + "e" * 64, "local": True}
-    assert lock.base_image_ref("docker-ros/ros1:bookworm", local) == "sha256:" + "e" * 64
+    assert lock.base_image_ref("docker-ros/ros1:bookworm", local) == (
+        "docker-ros/ros1:docker-ros-lock-" + "e" * 16)  # (BuildKit takes no image ID)
     with pytest.raises(lock.LockError, match="no digest for BASE_IMAGE"):
         lock.base_image_ref("ros", {})
 
@@ -125,8 +133,17 @@ def test_unlocked_builds_are_unchanged_and_a_locked_one_builds_from_the_digest(t
     assert "BASE_IMAGE=reg:5000/ros:noetic" in default
     locked = _plan(tmp_path, LOCKED="true")
     assert "BASE_IMAGE=reg:5000/ros@" + digest in locked
-    assert [a for a in locked if not a.startswith("BASE_IMAGE=")] == [
-        a for a in default if not a.startswith("BASE_IMAGE=")]
+    assert "DOCKER_ROS_LOCKED=true" in locked
+    label = locked[locked.index("--label") + 1]
+    assert label == "io.github.docker-ros.lock=" + lock.lock_digest(
+        (tmp_path / lock.LOCK_FILE).read_text())
+    changed = ("BASE_IMAGE=", "DOCKER_ROS_LOCKED=", "io.github.docker-ros.lock=")
+
+    def kept(argv):  # each `--flag value` pair, without the ones a locked build changes
+        pairs = [(a, b) for a, b in zip(argv, argv[1:]) if a.startswith("--")]
+        return [p for p in pairs if not p[1].startswith(changed)]
+
+    assert kept(locked) == kept(default)
     with pytest.raises(lock.LockError, match="BASE_IMAGE is other:1, docker-ros.lock has"):
         _plan(tmp_path, LOCKED="true", BASE_IMAGE="other:1")
     with pytest.raises(lock.LockError, match="no entry for dev/amd64"):
@@ -142,7 +159,7 @@ def _locked_ws(tmp_path: Path, debs: str, inputs):
     (ws.target / "debs.txt").write_text(debs)
     entry = {"inputs": {"debs": inputs}, "apt": {"sl": "5.02-1+b1", "libncurses6": "6.4-4"}}
     (ws.target / lock.LOCK_FILE).write_text(lock.dump_lock(
-        {"format": 1, "targets": {f"dev/{host_platform()}": entry}}))
+        {"format": 1, "targets": {f"host/{host_platform()}": entry}}))
     settings = load_settings(environ={"ADDITIONAL_DEBS_FILE": "debs.txt", "LOCKED": "true"},
                              project_dir=ws.target)
     return ws, settings
@@ -170,7 +187,7 @@ def test_locked_rosdep_plan_pins_and_names_a_new_dependency(tmp_path: Path):
 
     ws, settings = _locked_ws(tmp_path, "", [])
     data = json.loads((ws.target / lock.LOCK_FILE).read_text())
-    data["targets"][f"dev/{host_platform()}"]["inputs"].update(
+    data["targets"][f"host/{host_platform()}"]["inputs"].update(
         {"rosdep_apt_all": ["sl"], "rosdep_pip_all": []})
     (ws.target / lock.LOCK_FILE).write_text(lock.dump_lock(data))
     plan = {"all": {"apt": ["sl"], "pip": []}}
@@ -190,8 +207,64 @@ def test_recorded_inputs_are_what_the_collect_phases_wrote(tmp_path: Path):
     rules = tmp_path / "rules.yaml"
     rules.write_text("boost: {debian: [libboost-all-dev]}\n")
     inputs = lock.recorded_inputs(ws, rules)
-    assert inputs == {"debs": ["cmatrix", "sl"], "pip": [], "rosdep_apt_all": ["a", "b"],
-                      "rosdep_pip_all": [], "rosdep_rules": lock.file_digest(rules)}
+    assert inputs == {"debs": ["cmatrix", "sl"], "pip": [], "pip_constraints": [],
+                      "rosdep_apt_all": ["a", "b"], "rosdep_pip_all": [],
+                      "rosdep_rules": lock.file_digest(rules)}
+    # every kind is compared: a new <depend> (rosdep's apt set) names itself
+    grown = {**inputs, "rosdep_apt_all": ["a", "b", "c"]}
+    assert lock.stale_inputs(inputs, grown) == ["rosdep_apt_all: added c"]
     rules.write_text("boost: {debian: [libboost-dev]}\n")
     assert lock.stale_inputs(inputs, lock.recorded_inputs(ws, rules))[0].startswith(
         "rosdep_rules: sha256:")
+
+
+def test_a_locked_apt_version_apt_cannot_find_is_named_with_the_sources(tmp_path: Path):
+    output = ("E: Version '0.0-gone1' for 'cmatrix' was not found\n"
+              "E: Version '2.0' for 'libfoo1' was not found\n")
+    assert lock.missing_versions(output) == ["cmatrix=0.0-gone1", "libfoo1=2.0"]
+    (tmp_path / "sources.list.d").mkdir()
+    (tmp_path / "sources.list").write_text("deb http://deb.debian.org/debian bookworm main\n"
+                                           "# deb http://off/ x main\n")
+    (tmp_path / "sources.list.d" / "ros.sources").write_text(
+        "Types: deb\nURIs: http://packages.ros.org/ros2/ubuntu\nSuites: noble\n")
+    assert lock.apt_sources(tmp_path) == ["http://deb.debian.org/debian bookworm",
+                                          "http://packages.ros.org/ros2/ubuntu noble"]
+
+
+def test_which_entry_a_step_honours():
+    assert lock.default_target({}) == "host"
+    assert lock.default_target({"DOCKER_ROS": "1"}) == "dev"  # image: imports, resolve
+    assert lock.default_target({"DOCKER_ROS": "1", lock.TARGET_ENV: "run"}) == "run"
+    assert lock.is_locked(object(), {lock.LOCKED_ENV: "true"})
+    assert not lock.is_locked(object(), {})
+
+
+def test_entry_changes_name_each_difference_by_entry():
+    from docker_ros.lock import entry_changes
+
+    old = {"inputs": {"debs": ["sl"]}, "apt": {"sl": "1"}, "pip": {"six": {"version": "1"}},
+           "repos": {"upstream/a": {"url": "u", "commit": "c1"}},
+           "base_image": {"digest": "sha256:1"}}
+    new = {**old, "inputs": {"debs": ["sl", "cmatrix"]}, "apt": {"sl": "2"},
+           "base_image": {"digest": "sha256:2"}}
+    assert entry_changes("run/amd64", old, new) == [
+        "run/amd64: debs: added cmatrix", "run/amd64: apt sl 1 -> 2",
+        "run/amd64: base_image sha256:1 -> sha256:2"]
+    assert entry_changes("run/amd64", old, old) == []
+
+
+def test_lock_status_says_whether_a_lock_is_in_use(tmp_path: Path):
+    from docker_ros.lock import lock_status
+    from docker_ros.settings import load_settings
+
+    def status(**environ):
+        return lock_status(load_settings(environ={"BUILD_CONTEXT": str(tmp_path), **environ},
+                                         project_dir=tmp_path))
+
+    assert status() == "lock: not in use (LOCKED=false)"
+    assert "docker-ros.lock is missing: run `inv lock`" in status(LOCKED="true")
+    text = lock.dump_lock({"format": 1, "targets": {"dev/amd64": {}, "run/amd64": {}}})
+    (tmp_path / lock.LOCK_FILE).write_text(text)
+    assert status() == "lock: not in use (LOCKED=false; docker-ros.lock present)"
+    assert status(LOCKED="true") == (f"lock: locked build, docker-ros.lock {lock.lock_digest(text)}"
+                                     " (dev/amd64, run/amd64)")

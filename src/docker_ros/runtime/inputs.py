@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import List
 
 from docker_ros.runtime.files import find_special_files, repository_path, walk
+from docker_ros.runtime.lock import LOCK_FILE, is_locked
 from docker_ros.runtime.packages import package_search_dirs
 from docker_ros.runtime.requirements import read_requirement_file
 from docker_ros.runtime.workspace import IGNORE_MARKERS, Workspace, image_main
@@ -42,6 +43,8 @@ def resolve_inputs(ws: Workspace, settings: object) -> List[Path]:
         found += [d / n for d in walk(files_dir) for n in sorted(os.listdir(str(d)))
                   if (d / n).is_file()]
     found += [ws.state / n for n in STATE_FILES if (ws.state / n).is_file()]
+    if is_locked(settings) and (ws.target / LOCK_FILE).is_file():
+        found.append(ws.target / LOCK_FILE)  # (a locked resolve stage checks against it)
     return sorted(set(found))
 
 

@@ -17,6 +17,7 @@ import hashlib
 import json
 import os
 import re
+import subprocess
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
@@ -26,8 +27,10 @@ from docker_ros.settings import host_platform
 
 LOCK_FILE = "docker-ros.lock"
 FORMAT = 1
-INPUT_KINDS = ("debs", "pip", "rosdep_keys", "repos", "rosdep_rules")
 TARGET_ENV = "DOCKER_ROS_LOCK_TARGET"
+# set (to true) by the tool in the image stages of a locked build (LOCKED itself is no ARG)
+LOCKED_ENV = "DOCKER_ROS_LOCKED"
+HOST_TARGET = "host"  # the entry host steps honour (`inv lock --host`)
 # `apt-get install -s`: "Inst name [old] (version suite [arch])"
 APT_INST = re.compile(r"^Inst (\S+) (?:\[[^\]]*\] )?\((\S+) ([^\[)]*)")
 PIP_NAME = re.compile(r"^\s*([A-Za-z0-9][A-Za-z0-9._-]*)")
@@ -121,11 +124,15 @@ def apt_pins(packages: Sequence[str], locked: Mapping[str, str]) -> List[str]:
     return [f"{name}={version}" for name, version in sorted(locked.items())]
 
 
-def pip_pins(requirements: Sequence[str], locked: Mapping[str, Mapping[str, str]]) -> List[str]:
-    """`name==version` for every locked pip package (options lines are kept out)."""
-    wanted = [r for r in requirements if not r.startswith("-")]
-    require_locked("pip", [pip_name(r) for r in wanted], locked)
-    return [f"{name}=={entry['version']}" for name, entry in sorted(locked.items())]
+def pip_constraints(locked: Mapping[str, Mapping[str, str]]) -> Optional[List[str]]:
+    """The constraint lines (`name==version`) under which a locked step installs its pip
+    requirements as written: every package pip installs for them, dependencies included, at
+    its locked version (a requirement satisfied where the lock was written, so not in its
+    report, is left to the locked system). None when the lock recorded no pip version at all
+    (no report): the checked requirements are installed unconstrained."""
+    lines = [f"{name}=={entry['version']}" for name, entry in sorted(locked.items())
+             if entry.get("version")]
+    return lines or None
 
 
 def pin_repos(
@@ -158,11 +165,11 @@ def dump_repos(repos: Mapping[str, Mapping[str, str]]) -> str:
 
 
 def stale_inputs(
-    recorded: Mapping[str, Any], current: Mapping[str, Any], kinds: Sequence[str] = INPUT_KINDS
+    recorded: Mapping[str, Any], current: Mapping[str, Any], kinds: Sequence[str] = ()
 ) -> List[str]:
     """What changed between the lock's inputs and the repository's now: one line each."""
     changes: List[str] = []
-    for kind in kinds:
+    for kind in kinds or sorted({*recorded, *current}):  # (default: every kind either has)
         old, new = recorded.get(kind), current.get(kind)
         if old == new:
             continue
@@ -204,8 +211,14 @@ def base_image_ref(ref: str, record: Mapping[str, Any]) -> str:
         raise LockError(f"LOCKED: docker-ros.lock has no digest for BASE_IMAGE {ref}: "
                         "run `inv lock`")
     if record.get("local"):
-        return digest
+        return local_base_tag(ref, digest)
     return f"{image_repository(ref)}@{digest}"
+
+
+def local_base_tag(ref: str, image_id: str) -> str:
+    """The tag a locked build gives a local base image (never pushed, no registry digest):
+    BuildKit's FROM takes no image ID, so the ID gets a tag of its own (lock.tag_local_base)."""
+    return f"{image_repository(ref)}:docker-ros-lock-{image_id.split(':')[-1][:16]}"
 
 
 def image_repository(ref: str) -> str:
@@ -217,24 +230,45 @@ def image_repository(ref: str) -> str:
     return name
 
 
+def is_locked(settings: Any, environ: Optional[Mapping[str, str]] = None) -> bool:
+    """LOCKED on the host; DOCKER_ROS_LOCKED in an image build's stages."""
+    env = os.environ if environ is None else environ
+    return bool(getattr(settings, "locked", False)) or env.get(LOCKED_ENV) == "true"
+
+
+def lock_file(ws: Workspace) -> Path:
+    """The repository's docker-ros.lock, or the copy that travels with the resolution
+    (.docker-ros/docker-ros.lock: the image's install stages have no repository)."""
+    own = ws.target / LOCK_FILE
+    return own if own.is_file() or not (ws.state / LOCK_FILE).is_file() else ws.state / LOCK_FILE
+
+
+def default_target(environ: Optional[Mapping[str, str]] = None) -> str:
+    """The entry a step honours: DOCKER_ROS_LOCK_TARGET (the image's install stages set dev or
+    run); else dev in an image (its imports and inputs are the run image's too), host on
+    the host."""
+    env = os.environ if environ is None else environ
+    return env.get(TARGET_ENV) or ("dev" if env.get("DOCKER_ROS") else HOST_TARGET)
+
+
 def active_entry(ws: Workspace, settings: Any, step: str) -> Optional[Dict[str, Any]]:
-    """The lock entry a step honours: None unless LOCKED; the repository's docker-ros.lock,
-    target DOCKER_ROS_LOCK_TARGET (dev: its packages include the run image's), this platform."""
-    if not getattr(settings, "locked", False):
+    """The lock entry a step honours: None unless locked (is_locked); else the entry of
+    default_target and this platform."""
+    if not is_locked(settings):
         return None
-    target = os.environ.get(TARGET_ENV) or "dev"
     try:
-        return locked_target(load_lock(ws.target / LOCK_FILE), target, host_platform())
+        return locked_target(load_lock(lock_file(ws)), default_target(), host_platform())
     except LockError as exc:
         raise StepError(step, str(exc)) from None
 
 
 def locked_arguments(
-    ws: Workspace, settings: Any, *, step: str, kind: str, inputs: Sequence[str], key: str = ""
+    ws: Workspace, settings: Any, *, step: str, kind: str, inputs: Sequence[str], key: str = "",
+    dry_run: bool = False,
 ) -> Optional[List[str]]:
-    """What a locked step installs instead of `inputs` (apt: `name=version` of the whole
-    locked closure, pip: `name==version`), after checking `inputs` against the lock's; None
-    when not locked (the step installs its inputs as before)."""
+    """After checking `inputs` against the lock's: apt, what a locked step installs instead
+    (`name=version` of the whole locked closure); pip, the constraint lines it installs its
+    requirements under (pip_constraints). None when not locked: the step is unchanged."""
     entry = active_entry(ws, settings, step)
     if entry is None:
         return None
@@ -248,8 +282,11 @@ def locked_arguments(
                 ": run `inv lock`"
             )
         if kind == "apt":
-            return apt_pins(inputs, entry.get("apt") or {})
-        return pip_pins(inputs, entry.get("pip") or {})
+            pins = apt_pins(inputs, entry.get("apt") or {})
+            if not dry_run:  # (a dry run neither updates apt's lists nor asks them)
+                check_available(pins, step=step)
+            return pins
+        return pip_constraints(entry.get("pip") or {})
     except LockError as exc:
         raise StepError(step, str(exc)) from None
 
@@ -271,27 +308,53 @@ def pinned_repos_file(
 
 
 def locked_rosdep_plan(
-    ws: Workspace, settings: Any, plan: Mapping[str, Any], dependency_types: str, step: str
+    ws: Workspace, settings: Any, plan: Mapping[str, Any], dependency_types: str, step: str,
+    dry_run: bool = False,
 ) -> Mapping[str, Any]:
     """rosdep's plan with the chosen set's apt and pip packages replaced by the lock's pins
     (inputs `rosdep_apt_<types>` / `rosdep_pip_<types>`); the plan itself unless LOCKED."""
     chosen = plan.get(dependency_types)
-    if not isinstance(chosen, dict) or not getattr(settings, "locked", False):
+    if not isinstance(chosen, dict):
+        return plan
+    if not is_locked(settings):
         return plan
     pinned = {
         installer: locked_arguments(ws, settings, step=step, kind=installer,
                                     inputs=list(chosen.get(installer) or []),
-                                    key=f"rosdep_{installer}_{dependency_types}") or []
+                                    key=f"rosdep_{installer}_{dependency_types}",
+                                    dry_run=dry_run)
         for installer in ("apt", "pip")
     }
+    apt, pip = pinned["apt"], pinned["pip"]
+    pinned = {"apt": list(chosen.get("apt") or []) if apt is None else apt,
+              "pip": constrained(ws, list(chosen.get("pip") or []), pip, dry_run=dry_run)}
     return {**plan, dependency_types: {**chosen, **pinned}}
 
 
-def apt_closure(packages: Sequence[str], *, step: str = "lock") -> Dict[str, str]:
+def constrained(ws: Workspace, packages: List[str], constraints: Optional[List[str]], *,
+                dry_run: bool) -> List[str]:
+    """pip argv items: the packages under `-c` of a file of the constraint lines (in the state
+    folder); the packages alone without constraints or packages."""
+    if not constraints or not packages:
+        return packages
+    path = ws.state / "locked-pip-constraints.txt"
+    if not dry_run:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("\n".join(constraints) + "\n")
+    return ["-c", str(path), *packages]
+
+
+def apt_closure(packages: Sequence[str], *, step: str = "lock", update: bool = False
+                ) -> Dict[str, str]:
     """name -> version of the packages and every package apt would install with them, where
-    this runs (`--reinstall`: named packages already installed are listed too)."""
+    this runs (`--reinstall`: named packages already installed are listed too); `update`:
+    fresh package lists first (an image's lists come from a cache mount that may be old)."""
     if not packages:
         return {}
+    if update:
+        from docker_ros.runtime.apt import apt_env, apt_get
+
+        probe(apt_get(["update"]), step=step, env=apt_env())
     argv = ["apt-get", "install", "-s", "--reinstall", "--no-install-recommends", *packages]
     proc = probe(argv, step=step, env={**os.environ, "LC_ALL": "C"})
     if proc.returncode != 0:
@@ -300,12 +363,108 @@ def apt_closure(packages: Sequence[str], *, step: str = "lock") -> Dict[str, str
     return parse_apt_simulation(proc.stdout.splitlines())
 
 
+# apt's words for a locked version it cannot find
+APT_MISSING_VERSION = re.compile(r"Version '([^']+)' for '([^']+)' was not found")
+
+
+def apt_sources(root: Path = Path("/etc/apt")) -> List[str]:
+    """The URIs and suites apt installs from (one-line and deb822 sources)."""
+    found: List[str] = []
+    for path in [root / "sources.list", *sorted((root / "sources.list.d").glob("*"))]:
+        if not path.is_file():
+            continue
+        text = path.read_text(errors="replace")
+        found += [" ".join(line.split()[1:3]) for line in text.splitlines()
+                  if line.startswith("deb ")]
+        uris = re.findall(r"^URIs:\s*(.+)$", text, flags=re.MULTILINE)
+        suites = re.findall(r"^Suites:\s*(.+)$", text, flags=re.MULTILINE)
+        found += [f"{u.strip()} {s.strip()}" for u, s in zip(uris, suites)]
+    return found
+
+
+def missing_versions(apt_output: str) -> List[str]:
+    """`name=version` of each locked version apt says it cannot find."""
+    return [f"{name}={version}" for version, name in APT_MISSING_VERSION.findall(apt_output)]
+
+
+def check_available(pins: Sequence[str], *, step: str) -> None:
+    """Stop before installing when apt's sources no longer hold a locked version, naming each
+    package, its version and the sources (after fresh lists: old ones may hide it)."""
+    if not pins:
+        return
+    from docker_ros.runtime.apt import apt_env, apt_get, apt_lists_present
+
+    argv = ["apt-get", "install", "-s", "--no-install-recommends", *pins]
+    for attempt in range(2):
+        if attempt or not apt_lists_present():
+            probe(apt_get(["update"]), step=step, env=apt_env())
+        proc = probe(argv, step=step, env={**os.environ, "LC_ALL": "C"})
+        missing = missing_versions(proc.stderr + proc.stdout)
+        if not missing:
+            return
+    raise StepError(step, f"LOCKED: {', '.join(missing)} no longer available from apt's "
+                    f"sources ({'; '.join(apt_sources()) or 'none configured'}): the archive "
+                    "dropped the locked version; run `inv lock` to lock what it has now")
+
+
+def repository_commits(root: Path) -> Dict[str, Dict[str, str]]:
+    """path (relative to `root`'s parent, e.g. `upstream/foo`) -> {url, commit} of every git
+    checkout under `root`, nested ones (from nested .repos files) included."""
+    commits: Dict[str, Dict[str, str]] = {}
+    if not root.is_dir():
+        return commits
+    for marker in sorted(root.rglob(".git")):
+        checkout = marker.parent
+        commits[f"{root.name}/{checkout.relative_to(root).as_posix()}"] = {
+            "url": _git(checkout, "config", "--get", "remote.origin.url"),
+            "commit": _git(checkout, "rev-parse", "HEAD"),
+        }
+    return commits
+
+
+def _git(checkout: Path, *args: str) -> str:
+    return subprocess.run(["git", "-C", str(checkout), *args], capture_output=True,
+                          text=True).stdout.strip()
+
+
+def pip_report(requirements: Sequence[str], constraints: Sequence[str] = (), *,
+               step: str = "lock") -> Dict[str, Dict[str, str]]:
+    """name -> {version, sha256} of what `pip install -r` of the requirement lines (under the
+    constraint lines) would install where this runs (`--dry-run --report`, pip >= 22.2)."""
+    if not requirements:
+        return {}
+    import tempfile
+
+    from docker_ros.runtime.process import is_root
+    from docker_ros.steps.pip import (
+        install_flags,
+        probe_python,
+        python_command,
+        requirement_files,
+    )
+
+    python = python_command()
+    flags = install_flags(probe_python(python, step=step), root=is_root())
+    with tempfile.TemporaryDirectory(prefix="docker-ros-lock-pip-") as tmp:
+        path = requirement_files(Path(tmp), requirements, constraints)
+        argv = [python, "-m", "pip", "install", "--dry-run", "--quiet", "--report", "-", *flags,
+                "-r", str(path)]
+        proc = probe(argv, step=step)
+    try:
+        report = json.loads(proc.stdout)
+    except ValueError:
+        raise StepError(step, f"pip cannot resolve {', '.join(requirements)} (exit code "
+                        f"{proc.returncode}): {proc.stderr.strip().splitlines()[-1:]}") from None
+    return parse_pip_report(report)
+
+
 def recorded_inputs(ws: Workspace, rules_file: Optional[Path]) -> Dict[str, Any]:
     """The resolution the collect phases wrote (debs.json, pip.json, rosdep.json) and the rules
     file's digest: what a locked build compares with the lock."""
     inputs: Dict[str, Any] = {
         "debs": sorted(_state(ws, "debs.json").get("packages") or []),
         "pip": sorted(_state(ws, "pip.json").get("requirements") or []),
+        "pip_constraints": sorted(_state(ws, "pip.json").get("constraints") or []),
         "rosdep_rules": file_digest(rules_file),
     }
     for types, chosen in sorted(_state(ws, "rosdep.json").items()):
@@ -318,3 +477,63 @@ def recorded_inputs(ws: Workspace, rules_file: Optional[Path]) -> Dict[str, Any]
 def _state(ws: Workspace, name: str) -> Dict[str, Any]:
     data = ws.read_state(name)
     return dict(data) if isinstance(data, dict) else {}
+
+
+def resolved_entry(ws: Workspace, settings: Any, dependency_types: str, upstream: Path
+                   ) -> Dict[str, Any]:
+    """One image target's lock entry, where its installs run (the resolved-dev or resolved-run
+    state, resolution in .docker-ros): the collect phases' inputs, the imported commits (the
+    source stage's src/upstream at `upstream`), what apt and pip would install now (fresh apt
+    lists). The base image's digest is the host's to add."""
+    inputs = recorded_inputs(ws, rules_path(ws, settings))
+    chosen = _state(ws, "rosdep.json").get(dependency_types) or {}
+    apt = sorted({*inputs["debs"], *(chosen.get("apt") or [])})
+    pip = [*inputs["pip"], *(chosen.get("pip") or [])]
+    constraints = _state(ws, "pip.json").get("constraints") or []
+    return {"inputs": inputs, "repos": repository_commits(upstream),
+            "apt": apt_closure(apt, update=True), "pip": pip_report(pip, constraints)}
+
+
+def rules_path(ws: Workspace, settings: Any) -> Optional[Path]:
+    name = getattr(settings, "rosdep_rules_file", None)
+    return ws.target / name if name else None
+
+
+def check_resolution(ws: Workspace, settings: Any) -> None:
+    """In a locked build's resolve stage, after the collect phases: stop when what they
+    resolved differs from the lock's inputs (before anything is installed, naming each
+    change); then put the lock next to the resolution, where the install stages read it."""
+    entry = active_entry(ws, settings, "lock")
+    if entry is None:
+        return
+    try:
+        check_inputs(entry, recorded_inputs(ws, rules_path(ws, settings)))
+    except LockError as exc:
+        raise StepError("lock", str(exc)) from None
+    ws.state.mkdir(parents=True, exist_ok=True)
+    (ws.state / LOCK_FILE).write_text(lock_file(ws).read_text())
+
+
+def main(argv: List[str]) -> int:
+    """`python3 -m docker_ros.runtime.lock check` (resolve stage) or `... resolve OUT TYPES
+    UPSTREAM` (the lock stages: OUT/<target>.json)."""
+    from docker_ros.runtime.workspace import image_main
+
+    if argv[:1] == ["check"]:
+        return image_main(argv[1:], module="lock check", step="lock", arguments=[],
+                          action=lambda ws, settings, _: check_resolution(ws, settings))
+
+    def write(ws: Workspace, settings: Any, args: List[str]) -> None:
+        out, types, upstream = Path(args[0]), args[1], Path(args[2])
+        entry = resolved_entry(ws, settings, types, upstream)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(dump_lock(entry))
+
+    return image_main(argv[1:], module="lock resolve", step="lock",
+                      arguments=["OUT", "DEPENDENCY_TYPES", "UPSTREAM"], action=write)
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main(sys.argv[1:]))

@@ -39,7 +39,7 @@ def main(
                 plan = ws.load_plan(STEP, STATE_FILE)
             packages: List[str] = list(plan.get("packages") or [])
             packages = locked_arguments(ws, settings, step=STEP, kind="apt",
-                                        inputs=packages) or packages
+                                        inputs=packages, dry_run=dry_run) or packages
             apt_install(
                 packages,
                 step=STEP,

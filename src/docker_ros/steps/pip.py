@@ -185,9 +185,8 @@ def main(
                 plan = ws.load_plan(STEP, STATE_FILE)
             requirements = list(plan.get("requirements") or [])
             what = "installing ADDITIONAL_PIP_FILE requirements"
-            locked = locked_arguments(ws, settings, step=STEP, kind="pip", inputs=requirements)
-            if locked is not None:
-                pip_install(locked, step=STEP, dry_run=dry_run, what=what)
-            else:
-                install_requirements(requirements, list(plan.get("constraints") or []),
-                                     dry_run=dry_run, what=what)
+            # LOCKED: the lines checked against the lock, installed under its versions
+            locked = locked_arguments(ws, settings, step=STEP, kind="pip", inputs=requirements,
+                                      dry_run=dry_run) or []
+            install_requirements(requirements, [*(plan.get("constraints") or []), *locked],
+                                 dry_run=dry_run, what=what)

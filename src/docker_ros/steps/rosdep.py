@@ -409,5 +409,6 @@ def main(
             if plan is None:
                 dry(STEP, f"install the resolved {dependency_types!r} dependencies")
                 return
-            plan = locked_rosdep_plan(ws, settings, plan, dependency_types, STEP)
+            plan = locked_rosdep_plan(ws, settings, plan, dependency_types, STEP,
+                                      dry_run=dry_run)
             apply(plan, dependency_types, dry_run=dry_run)

@@ -1,0 +1,199 @@
+"""docker-ros.lock in image builds (issue 23), with real material: an upstream repository on a
+local git server, real apt in the images, a local wheel index for pip. One module-scoped
+sequence: `inv lock` (resolved in the image's lock stages), then a new upstream commit and a
+newer wheel: the locked build keeps the locked commit and versions (dpkg-query / pip in both
+images equal the lock's entries; both carry the lock's digest), an unlocked dev build takes the
+new ones; a new debs line or a version the archive no longer has stop a locked build, named."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import uuid
+from pathlib import Path
+from typing import Dict, Iterator
+
+import pytest
+
+from docker_ros.runtime.lock import LOCK_FILE, dump_lock, host_platform, lock_digest
+from tests.docker.buildhelp import docker_ros, remove_image, sh, write_env
+from tests.rosfixtures import (
+    file_http_server,
+    git,
+    git_http_server,
+    make_git_repo,
+    make_package,
+    make_wheel,
+    write_repos,
+)
+
+pytestmark = pytest.mark.docker
+IMAGE = "docker-ros-test/lock-ws:1"
+USER, PASSWORD = "robot", "lock-test-secret"
+WHEEL = "docker-ros-lock-probe"
+MODULE = "docker_ros_lock_probe"
+LABEL = "io.github.docker-ros.lock"
+
+
+def dpkg_versions(ref: str) -> Dict[str, str]:
+    listed = sh(ref, "dpkg-query -W -f '${Package} ${Version} ${db:Status-Abbrev}\\n'")
+    assert listed.returncode == 0, listed.stderr
+    return {p[0]: p[1] for p in (line.split() for line in listed.stdout.splitlines())
+            if len(p) == 3 and p[2] == "ii"}
+
+
+def pip_versions(ref: str) -> Dict[str, str]:
+    frozen = sh(ref, "python3 -m pip freeze --all 2>/dev/null")
+    assert frozen.returncode == 0, frozen.stderr
+    return {n.lower().replace("_", "-"): v for n, _, v in
+            (line.partition("==") for line in frozen.stdout.splitlines()) if v}
+
+
+@pytest.fixture(scope="module")
+def project(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
+    base = tmp_path_factory.mktemp("lock-ws")
+    libs = base / "work" / "upstream_libs"
+    make_package(libs / "up_a", "up_a")
+    (libs / "VERSION").write_text("one\n")
+    remotes = base / "remotes"
+    remotes.mkdir()
+    make_git_repo(libs, {}, bare_copy_to=remotes / "upstream_libs.git")
+    server = git_http_server(remotes, USER, PASSWORD)
+    host = f"127.0.0.1:{server.server_address[1]}"
+    # a wheel index of this run (a new path: no cached layer of an earlier run stands for it)
+    served = base / "served"
+    wheels = served / uuid.uuid4().hex
+    wheels.mkdir(parents=True)
+    make_wheel(wheels, MODULE, "1.0")
+    index = file_http_server(served)
+
+    repo = base / "repo"
+    # rosdep key my_tool -> sl (exec: dev and run), from the repository's own rules
+    make_package(repo / "app", "app", exec_depends=["my_tool"])
+    (repo / "docker").mkdir()
+    (repo / "docker" / "rosdep.yaml").write_text(
+        f"# run {uuid.uuid4().hex}\nmy_tool:\n  debian: [sl]\n")
+    (repo / "docker" / "additional-debs.txt").write_text("cmatrix\n")
+    (repo / "docker" / "additional-pip-requirements.txt").write_text(
+        f"--no-index --find-links http://127.0.0.1:{index.server_address[1]}/{wheels.name}/\n"
+        f"{MODULE}\n")
+    write_repos(repo / ".repos", {"upstream_libs": {"url": f"http://{host}/upstream_libs.git",
+                                                    "version": "main"}})
+    write_env(repo, BASE_IMAGE=ros1_base_image, IMAGE=IMAGE, TARGET="dev,run",
+              COMMAND="up_a_node", BUILD_NETWORK="host", GIT_HTTPS_SERVER=host,
+              GIT_HTTPS_USER=USER)
+    env = {"GIT_HTTPS_PASSWORD": PASSWORD}
+    locked = docker_ros(repo, "lock", env=env)
+    assert locked.returncode == 0, locked.stdout[-5000:]
+    first = git(["rev-parse", "HEAD"], libs).strip()
+    # then upstream and the index move on: a new commit, a newer wheel
+    (libs / "VERSION").write_text("two\n")
+    git(["commit", "-qam", "two"], libs)
+    git(["push", "-q", str(remotes / "upstream_libs.git"), "HEAD:main"], libs)
+    make_wheel(wheels, MODULE, "1.1")
+    build = docker_ros(repo, "build", "--set", "LOCKED=true", env=env)
+    try:
+        yield {"repo": repo, "env": env, "lock_log": locked.stdout, "build": build,
+               "first": first, "newest": git(["rev-parse", "HEAD"], libs).strip()}
+    finally:
+        server.shutdown()
+        server.server_close()
+        index.shutdown()
+        index.server_close()
+        for ref in (IMAGE, IMAGE + "-dev"):
+            remove_image(ref)
+
+
+def entries(project: dict) -> Dict[str, dict]:
+    return json.loads((project["repo"] / LOCK_FILE).read_text())["targets"]
+
+
+def test_inv_lock_resolves_each_target_in_the_images(project: dict) -> None:
+    arch = host_platform()
+    targets = entries(project)
+    assert sorted(targets) == [f"dev/{arch}", f"run/{arch}"]
+    assert "lock-results" in project["lock_log"]  # the lock stages, not an image build
+    assert "lock: " in project["lock_log"].strip().splitlines()[-1]
+    for entry in targets.values():
+        assert entry["repos"]["upstream/upstream_libs"]["commit"] == project["first"]
+        assert {"sl", "cmatrix"} <= set(entry["apt"])
+        assert entry["pip"][WHEEL]["version"] == "1.0"
+        assert entry["inputs"]["debs"] == ["cmatrix"]
+        assert entry["inputs"]["rosdep_rules"].startswith("sha256:")
+        assert entry["base_image"]["digest"].startswith("sha256:")
+
+
+def test_lock_check_names_the_new_upstream_commit(project: dict) -> None:
+    checked = docker_ros(project["repo"], "lock", "--check", env=project["env"])
+    assert checked.returncode != 0, checked.stdout[-3000:]
+    lines = checked.stdout.splitlines()
+    arch = host_platform()
+    moved = [line for line in lines
+             if line.startswith(f"dev/{arch}: repos upstream/upstream_libs ")]
+    assert moved and project["first"] in moved[0] and project["newest"] in moved[0], lines[-20:]
+    newer = [line for line in lines if line.startswith(f"run/{arch}: pip {WHEEL} ")]
+    assert newer and "'version': '1.0'" in newer[0] and "'version': '1.1'" in newer[0], lines[-20:]
+    assert "docker-ros.lock is stale: run `inv lock`" in checked.stdout.strip().splitlines()[-1]
+
+
+def test_locked_build_installs_exactly_the_lock(project: dict) -> None:
+    build = project["build"]
+    assert build.returncode == 0, build.stdout[-5000:]
+    assert "lock: locked build, docker-ros.lock sha256:" in build.stdout
+    digest = lock_digest((project["repo"] / LOCK_FILE).read_text())
+    arch = host_platform()
+    for ref, target in ((IMAGE + "-dev", "dev"), (IMAGE, "run")):
+        entry = entries(project)[f"{target}/{arch}"]
+        inspected = json.loads(subprocess.run(["docker", "image", "inspect", ref],
+                                              capture_output=True, text=True).stdout)
+        assert inspected[0]["Config"]["Labels"][LABEL] == digest
+        installed = dpkg_versions(ref)
+        assert {n: installed.get(n) for n in entry["apt"]} == entry["apt"], target
+        pips = pip_versions(ref)
+        assert {n: pips.get(n) for n in entry["pip"]} == {
+            n: e["version"] for n, e in entry["pip"].items()}, target
+    # the locked commit, not upstream's newest
+    version = sh(IMAGE + "-dev", "cat /docker-ros/ws/src/upstream/upstream_libs/VERSION")
+    assert version.stdout.strip() == "one", version.stdout + version.stderr
+
+
+def test_unlocked_build_takes_the_new_commit_and_wheel(project: dict) -> None:
+    unlocked = docker_ros(project["repo"], "build", "--target", "dev", env=project["env"])
+    assert unlocked.returncode == 0, unlocked.stdout[-5000:]
+    assert "lock: not in use" in unlocked.stdout
+    version = sh(IMAGE + "-dev", "cat /docker-ros/ws/src/upstream/upstream_libs/VERSION")
+    assert version.stdout.strip() == "two", version.stdout + version.stderr
+    assert pip_versions(IMAGE + "-dev")[WHEEL] == "1.1"
+
+
+def locked_build_with(project: dict, path: Path, text: str) -> subprocess.CompletedProcess:
+    """A locked build with `path` holding `text`, then the file as it was."""
+    before = path.read_text()
+    path.write_text(text)
+    try:
+        return docker_ros(project["repo"], "build", "--set", "LOCKED=true", env=project["env"])
+    finally:
+        path.write_text(before)
+
+
+def test_locked_build_stops_on_a_new_dependency_naming_it(project: dict) -> None:
+    debs = project["repo"] / "docker" / "additional-debs.txt"
+    failed = locked_build_with(project, debs, debs.read_text() + "figlet\n")
+    assert failed.returncode != 0, failed.returncode
+    lines = failed.stdout.strip().splitlines() or [f"(no output, exit {failed.returncode})"]
+    last = lines[-1]
+    # in the resolve stage, after the collect phases: before any install stage starts
+    assert "failed in step lock: LOCKED: the repository no longer matches docker-ros.lock " \
+           "(debs: added figlet): run `inv lock`" in last, failed.stdout[-3000:]
+
+
+def test_locked_version_no_longer_available_is_named_with_its_source(project: dict) -> None:
+    path = project["repo"] / LOCK_FILE
+    data = json.loads(path.read_text())
+    for entry in data["targets"].values():
+        entry["apt"]["cmatrix"] = "0.0-gone1"
+    failed = locked_build_with(project, path, dump_lock(data))
+    assert failed.returncode != 0
+    assert "LOCKED: cmatrix=0.0-gone1 no longer available from apt's sources (" in failed.stdout, \
+        failed.stdout[-3000:]
+    assert "deb.debian.org" in failed.stdout.split("cmatrix=0.0-gone1 no longer available")[1]
