@@ -15,7 +15,14 @@ from typing import Dict, Iterator
 
 import pytest
 
-from docker_ros.runtime.lock import LOCK_FILE, dump_lock, host_platform, lock_digest
+from docker_ros import engine
+from docker_ros.runtime.lock import (
+    LOCK_FILE,
+    dump_lock,
+    host_platform,
+    local_base_tag,
+    lock_digest,
+)
 from tests.docker.buildhelp import docker_ros, remove_image, sh, write_env
 from tests.rosfixtures import (
     file_http_server,
@@ -102,6 +109,8 @@ def project(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> I
         index.server_close()
         for ref in (IMAGE, IMAGE + "-dev"):
             remove_image(ref)
+        # the tag a locked build gave the local base image (an untag: the image stays)
+        remove_image(local_base_tag(ros1_base_image, engine.inspect_image(ros1_base_image)["Id"]))
 
 
 def entries(project: dict) -> Dict[str, dict]:
