@@ -548,11 +548,13 @@ def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str
 
 def import_inputs(settings: Settings, repository: Path) -> List[str]:
     """What the image's upstream stage imports from: the repository's .repos files (relative
-    paths), as the clone step finds them there. None when a before-dependency-identification
-    hook exists: it runs first and may change them, so the source stage imports instead."""
-    if (repository / settings.before_dependency_identification_script).is_file():
-        return []
+    paths), as the clone step finds them there, and with LOCKED docker-ros.lock (the commits
+    it imports at). None when a before-dependency-identification hook exists: it runs first
+    and may change them, so the source stage imports instead (the lock still comes along: the
+    clone step of a locked build reads it, even when it imports nothing)."""
     found = [LOCK_FILE] if settings.locked and (repository / LOCK_FILE).is_file() else []
+    if (repository / settings.before_dependency_identification_script).is_file():
+        return found
     top = repository / settings.vcs_import_file
     if top.is_file():
         found.append(settings.vcs_import_file)

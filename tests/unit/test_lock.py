@@ -268,3 +268,22 @@ def test_lock_status_says_whether_a_lock_is_in_use(tmp_path: Path):
     assert status() == "lock: not in use (LOCKED=false; docker-ros.lock present)"
     assert status(LOCKED="true") == (f"lock: locked build, docker-ros.lock {lock.lock_digest(text)}"
                                      " (dev/amd64, run/amd64)")
+
+
+def test_a_locked_build_takes_the_lock_into_its_imports_even_with_a_hook(tmp_path: Path):
+    from docker_ros import build
+    from docker_ros.settings import load_settings
+
+    (tmp_path / ".repos").write_text("repositories: {}\n")
+    (tmp_path / lock.LOCK_FILE).write_text(lock.dump_lock({"format": 1, "targets": {}}))
+
+    def imports(**environ):
+        return build.import_inputs(load_settings(environ=environ, project_dir=tmp_path),
+                                   tmp_path)
+
+    assert imports() == [".repos"]  # unlocked: the imports image is unchanged
+    assert imports(LOCKED="true") == [lock.LOCK_FILE, ".repos"]
+    (tmp_path / "docker").mkdir()
+    (tmp_path / "docker" / "before_dependency_identification.sh").write_text("true\n")
+    assert imports() == []
+    assert imports(LOCKED="true") == [lock.LOCK_FILE]
