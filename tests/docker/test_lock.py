@@ -206,3 +206,14 @@ def test_locked_version_no_longer_available_is_named_with_its_source(project: di
     assert "LOCKED: cmatrix=0.0-gone1 no longer available from apt's sources (" in failed.stdout, \
         failed.stdout[-3000:]
     assert "deb.debian.org" in failed.stdout.split("cmatrix=0.0-gone1 no longer available")[1]
+
+
+def test_locked_pip_version_no_longer_available_is_named_with_its_source(project: dict) -> None:
+    path = project["repo"] / LOCK_FILE
+    data = json.loads(path.read_text())
+    for entry in data["targets"].values():
+        entry["pip"][WHEEL]["version"] = "0.9"
+    failed = locked_build_with(project, path, dump_lock(data))
+    assert failed.returncode != 0
+    assert f"LOCKED: {WHEEL}==0.9 no longer available from pip's sources (http://127.0.0.1:" \
+        in failed.stdout, failed.stdout[-3000:]

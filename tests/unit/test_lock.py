@@ -287,3 +287,16 @@ def test_a_locked_build_takes_the_lock_into_its_imports_even_with_a_hook(tmp_pat
     (tmp_path / "docker" / "before_dependency_identification.sh").write_text("true\n")
     assert imports() == []
     assert imports(LOCKED="true") == [lock.LOCK_FILE]
+
+
+def test_a_locked_pip_version_pip_cannot_find_is_named_with_the_sources():
+    stderr = ("ERROR: Could not find a version that satisfies the requirement "
+              "docker_ros_lock_probe (from versions: 1.0, 1.1)\n"
+              "ERROR: No matching distribution found for docker_ros_lock_probe\n")
+    constraints = ["docker-ros-lock-probe==0.9", "six==1.16.0"]
+    assert lock.unavailable_pins(stderr, constraints) == ["docker-ros-lock-probe==0.9"]
+    requirements = ["--no-index --find-links http://127.0.0.1:8000/w/", "docker_ros_lock_probe"]
+    assert lock.pip_sources(requirements, {}) == ["http://127.0.0.1:8000/w/"]
+    assert lock.pip_sources(["six"], {}) == ["https://pypi.org/simple (pip's default index)"]
+    assert lock.pip_sources(["six"], {"PIP_INDEX_URL": "http://mirror/simple"}) == [
+        "http://mirror/simple"]

@@ -286,7 +286,10 @@ def locked_arguments(
             if not dry_run:  # (a dry run neither updates apt's lists nor asks them)
                 check_available(pins, step=step)
             return pins
-        return pip_constraints(entry.get("pip") or {})
+        constraints = pip_constraints(entry.get("pip") or {})
+        if constraints and not dry_run:
+            check_pip_available(inputs, constraints, step=step)
+        return constraints
     except LockError as exc:
         raise StepError(step, str(exc)) from None
 
@@ -427,12 +430,10 @@ def _git(checkout: Path, *args: str) -> str:
                           text=True).stdout.strip()
 
 
-def pip_report(requirements: Sequence[str], constraints: Sequence[str] = (), *,
-               step: str = "lock") -> Dict[str, Dict[str, str]]:
-    """name -> {version, sha256} of what `pip install -r` of the requirement lines (under the
-    constraint lines) would install where this runs (`--dry-run --report`, pip >= 22.2)."""
-    if not requirements:
-        return {}
+def pip_dry_run(requirements: Sequence[str], constraints: Sequence[str], options: Sequence[str],
+                *, step: str) -> "subprocess.CompletedProcess[str]":
+    """`pip install --dry-run -r` of the requirement lines under the constraint lines, with
+    the flags the pip step would use where this runs (PEP 668, --user)."""
     import tempfile
 
     from docker_ros.runtime.process import is_root
@@ -447,15 +448,62 @@ def pip_report(requirements: Sequence[str], constraints: Sequence[str] = (), *,
     flags = install_flags(probe_python(python, step=step), root=is_root())
     with tempfile.TemporaryDirectory(prefix="docker-ros-lock-pip-") as tmp:
         path = requirement_files(Path(tmp), requirements, constraints)
-        argv = [python, "-m", "pip", "install", "--dry-run", "--quiet", "--report", "-", *flags,
-                "-r", str(path)]
-        proc = probe(argv, step=step)
+        return probe([python, "-m", "pip", "install", "--dry-run", "--quiet", *options, *flags,
+                      "-r", str(path)], step=step)
+
+
+def pip_report(requirements: Sequence[str], constraints: Sequence[str] = (), *,
+               step: str = "lock") -> Dict[str, Dict[str, str]]:
+    """name -> {version, sha256} of what `pip install -r` of the requirement lines (under the
+    constraint lines) would install where this runs (`--dry-run --report`, pip >= 22.2)."""
+    if not requirements:
+        return {}
+    proc = pip_dry_run(requirements, constraints, ["--report", "-"], step=step)
     try:
         report = json.loads(proc.stdout)
     except ValueError:
         raise StepError(step, f"pip cannot resolve {', '.join(requirements)} (exit code "
                         f"{proc.returncode}): {proc.stderr.strip().splitlines()[-1:]}") from None
     return parse_pip_report(report)
+
+
+# pip's words for a requirement no version of which it can install
+PIP_NO_MATCH = re.compile(r"No matching distribution found for ([A-Za-z0-9][A-Za-z0-9._-]*)")
+PIP_SOURCE = re.compile(r"(?:--index-url|--extra-index-url|--find-links|-i|-f)[ =]+(\S+)")
+
+
+def pip_sources(requirements: Sequence[str], environ: Optional[Mapping[str, str]] = None
+                ) -> List[str]:
+    """Where pip looks: the requirement files' index and find-links options, pip's environment
+    variables, else PyPI."""
+    env = os.environ if environ is None else environ
+    found = [m for line in requirements if line.startswith("-") for m in PIP_SOURCE.findall(line)]
+    found += [env[v] for v in ("PIP_INDEX_URL", "PIP_EXTRA_INDEX_URL", "PIP_FIND_LINKS")
+              if env.get(v)]
+    if not any("--index-url" in line or line.startswith("-i") or "--no-index" in line
+               for line in requirements) and not env.get("PIP_INDEX_URL"):
+        found.append("https://pypi.org/simple (pip's default index)")
+    return found
+
+
+def unavailable_pins(pip_stderr: str, constraints: Sequence[str]) -> List[str]:
+    """The locked `name==version` lines of the requirements pip found no distribution for."""
+    pinned = {pip_name(line): line for line in constraints}
+    return [pinned[pip_name(n)] for n in PIP_NO_MATCH.findall(pip_stderr) if pip_name(n) in pinned]
+
+
+def check_pip_available(requirements: Sequence[str], constraints: Sequence[str], *,
+                        step: str) -> None:
+    """Stop before installing when pip's sources no longer hold a locked version, naming each
+    package, its version and the sources (another failure is left to the install to report)."""
+    if not requirements or not constraints:
+        return
+    proc = pip_dry_run(requirements, constraints, [], step=step)
+    missing = unavailable_pins(proc.stderr, constraints) if proc.returncode else []
+    if missing:
+        raise StepError(step, f"LOCKED: {', '.join(missing)} no longer available from pip's "
+                        f"sources ({'; '.join(pip_sources(requirements))}): run `inv lock` to "
+                        "lock what they have now")
 
 
 def recorded_inputs(ws: Workspace, rules_file: Optional[Path]) -> Dict[str, Any]:
