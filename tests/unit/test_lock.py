@@ -295,6 +295,11 @@ def test_a_locked_pip_version_pip_cannot_find_is_named_with_the_sources():
               "ERROR: No matching distribution found for docker_ros_lock_probe\n")
     constraints = ["docker-ros-lock-probe==0.9", "six==1.16.0"]
     assert lock.unavailable_pins(stderr, constraints) == ["docker-ros-lock-probe==0.9"]
+    impossible = ("ERROR: Cannot install docker_ros_lock_probe because these package versions "
+                  "have conflicting dependencies.\n    The user requested docker_ros_lock_probe\n"
+                  "    The user requested (constraint) docker-ros-lock-probe==0.9\n"
+                  "ERROR: ResolutionImpossible: for help visit https://pip.pypa.io/\n")
+    assert lock.unavailable_pins(impossible, constraints) == ["docker-ros-lock-probe==0.9"]
     requirements = ["--no-index --find-links http://127.0.0.1:8000/w/", "docker_ros_lock_probe"]
     assert lock.pip_sources(requirements, {}) == ["http://127.0.0.1:8000/w/"]
     assert lock.pip_sources(["six"], {}) == ["https://pypi.org/simple (pip's default index)"]

@@ -448,7 +448,7 @@ def pip_dry_run(requirements: Sequence[str], constraints: Sequence[str], options
     flags = install_flags(probe_python(python, step=step), root=is_root())
     with tempfile.TemporaryDirectory(prefix="docker-ros-lock-pip-") as tmp:
         path = requirement_files(Path(tmp), requirements, constraints)
-        return probe([python, "-m", "pip", "install", "--dry-run", "--quiet", *options, *flags,
+        return probe([python, "-m", "pip", "install", "--dry-run", *options, *flags,
                       "-r", str(path)], step=step)
 
 
@@ -458,7 +458,7 @@ def pip_report(requirements: Sequence[str], constraints: Sequence[str] = (), *,
     constraint lines) would install where this runs (`--dry-run --report`, pip >= 22.2)."""
     if not requirements:
         return {}
-    proc = pip_dry_run(requirements, constraints, ["--report", "-"], step=step)
+    proc = pip_dry_run(requirements, constraints, ["--quiet", "--report", "-"], step=step)
     try:
         report = json.loads(proc.stdout)
     except ValueError:
@@ -486,10 +486,18 @@ def pip_sources(requirements: Sequence[str], environ: Optional[Mapping[str, str]
     return found
 
 
+# with constraints pip says ResolutionImpossible, naming the constraints it could not meet
+PIP_CONSTRAINT = re.compile(r"The user requested \(constraint\) ([A-Za-z0-9][A-Za-z0-9._-]*)==")
+
+
 def unavailable_pins(pip_stderr: str, constraints: Sequence[str]) -> List[str]:
-    """The locked `name==version` lines of the requirements pip found no distribution for."""
+    """The locked `name==version` lines pip could not meet: no distribution found for the
+    requirement, or (under the constraints) no version matching the locked one."""
     pinned = {pip_name(line): line for line in constraints}
-    return [pinned[pip_name(n)] for n in PIP_NO_MATCH.findall(pip_stderr) if pip_name(n) in pinned]
+    names = PIP_NO_MATCH.findall(pip_stderr)
+    if "ResolutionImpossible" in pip_stderr:
+        names += PIP_CONSTRAINT.findall(pip_stderr)
+    return sorted({pinned[pip_name(n)] for n in names if pip_name(n) in pinned})
 
 
 def check_pip_available(requirements: Sequence[str], constraints: Sequence[str], *,
@@ -499,7 +507,7 @@ def check_pip_available(requirements: Sequence[str], constraints: Sequence[str],
     if not requirements or not constraints:
         return
     proc = pip_dry_run(requirements, constraints, [], step=step)
-    missing = unavailable_pins(proc.stderr, constraints) if proc.returncode else []
+    missing = unavailable_pins(proc.stdout + proc.stderr, constraints) if proc.returncode else []
     if missing:
         raise StepError(step, f"LOCKED: {', '.join(missing)} no longer available from pip's "
                         f"sources ({'; '.join(pip_sources(requirements))}): run `inv lock` to "
