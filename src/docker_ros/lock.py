@@ -154,7 +154,7 @@ def image_entries(settings: Settings, platform: str, out: Any) -> Dict[str, Dict
     """The dev and run entries of one platform, resolved in the image's lock stages (their
     lock-results exported to a folder here: no image is built or tagged), with the base
     image's digest added."""
-    from docker_ros.build import build_images
+    from docker_ros.build import build_images, platform_base
 
     unlocked = replace(settings, locked=False)  # resolve afresh, whatever the lock says
     with tempfile.TemporaryDirectory(prefix="docker-ros-lock-") as tmp:
@@ -163,7 +163,9 @@ def image_entries(settings: Settings, platform: str, out: Any) -> Dict[str, Dict
                      extra_build_args={"DOCKER_ROS_LOCK_RUN": uuid.uuid4().hex}, bake=False)
         entries = {target_key(t, platform): json.loads((Path(tmp) / f"{t}.json").read_text())
                    for t in IMAGE_TARGETS}
-    record = base_image(settings.base_image or "")
+    # the digest of the image this platform builds from (BASE_IMAGE or its -<arch> image)
+    built_from, _ = platform_base(settings, platform)
+    record = base_image_record(settings.base_image or "", engine.inspect_image(built_from))
     return {key: {**entry, "base_image": record} for key, entry in entries.items()}
 
 
