@@ -1,9 +1,9 @@
 """Settings: declarations, precedence, strict parsing, derived defaults, README table."""
 
-import re
 from pathlib import Path
 
 import pytest
+import yaml
 
 from docker_ros import readme
 from docker_ros.settings import (
@@ -18,7 +18,7 @@ from docker_ros.settings import (
 )
 
 README = Path(__file__).resolve().parents[2] / "README.md"
-REFERENCE = Path(__file__).resolve().parents[3] / "shared" / "reference" / "docker-ros-README.md"
+REFERENCE = Path(__file__).resolve().parent / "data" / "docker-ros-readme-defaults.yml"
 
 
 def load(**layers):
@@ -204,17 +204,9 @@ def test_unset_values_stay_unset():
 
 
 def reference_defaults():
-    """Variable -> default text from the original docker-ros README."""
-    if not REFERENCE.is_file():
-        pytest.skip(f"{REFERENCE} not found (shared/ must sit beside the checkout)")
-    text = REFERENCE.read_text()
-    out = {}
-    for block in text.split("- **`")[1:]:
-        names = re.findall(r"`([A-Z_]+)`", block.split("\n", 1)[0])
-        default = re.search(r"\*default:\*\s*(.*)", block)
-        if names:
-            out[names[-1]] = default.group(1).strip() if default else None
-    return out
+    """Variable -> default text from the original docker-ros README (recorded in
+    tests/unit/data)."""
+    return yaml.safe_load(REFERENCE.read_text())
 
 
 def test_every_docker_ros_variable_is_declared_with_its_default():
