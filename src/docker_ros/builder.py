@@ -4,6 +4,7 @@ driver can export as cache, where `--load` puts the images, and which engine hol
 from __future__ import annotations
 
 import functools
+import json
 import os
 import subprocess
 from dataclasses import dataclass
@@ -110,10 +111,26 @@ def inspect(name: str, environ: Mapping[str, str]) -> Builder:
                    bool(host) and containerd_store(host, environ))
 
 
+def chosen_elsewhere(environ: Mapping[str, str]) -> bool:
+    """Whether anything but BUILDER may pick another builder than the local engine's own:
+    BUILDX_BUILDER, a docker context, or `docker buildx use` (buildx's `current` file)."""
+    if environ.get("BUILDX_BUILDER") or engine.current_context(environ) != "default":
+        return True
+    try:
+        current = json.loads((engine.docker_config_dir(environ) / "buildx" / "current"
+                              ).read_text())
+    except (OSError, ValueError):
+        return False
+    return bool(isinstance(current, dict) and current.get("Name"))
+
+
 @functools.lru_cache(maxsize=None)
 def selected(name: str, cache_to: bool) -> Builder:
     """The builder of this run, inspected once: the SDK client follows the engine holding the
-    images, and one line says which builder, what --load means there and the cache choice."""
+    images, and one line says which builder, what --load means there and the cache choice.
+    A plain local build (no builder chosen anywhere, no CACHE_TO) costs no inspection."""
+    if not name and not cache_to and not chosen_elsewhere(os.environ):
+        return Builder("default", "docker", "default", engine.cli_host(os.environ), False)
     builder = inspect(name, os.environ)
     cli_host = engine.cli_host(os.environ)
     engine.bind(images_host(builder, cli_host))

@@ -123,3 +123,16 @@ def test_cache_to_and_builder_are_derived_in_ci_only():
     given = load_settings(environ={**gitlab, "CACHE_TO": "x/y:c", "BUILDER": "bk"},
                           project_dir=Path("/tmp/p"))
     assert (given.cache_to, given.builder) == ("x/y:c", "bk")
+
+
+def test_a_builder_is_chosen_elsewhere_by_env_context_or_buildx_use(tmp_path: Path):
+    environ = {"DOCKER_CONFIG": str(tmp_path)}
+    assert not builder.chosen_elsewhere(environ)
+    assert builder.chosen_elsewhere({**environ, "BUILDX_BUILDER": "bk"})
+    assert builder.chosen_elsewhere({**environ, "DOCKER_CONTEXT": "e26"})
+    (tmp_path / "buildx").mkdir()
+    current = tmp_path / "buildx" / "current"
+    current.write_text(json.dumps({"Key": LOCAL, "Name": "", "Global": False}))
+    assert not builder.chosen_elsewhere(environ)
+    current.write_text(json.dumps({"Key": LOCAL, "Name": "bk", "Global": False}))
+    assert builder.chosen_elsewhere(environ)
