@@ -84,9 +84,14 @@ def run_until(ref: str, needle: str, seconds: float, *docker_args: str) -> str:
     proc = subprocess.Popen(["docker", "run", "--rm", "--name", name, *docker_args, ref],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: queue.Queue[str] = queue.Queue()
-    assert proc.stdout is not None
-    reader = threading.Thread(target=lambda: [lines.put(line) for line in proc.stdout],
-                              daemon=True)
+    stdout = proc.stdout
+    assert stdout is not None
+
+    def pump() -> None:
+        for line in stdout:
+            lines.put(line)
+
+    reader = threading.Thread(target=pump, daemon=True)
     reader.start()
     seen: List[str] = []
     deadline = time.monotonic() + seconds
