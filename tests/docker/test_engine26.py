@@ -55,10 +55,11 @@ def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
         "variables:\n  TARGET: dev,run\n")
     git(repo, "add", "-A")
     git(repo, "commit", "-qm", "ci")
+    secret = f"docker-ros-test-secret-{uuid.uuid4().hex}"
     result = pipeline(repo, local_registry, engine26, ENABLE_SLIM="true",
-                      ENABLE_INDUSTRIAL_CI="true")
+                      ENABLE_INDUSTRIAL_CI="true", GIT_HTTPS_PASSWORD=secret)
     return {"repo": repo, "registry": local_registry, "result": result,
-            "build": build_log(repo)}
+            "build": build_log(repo), "secret": secret, "host": engine26}
 
 
 def test_ci_template_builds_tests_slims_and_pushes_on_engine26(first_pipeline: dict) -> None:
@@ -74,6 +75,19 @@ def test_ci_template_builds_tests_slims_and_pushes_on_engine26(first_pipeline: d
     tags = registry_tags(first_pipeline["registry"], IMAGE)
     assert {"latest", "latest-dev", "latest-slim", "latest-build-state-amd64",
             "latest-cache-dev-amd64", "latest-cache-run-amd64"} <= set(tags), tags
+
+
+def test_the_secret_stays_out_of_engine26_images_and_the_log(first_pipeline: dict) -> None:
+    assert first_pipeline["result"].returncode == 0
+    secret = first_pipeline["secret"]
+    assert secret not in first_pipeline["build"]
+    env = {**os.environ, "DOCKER_HOST": first_pipeline["host"]}
+    for tag in ("latest", "latest-dev", "latest-slim"):
+        ref = f"{first_pipeline['registry']}/{IMAGE}:{tag}"
+        for argv in (["docker", "history", "--no-trunc", ref], ["docker", "image", "inspect", ref]):
+            shown = subprocess.run(argv, env=env, capture_output=True, text=True)
+            assert shown.returncode == 0, shown.stderr
+            assert secret not in shown.stdout, argv
 
 
 def test_images_pushed_from_engine26_run_on_the_shared_engine(first_pipeline: dict) -> None:
