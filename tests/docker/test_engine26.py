@@ -45,8 +45,9 @@ def build_log(repo: Path) -> str:
 
 @pytest.fixture(scope="module")
 def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
-                   tmp_path_factory: pytest.TempPathFactory) -> Dict[str, object]:
-    """The example's main-branch pipeline on Engine 26: build, test, slim, push, manifest."""
+                   tmp_path_factory: pytest.TempPathFactory) -> Iterator[Dict[str, object]]:
+    """The example's main-branch pipeline on Engine 26: build, test, slim, push, manifest.
+    Engine 26 keeps no image of it afterwards (the names hold this run's registry port)."""
     repo = example_repository(tmp_path_factory.mktemp("engine26"), ros1_base_image)
     (repo / ".gitlab-ci").mkdir()
     shutil.copy(REPO / ".gitlab-ci" / "docker-ros.yml", repo / ".gitlab-ci" / "docker-ros.yml")
@@ -58,8 +59,14 @@ def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
     secret = f"docker-ros-test-secret-{uuid.uuid4().hex}"
     result = pipeline(repo, local_registry, engine26, ENABLE_SLIM="true",
                       ENABLE_INDUSTRIAL_CI="true", GIT_HTTPS_PASSWORD=secret)
-    return {"repo": repo, "registry": local_registry, "result": result,
-            "build": build_log(repo), "secret": secret, "host": engine26}
+    yield {"repo": repo, "registry": local_registry, "result": result,
+           "build": build_log(repo), "secret": secret, "host": engine26}
+    env = {**os.environ, "DOCKER_HOST": engine26}
+    listed = subprocess.run(["docker", "images", "--format", "{{.Repository}}:{{.Tag}}"],
+                            env=env, capture_output=True, text=True)
+    mine = [ref for ref in listed.stdout.split() if ref.startswith(f"{local_registry}/")]
+    if mine:
+        subprocess.run(["docker", "rmi", "-f", *mine], env=env, capture_output=True)
 
 
 def test_ci_template_builds_tests_slims_and_pushes_on_engine26(first_pipeline: dict) -> None:
@@ -156,7 +163,11 @@ def test_build_server_through_a_docker_context_pushes_to_the_registry(
     write_env(project, BASE_IMAGE=ros1_base_image, IMAGE=ref, TARGET="dev,run",
               COMMAND="roslaunch docker_ros_example talker_listener.launch",
               BUILDER=engine26_context, CACHE_TO=f"{ref}-cache", BUILD_NETWORK="host")
-    result = docker_ros(project, "push")
+    try:
+        result = docker_ros(project, "push")
+    finally:  # the build server keeps nothing of this test
+        subprocess.run(["docker", "rmi", "-f", ref, f"{ref}-dev"], capture_output=True,
+                       env={**os.environ, "DOCKER_HOST": ENGINE26_HOST})
     assert result.returncode == 0, result.stdout[-6000:]
     assert (f"builder: {engine26_context} (docker driver of the engine at {ENGINE26_HOST}: "
             "--load keeps the images in that engine, not the local one") in result.stdout
