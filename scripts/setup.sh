@@ -12,6 +12,17 @@ BUILDX_SUITE="${BUILDX_SUITE:-trixie}"
 PLUGIN_DIR="${DOCKER_CONFIG:-$HOME/.docker}/cli-plugins"
 PIP_STAMP="${XDG_CACHE_HOME:-$HOME/.cache}/docker-ros/setup-pip.stamp"
 BINFMT_DIR=/proc/sys/fs/binfmt_misc
+# The second, modern engine (Docker 26 with the containerd image store) beside the first:
+# its own binaries, data root, exec root, bridge and socket (DOCKER_ROS_ENGINE26=false: none).
+ENGINE26="${DOCKER_ROS_ENGINE26:-true}"
+ENGINE26_SUITE="${ENGINE26_SUITE:-trixie}"
+ENGINE26_ROOT="${ENGINE26_ROOT:-/opt/docker-ros-engine26}"
+ENGINE26_RUN=/run/docker-ros-engine26
+ENGINE26_HOST="unix://$ENGINE26_RUN/docker.sock"
+ENGINE26_DATA="${ENGINE26_DATA:-/var/lib/docker-ros-engine26}"
+ENGINE26_LOG="${ENGINE26_LOG:-/var/log/docker-ros-engine26.log}"
+ENGINE26_BRIDGE=dr-engine26
+ENGINE26_SUBNET=172.29.26.1/24
 CHANGED=0
 START=$SECONDS
 
@@ -66,6 +77,36 @@ if [ ${#MISSING_DEBS[@]} -gt 0 ]; then
         apt-get install -y -q -o Dpkg::Use-Pty=0 --no-install-recommends "${MISSING_DEBS[@]}"
 fi
 
+TMP="$(mktemp -d)"
+trap 'rm -rf "$TMP"' EXIT
+
+# fetch_debs SUITE DEST PKG...: download packages of another Debian suite (a temporary apt list,
+# never touching the host's) and unpack them into DEST.
+fetch_debs() {
+    local suite=$1 dest=$2 apt_dir deb
+    shift 2
+    apt_dir="$TMP/apt-$suite"
+    if [ ! -e /usr/share/keyrings/debian-archive-keyring.gpg ]; then
+        "${SUDO[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q debian-archive-keyring
+    fi
+    local apt_tmp=(
+        -o "Dir::Etc::SourceList=$apt_dir/sources.list" -o "Dir::Etc::SourceParts=$apt_dir/parts"
+        -o "Dir::State::Lists=$apt_dir/lists" -o "Dir::Cache=$apt_dir/cache"
+        -o APT::Sandbox::User=root -q
+    )
+    if [ ! -d "$apt_dir" ]; then
+        mkdir -p "$apt_dir/lists/partial" "$apt_dir/parts" "$apt_dir/cache/archives/partial" "$apt_dir/debs"
+        echo "deb [signed-by=/usr/share/keyrings/debian-archive-keyring.gpg] $MIRROR $suite main" \
+            >"$apt_dir/sources.list"
+        apt-get "${apt_tmp[@]}" update >/dev/null
+    fi
+    (cd "$apt_dir/debs" && apt-get "${apt_tmp[@]}" download "$@" >/dev/null)
+    mkdir -p "$dest"
+    for deb in "$@"; do
+        dpkg-deb -x "$apt_dir/debs/${deb}"_*.deb "$dest"
+    done
+}
+
 # --- Docker daemon ---
 if docker info >/dev/null 2>&1; then
     ok "docker daemon"
@@ -89,25 +130,49 @@ elif apt-cache show docker-buildx >/dev/null 2>&1; then
     docker buildx version || die "docker buildx does not run after installing docker-buildx"
 else
     installing "docker buildx (docker-buildx from Debian $BUILDX_SUITE)"
-    if [ ! -e /usr/share/keyrings/debian-archive-keyring.gpg ]; then
-        "${SUDO[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q debian-archive-keyring
-    fi
-    tmp="$(mktemp -d)"
-    trap 'rm -rf "$tmp"' EXIT
-    mkdir -p "$tmp/lists/partial" "$tmp/parts" "$tmp/cache/archives/partial"
-    echo "deb [signed-by=/usr/share/keyrings/debian-archive-keyring.gpg] $MIRROR $BUILDX_SUITE main" \
-        >"$tmp/sources.list"
-    apt_tmp=(
-        -o "Dir::Etc::SourceList=$tmp/sources.list" -o "Dir::Etc::SourceParts=$tmp/parts"
-        -o "Dir::State::Lists=$tmp/lists" -o "Dir::Cache=$tmp/cache"
-        -o APT::Sandbox::User=root -q
-    )
-    apt-get "${apt_tmp[@]}" update >/dev/null
-    (cd "$tmp" && apt-get "${apt_tmp[@]}" download docker-buildx >/dev/null)
-    dpkg-deb -x "$tmp"/docker-buildx_*.deb "$tmp/root"
+    fetch_debs "$BUILDX_SUITE" "$TMP/buildx" docker-buildx
     mkdir -p "$PLUGIN_DIR"
-    install -m 0755 "$tmp/root/usr/libexec/docker/cli-plugins/docker-buildx" "$PLUGIN_DIR/docker-buildx"
+    install -m 0755 "$TMP/buildx/usr/libexec/docker/cli-plugins/docker-buildx" "$PLUGIN_DIR/docker-buildx"
     docker buildx version || die "docker buildx does not run after installing it to $PLUGIN_DIR"
+fi
+
+# --- Engine 26 with the containerd image store, a second daemon at $ENGINE26_HOST ---
+# dockerd and containerd from Debian trixie; runc stays bookworm's (trixie's needs glibc 2.38).
+# The first engine is never touched: no --bridge=none (it deletes docker0), no iptables rules
+# (builds in it that need the network use BUILD_NETWORK=host).
+engine26() { DOCKER_HOST="$ENGINE26_HOST" docker "$@"; }
+if [ "$ENGINE26" != true ]; then
+    echo "skipped: Engine 26 (DOCKER_ROS_ENGINE26=$ENGINE26)"
+elif engine26 info >/dev/null 2>&1; then
+    ok "Engine 26 at $ENGINE26_HOST"
+else
+    if [ -x "$ENGINE26_ROOT/usr/sbin/dockerd" ] && [ -x "$ENGINE26_ROOT/usr/bin/containerd" ]; then
+        installing "Engine 26 (starting it at $ENGINE26_HOST, log: $ENGINE26_LOG)"
+    else
+        installing "Engine 26 (docker.io + containerd from Debian $ENGINE26_SUITE into $ENGINE26_ROOT)"
+        fetch_debs "$ENGINE26_SUITE" "$TMP/engine26" docker.io containerd
+        "${SUDO[@]}" mkdir -p "$ENGINE26_ROOT"
+        "${SUDO[@]}" cp -a "$TMP/engine26/usr" "$ENGINE26_ROOT/"
+    fi
+    command -v runc >/dev/null || die "runc (bookworm's, from docker.io) is missing for Engine 26"
+    if ! ip link show "$ENGINE26_BRIDGE" >/dev/null 2>&1; then
+        "${SUDO[@]}" ip link add "$ENGINE26_BRIDGE" type bridge
+        "${SUDO[@]}" ip addr add "$ENGINE26_SUBNET" dev "$ENGINE26_BRIDGE"
+    fi
+    "${SUDO[@]}" ip link set "$ENGINE26_BRIDGE" up
+    "${SUDO[@]}" mkdir -p "$ENGINE26_RUN" "$ENGINE26_DATA"
+    echo '{"features": {"containerd-snapshotter": true}}' \
+        | "${SUDO[@]}" tee "$ENGINE26_DATA/daemon.json" >/dev/null
+    "${SUDO[@]}" env PATH="$ENGINE26_ROOT/usr/bin:$ENGINE26_ROOT/usr/sbin:$PATH" setsid \
+        "$ENGINE26_ROOT/usr/sbin/dockerd" --config-file "$ENGINE26_DATA/daemon.json" \
+        --data-root "$ENGINE26_DATA/data" --exec-root "$ENGINE26_RUN/exec" \
+        --pidfile "$ENGINE26_RUN/dockerd.pid" -H "$ENGINE26_HOST" -b "$ENGINE26_BRIDGE" \
+        --iptables=false --ip-masq=false >"$ENGINE26_LOG" 2>&1 </dev/null &
+    for _ in $(seq 60); do
+        engine26 info >/dev/null 2>&1 && break
+        sleep 1
+    done
+    engine26 info >/dev/null 2>&1 || { tail -n 20 "$ENGINE26_LOG" >&2; die "Engine 26 did not answer within 60 s"; }
 fi
 
 # --- binfmt for arm64 emulation (optional: only multi-arch builds need it) ---

@@ -4,7 +4,6 @@ host's CA bundle. Tests that need Docker are marked `@pytest.mark.docker`."""
 from __future__ import annotations
 
 import contextlib
-import os
 import shutil
 import socket
 import subprocess
@@ -19,6 +18,7 @@ import pytest
 import yaml
 
 from docker_ros import baseimage
+from tests import engines
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"
 ROS2_BASE_IMAGE = "docker-ros-test/ros2:trixie"
@@ -196,42 +196,37 @@ def host_ca_bundle() -> Path:
 
 
 @pytest.fixture
-def empty_engine(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """A private Docker daemon with an empty image store and build cache (a fresh CI machine)
-    holding only the ROS 1 base image; yields its DOCKER_HOST. The shared engine's cache is never
-    pruned. The daemon gets a bridge of its own: one started with --bridge=none deletes the
-    host's docker0. It has no outbound NAT: builds in it that need the network use
-    BUILD_NETWORK=host."""
-    dockerd = shutil.which("dockerd")
-    if dockerd is None:
+def empty_engine(ros1_base_image: str) -> Iterator[str]:
+    """A private Docker daemon (the shared engine's generation) with an empty image store and
+    build cache (a fresh CI machine) holding only the ROS 1 base image; yields its DOCKER_HOST.
+    The shared engine's cache is never pruned (see tests.engines.private_engine)."""
+    if shutil.which("dockerd") is None:
         pytest.fail(f"dockerd is not installed; {SETUP_HINT}")
-    work = Path(f"/tmp/docker-ros-test-engine-{uuid.uuid4().hex[:8]}")
-    bridge = f"drt{work.name[-8:]}"[:15]
-    subnet = f"172.30.{os.getpid() % 250}.1/24"
-    ip = ["ip", "link", "add", bridge, "type", "bridge"]
-    subprocess.run(ip, check=True)
-    subprocess.run(["ip", "addr", "add", subnet, "dev", bridge], check=True)
-    subprocess.run(["ip", "link", "set", bridge, "up"], check=True)
-    work.mkdir()
-    host = f"unix://{work}/docker.sock"
-    argv = [dockerd, "--data-root", str(work / "data"), "--exec-root", str(work / "exec"),
-            "--pidfile", str(work / "pid"), "-H", host, "-b", bridge, "--iptables=false",
-            "--ip-masq=false"]
-    with (work / "dockerd.log").open("wb") as log:
-        daemon = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT)
-    env = {**os.environ, "DOCKER_HOST": host}
     try:
-        deadline = time.monotonic() + 30
-        while subprocess.run(["docker", "info"], env=env, capture_output=True).returncode:
-            if daemon.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"private dockerd did not start:\n{(work / 'dockerd.log').read_text()}")
-            time.sleep(0.5)
-        save = subprocess.Popen(["docker", "save", ros1_base_image], stdout=subprocess.PIPE)
-        subprocess.run(["docker", "load", "-q"], stdin=save.stdout, env=env, check=True,
-                       capture_output=True)
-        assert save.wait() == 0
-        yield host
-    finally:
-        stop(daemon, timeout=30)
-        subprocess.run(["ip", "link", "del", bridge], capture_output=True)
-        subprocess.run(["rm", "-rf", "--one-file-system", str(work)], capture_output=True)
+        with engines.private_engine([ros1_base_image]) as host:
+            yield host
+    except engines.EngineFailed as exc:
+        pytest.fail(str(exc))
+
+
+@pytest.fixture
+def empty_engine26(ros1_base_image: str) -> Iterator[str]:
+    """empty_engine of Engine 26 on the containerd image store (a fresh modern CI runner)."""
+    if not engines.engine26_dockerd().is_file():
+        pytest.fail(f"Engine 26 is not installed at {engines.ENGINE26_ROOT}; {SETUP_HINT}")
+    try:
+        with engines.private_engine([ros1_base_image], modern=True) as host:
+            yield host
+    except engines.EngineFailed as exc:
+        pytest.fail(str(exc))
+
+
+@pytest.fixture(scope="session")
+def engine26(ros1_base_image: str) -> str:
+    """The DOCKER_HOST of Engine 26 with the containerd image store that scripts/setup.sh
+    starts beside the shared engine, holding the ROS 1 base image (copied once)."""
+    if not engines.answers(engines.ENGINE26_HOST):
+        pytest.fail(f"no Engine 26 answers at {engines.ENGINE26_HOST}; {SETUP_HINT}")
+    if not engines.has_image(engines.ENGINE26_HOST, ros1_base_image):
+        engines.copy_image(ros1_base_image, engines.ENGINE26_HOST)
+    return engines.ENGINE26_HOST

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 import docker_ros
-from docker_ros import engine
+from docker_ros import builder, engine
 from docker_ros.baseimage import arch_ref
 from docker_ros.engine import image_exists, image_size
 from docker_ros.lock import lock_labels, locked_build_args, tag_local_base
@@ -45,6 +45,9 @@ ENGINE_LOST = re.compile(
     r"code = Unavailable|error reading from server: EOF|transport is closing|"
     r"Cannot connect to the Docker daemon|docker\.sock: connect: |connection reset by peer",
 )
+BUILDX = ("docker", "buildx")  # the command reaching the default builder
+# The targets that export a registry cache (CACHE_TO); build-state imports run's, test dev's.
+CACHED_TARGETS = ("dev", "run")
 # a build step of a stage; bake puts the target first: `#7 [run build 1/1]`
 VERTEX = re.compile(r"#(\d+) \[(?:[\w-]+ )?([\w-]+) \d+/\d+\]")
 
@@ -205,11 +208,13 @@ def definition(
     extra_build_args: Mapping[str, str] = {},
     imports_image: str = f"{IMPORTS_REPOSITORY}:<hash>",
     base_image: str = "",
+    cache_export: str = "inline",
 ) -> Dict[str, Any]:
     """One target and platform as a `docker buildx bake` target: the single description behind
     both plan_build (one `buildx build`) and plan_bake (several targets in one BuildKit run).
     `output`: an --output exporter instead of loading or pushing the image; `base_image`: the
-    platform's base (platform_base) when it is not BASE_IMAGE."""
+    platform's base (platform_base) when it is not BASE_IMAGE; `cache_export`: what CACHE_TO
+    exports, `registry` or `inline` (the builder's choice, see builder.py)."""
     args = {"BASE_IMAGE": base_image or settings.base_image or "",
             "DOCKER_ROS_TOOLS": tools_image,
             "DOCKER_ROS_IMPORTS": imports_image,
@@ -239,7 +244,30 @@ def definition(
     if settings.cache_from:
         target_def["cache-from"] = cache_sources(settings.cache_from, target)
         target_def["cache-to"] = ["type=inline"]
+    if settings.cache_to:
+        cache_from, cache_to = registry_cache(settings, target, platform, tag, cache_export)
+        target_def["cache-from"] = list(dict.fromkeys(
+            target_def.get("cache-from", []) + cache_from))
+        target_def["cache-to"] = cache_to
     return target_def
+
+
+def cache_ref(settings: Settings, target: str, platform: str) -> str:
+    """The registry cache of one target and platform: `<CACHE_TO>-<target>-<arch>`."""
+    return f"{settings.cache_to}-{target}-{platform}"
+
+
+def registry_cache(settings: Settings, target: str, platform: str, tag: str,
+                   cache_export: str) -> Tuple[List[str], List[str]]:
+    """(--cache-from, --cache-to) of CACHE_TO. `registry`: dev and run export every stage to
+    their own cache ref (mode=max) and import it; build-state imports run's, test dev's.
+    `inline`: the dev and run images carry their cache and are the cache of their next build."""
+    exports = target in CACHED_TARGETS
+    if cache_export != "registry":
+        return ([tag], ["type=inline"]) if exports else ([], [])
+    own = target if exports else "run" if target == "build-state" else "dev"
+    ref = f"type=registry,ref={cache_ref(settings, own, platform)}"
+    return [ref], ([f"{ref},mode=max"] if exports else [])
 
 
 def run_resolution(settings: Settings) -> str:
@@ -265,8 +293,13 @@ def run_base(settings: Settings) -> str:
     copy of base that shares no stage with the dev image, so that on an empty machine the run
     image's registry cache serves its dependency layers too (see the Dockerfile's base-run);
     either with the hook's system changes when there is one (system_stage)."""
-    stage = "base-run" if settings.cache_from else "base"
+    stage = "base-run" if imports_cache(settings) else "base"
     return stage.replace("base", "hooked-system") if system_stage(settings) != "base" else stage
+
+
+def imports_cache(settings: Settings) -> bool:
+    """Whether the build imports a cache from a registry (CACHE_FROM, CACHE_TO)."""
+    return bool(settings.cache_from or settings.cache_to)
 
 
 def cache_sources(refs: Sequence[str], target: str) -> List[str]:
@@ -284,9 +317,10 @@ def plan_build(settings: Settings, **options: Any) -> List[str]:
     return build_argv(definition(settings, **options))
 
 
-def build_argv(spec: Mapping[str, Any]) -> List[str]:
-    """A bake target's definition as one `docker buildx build` argv."""
-    argv = ["docker", "buildx", "build", "--progress=plain", "--file", spec["dockerfile"]]
+def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX) -> List[str]:
+    """A bake target's definition as one `docker buildx build` argv (buildx: the command
+    reaching the builder, builder.buildx_command)."""
+    argv = [*buildx, "build", "--progress=plain", "--file", spec["dockerfile"]]
     argv += ["--target", spec["target"], "--platform", spec["platforms"][0]]
     argv += ["--tag", spec["tags"][0]]
     for name, value in spec["args"].items():
@@ -301,7 +335,8 @@ def build_argv(spec: Mapping[str, Any]) -> List[str]:
         argv += ["--provenance=false"]
     for ref in spec.get("cache-from", []):
         argv += ["--cache-from", ref]
-    argv += ["--cache-to", "type=inline"] if "cache-to" in spec else []
+    for cache in spec.get("cache-to", []):
+        argv += ["--cache-to", cache]
     exporter = spec["output"][0]
     loads = {"type=docker": "--load", "type=registry": "--push"}
     argv += [loads[exporter]] if exporter in loads else ["--output", exporter]
@@ -309,12 +344,12 @@ def build_argv(spec: Mapping[str, Any]) -> List[str]:
     return argv
 
 
-def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str) -> List[str]:
+def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str,
+              buildx: Sequence[str] = BUILDX) -> List[str]:
     """The `docker buildx bake` argv building the targets (bake target name -> definition,
     written as JSON to definition_file) in one BuildKit run: stages they share are built once,
     the others in parallel, from one load of the build context."""
-    return ["docker", "buildx", "bake", "--progress=plain", "--file", definition_file,
-            *targets]
+    return [*buildx, "bake", "--progress=plain", "--file", definition_file, *targets]
 
 
 def can_bake(settings: Settings) -> bool:
@@ -322,7 +357,7 @@ def can_bake(settings: Settings) -> bool:
     (0.13) knows no `network` attribute. Not with CACHE_FROM: in one bake run, which target's
     dependency layers missed the registry cache on an empty machine varied from run to run;
     built one after the other, dev first, the dev image's always hit (measured, issue 13)."""
-    return not settings.build_network and not settings.cache_from
+    return not settings.build_network and not imports_cache(settings)
 
 
 def bake_file(targets: Mapping[str, Dict[str, Any]]) -> str:
@@ -524,22 +559,23 @@ def stage_dockerfile(context: Path, destination: Path) -> Path:
     return dockerfile
 
 
-def ensure_tools_image(platform: str) -> str:
+def ensure_tools_image(platform: str, buildx: Sequence[str] = BUILDX) -> str:
     """A FROM-scratch image with the step modules, tagged by their content hash."""
     with tempfile.TemporaryDirectory(prefix="docker-ros-tools-") as tmp:
         digest = tools_tree(Path(tmp))
         return scratch_image(Path(tmp), "docker-ros", f"{TOOLS_REPOSITORY}:{digest}-{platform}",
-                             platform)
+                             platform, buildx=buildx)
 
 
-def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str = "") -> str:
+def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str = "",
+                  buildx: Sequence[str] = BUILDX) -> str:
     """ref: FROM scratch with context/folder at /folder (or its contents at into), built
-    unless it exists already."""
+    (on the builder of the build, where its FROM finds it) unless it exists already."""
     if image_exists(ref):
         return ref
     (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} {into or '/' + folder}\n")
-    argv = ["docker", "buildx", "build", "--quiet", "--load", "--platform",
-            f"linux/{platform}", "--tag", ref, str(context)]
+    argv = [*buildx, "build", "--quiet", "--load", "--platform", f"linux/{platform}",
+            "--tag", ref, str(context)]
     proc = subprocess.run(argv, capture_output=True, text=True)
     if proc.returncode != 0:
         raise BuildError(f"building {ref} failed: {proc.stderr.strip()}")
@@ -604,7 +640,8 @@ def source_stages(settings: Settings) -> Dict[str, str]:
     return {"DOCKER_ROS_SOURCE_START": "skeleton", "DOCKER_ROS_TREE": "marked"}
 
 
-def ensure_imports_image(settings: Settings, platform: str) -> str:
+def ensure_imports_image(settings: Settings, platform: str,
+                         buildx: Sequence[str] = BUILDX) -> str:
     """A FROM-scratch image with the repository's .repos files at /repository and its
     skeleton_files at /inputs, tagged by their content. Each is COPY'd by the stage that
     needs it (content-addressed): the import stays cached while the .repos files do, and the
@@ -627,7 +664,8 @@ def ensure_imports_image(settings: Settings, platform: str) -> str:
                 shutil.copymode(source, copy)  # hooks keep their executable bit
                 digest.update(f"{folder}/{rel}\0{copy.stat().st_mode:o}\0".encode() + content)
         ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{platform}"
-        return scratch_image(Path(tmp), "context", ref, platform, into="/")
+        return scratch_image(Path(tmp), "context", ref, platform, into="/",
+                             buildx=buildx)
 
 
 def ca_bundle(path: Path, destination: Path) -> Path:
@@ -643,18 +681,36 @@ def ca_bundle(path: Path, destination: Path) -> Path:
     return destination
 
 
-def check_engine() -> None:
-    """A Docker daemon that answers and the buildx plugin, or one message saying what to do."""
-    try:
-        engine.client()
-    except engine.EngineError as exc:
-        raise BuildError(str(exc)) from None
+def check_engine(settings: Optional[Settings] = None) -> None:
+    """A Docker daemon that answers and the buildx plugin, or one message saying what to do;
+    with settings, the builder too (selected_builder)."""
     try:
         buildx = subprocess.run(["docker", "buildx", "version"], capture_output=True)
     except FileNotFoundError:
         raise BuildError("no `docker` command: install Docker (scripts/setup.sh)") from None
     if buildx.returncode != 0:
         raise BuildError("the docker buildx plugin is missing: install it (scripts/setup.sh)")
+    if settings is not None:
+        selected_builder(settings)
+    try:
+        engine.client()
+    except engine.EngineError as exc:
+        raise BuildError(str(exc)) from None
+
+
+def selected_builder(settings: Settings) -> builder.Builder:
+    """The builder of this run (BUILDER, BUILDX_BUILDER or the current one), inspected once;
+    with CACHE_TO, `docker login` first when credentials are set (buildx exports the cache
+    with the CLI's credentials)."""
+    try:
+        chosen = builder.selected(settings.builder or "", bool(settings.cache_to))
+    except builder.BuilderError as exc:
+        raise BuildError(str(exc)) from None
+    if settings.cache_to and builder.cache_export(chosen) == "registry":
+        from docker_ros.push import login  # (push imports this module)
+
+        login(settings)
+    return chosen
 
 
 
@@ -675,8 +731,11 @@ def build_images(
     bake` run (bake=False or not can_bake: one `docker buildx build` per target, one after the
     other, as docker-ros does); raise BuildError naming the failed step."""
     environ = os.environ if environ is None else environ
-    tools = ensure_tools_image(platform)
-    imports = ensure_imports_image(settings, platform)
+    chosen = selected_builder(settings)
+    export = builder.cache_export(chosen)
+    buildx = builder.buildx_command(chosen, settings.builder or "")
+    tools = ensure_tools_image(platform, buildx)
+    imports = ensure_imports_image(settings, platform, buildx)
     tag_local_base(settings, platform)
     child_env = dict(environ)
     child_env.setdefault("DOCKER_BUILDKIT", "1")
@@ -697,14 +756,15 @@ def build_images(
                                     secrets=plan_secrets(settings, bundle), push=push,
                                     dockerfile=dockerfile, output=output,
                                     extra_build_args={**extra_build_args, **seed},
-                                    imports_image=imports, base_image=base)
+                                    imports_image=imports, base_image=base,
+                                    cache_export=export)
                  for target, tag in targets.items()}
         if bake and can_bake(settings):
             definition_file = Path(tmp) / "docker-ros.bake.json"
             definition_file.write_text(bake_file(specs))
-            runs = [(tuple(targets), plan_bake(specs, str(definition_file)))]
+            runs = [(tuple(targets), plan_bake(specs, str(definition_file), buildx))]
         else:
-            runs = [((t,), build_argv(spec)) for t, spec in specs.items()]
+            runs = [((t,), build_argv(spec, buildx)) for t, spec in specs.items()]
         built = []
         for names, argv in runs:
             seconds = run_buildx(argv, names, platform, env=child_env, out=out, environ=environ,

@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import hashlib
+import json
 import os
-from typing import Any, Dict, Iterable, Optional
+from pathlib import Path
+from typing import Any, Dict, Iterable, Mapping, Optional
 
 import docker
 from docker.errors import DockerException, ImageNotFound, NotFound
@@ -19,14 +22,72 @@ class EngineError(Exception):
     """The engine refused or failed: what, and docker's reason."""
 
 
+DEFAULT_HOST = "unix:///var/run/docker.sock"
+# The engine the images are in when it is not the CLI's (bind): a docker-driver builder of
+# another docker context keeps what it builds there.
+_bound: Dict[str, str] = {}
+
+
+def docker_config_dir(environ: Mapping[str, str]) -> Path:
+    return Path(environ.get("DOCKER_CONFIG") or Path.home() / ".docker")
+
+
+def current_context(environ: Mapping[str, str]) -> str:
+    """The docker context the CLI uses: DOCKER_CONTEXT, else config.json's currentContext."""
+    if environ.get("DOCKER_CONTEXT"):
+        return environ["DOCKER_CONTEXT"]
+    try:
+        config = json.loads((docker_config_dir(environ) / "config.json").read_text())
+    except (OSError, ValueError):
+        return "default"
+    name = config.get("currentContext") if isinstance(config, dict) else None
+    return name if isinstance(name, str) and name else "default"
+
+
+def context_host(name: str, environ: Mapping[str, str]) -> Optional[str]:
+    """The Docker endpoint of a docker context (its meta.json in the CLI's context store), or
+    None for `default` and for a context this store does not hold."""
+    if name == "default":
+        return None
+    meta = (docker_config_dir(environ) / "contexts" / "meta"
+            / hashlib.sha256(name.encode()).hexdigest() / "meta.json")
+    try:
+        host = json.loads(meta.read_text())["Endpoints"]["docker"]["Host"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return str(host) if host else None
+
+
+def cli_host(environ: Mapping[str, str]) -> str:
+    """The engine the docker CLI talks to: DOCKER_HOST, else the current docker context's
+    endpoint, else the local socket (the docker SDK alone reads only DOCKER_HOST)."""
+    return (environ.get("DOCKER_HOST") or context_host(current_context(environ), environ)
+            or DEFAULT_HOST)
+
+
+def bind(host: Optional[str]) -> None:
+    """Talk to the engine at host from now on (None: the CLI's, cli_host)."""
+    if _bound.get("host") != host:
+        _bound.pop("host", None)
+        if host:
+            _bound["host"] = host
+        client.cache_clear()
+
+
 @functools.lru_cache(maxsize=1)
 def client() -> docker.DockerClient:
-    """A client of the engine DOCKER_HOST (or the local socket) names, checked to answer."""
+    """A client of the engine the CLI talks to (cli_host: DOCKER_HOST or the current docker
+    context, so that both reach the same engine) or the one bound, checked to answer."""
+    host = _bound.get("host")
     try:
-        engine = docker.from_env()
+        if host is None and os.environ.get("DOCKER_HOST"):
+            engine = docker.from_env()  # with DOCKER_TLS_VERIFY/DOCKER_CERT_PATH
+        else:
+            host = host or cli_host(os.environ)
+            engine = docker.DockerClient(base_url=host, use_ssh_client=host.startswith("ssh:"))
         engine.ping()
     except DockerException:
-        where = os.environ.get("DOCKER_HOST") or "the default socket"
+        where = host or os.environ.get("DOCKER_HOST") or "the default socket"
         raise EngineError(f"no Docker daemon answers at {where}: start it, e.g. with "
                           "scripts/setup.sh") from None
     return engine

@@ -295,6 +295,24 @@ class Settings:
         " branch's); else none",
         group="ours", build="tool", flags=("image",),
     )
+    cache_to: Optional[str] = setting(
+        None,
+        "Registry cache the build exports and imports, one per image (`-<target>-<arch>` is"
+        " appended, e.g. `<IMAGE>-cache-dev-amd64`): every stage (`--cache-to"
+        " type=registry,mode=max`) where the builder can export it (an engine on the containerd"
+        " image store, docker-container or remote builders); where it cannot (the classic"
+        " store's docker driver, e.g. Engine 20.10) inline cache in the images instead",
+        default_doc="in CI: `<IMAGE_NAME>:<IMAGE_TAG>-cache`; else none",
+        group="ours", build="tool",
+    )
+    builder: Optional[str] = setting(
+        None,
+        "buildx builder or docker context the images are built on (`--builder`); a docker"
+        " context's engine keeps the images it builds (push sends them from there), other"
+        " drivers' `--load` copies them into the local engine",
+        default_doc="`BUILDX_BUILDER`, else buildx's current builder",
+        group="ours", build="tool",
+    )
     build_state_from: Tuple[str, ...] = setting(
         (),
         "Registry images of a build state (`<IMAGE>-build-state`, comma-separated, the first"
@@ -602,6 +620,10 @@ def derived_defaults(
         out["cache_from"] = (ci_cache_refs(merged),
                              "derived from the CI pipeline (its pushed dev and run images)")
     merged = {**values, **{name: value for name, (value, _) in out.items()}}
+    if not values.get("cache_to") and detect_pipeline(environ) is not None and merged.get(
+            "image_name"):
+        out["cache_to"] = (f"{merged['image_name']}:{merged.get('image_tag', 'latest')}-cache",
+                           "derived from the CI pipeline (next to the images it pushes)")
     if (not values.get("build_state_from") and detect_pipeline(environ) is not None
             and merged.get("image_name")):
         out["build_state_from"] = (ci_build_state_refs(merged),
@@ -680,6 +702,11 @@ def ci_cache_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
         tag = str(values.get("image_tag", "latest") if kind == "run" else values["dev_image_tag"])
         for each in unpostfixed_tags(values, tag):
             refs += [f"{name}:{each}"] + [f"{name}:{each}-{p}" for p in platforms]
+    # the registry caches CI exports (CACHE_TO), this pipeline's and the default branch's
+    run_tag = str(values.get("image_tag", "latest"))
+    for each in unpostfixed_tags(values, run_tag):
+        refs += [f"{values['image_name']}:{each}-cache-{kind}-{p}"
+                 for kind in ("dev", "run") for p in platforms]
     return tuple(dict.fromkeys(refs))
 
 

@@ -298,7 +298,7 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
         print(f"[dry-run] commit and tag {plan.tag}")
         return plan.tag
     try:
-        build.check_engine()
+        build.check_engine(settings)
         tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
@@ -404,7 +404,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
     assert settings.base_image
     if not dry_run:
         try:
-            build.check_engine()
+            build.check_engine(settings)
         except build.BuildError as exc:
             raise TaskError(str(exc)) from None
     if not dry_run:
@@ -538,7 +538,7 @@ def _test(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
                 print(f"[dry-run] test: would copy the results to {dest}")
                 continue
             try:
-                build.check_engine()
+                build.check_engine(settings)
                 build.build_image(settings, target="test-results", platform=platform, tag=tag,
                                   output=output, extra_build_args=run)
                 outcome = testing.read_outcome(Path(tmp))

@@ -84,9 +84,14 @@ def run_until(ref: str, needle: str, seconds: float, *docker_args: str) -> str:
     proc = subprocess.Popen(["docker", "run", "--rm", "--name", name, *docker_args, ref],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: queue.Queue[str] = queue.Queue()
-    assert proc.stdout is not None
-    reader = threading.Thread(target=lambda: [lines.put(line) for line in proc.stdout],
-                              daemon=True)
+    stdout = proc.stdout
+    assert stdout is not None
+
+    def pump() -> None:
+        for line in stdout:
+            lines.put(line)
+
+    reader = threading.Thread(target=pump, daemon=True)
     reader.start()
     seen: List[str] = []
     deadline = time.monotonic() + seconds
@@ -122,3 +127,20 @@ def cached_vertices(log: str) -> Dict[str, bool]:
         if match and match.group(1) in names:
             cached[names[match.group(1)]] = True
     return cached
+
+
+# a step of a stage (not the context transfer or the build definition BuildKit always runs)
+STAGE = re.compile(r"^\[[\w-]+ \d+/\d+\]")
+
+
+def not_from_cache(log: str) -> List[str]:
+    """The stage steps of a target's build that ran. A step BuildKit does not mark CACHED came
+    from the cache all the same when a later step of its stage is CACHED (cache keys chain: a
+    lower step is materialized, not run, when a step that is run needs its files). A FROM is
+    resolved, never CACHED: its layers are the image's."""
+    cached = {name: hit for name, hit in cached_vertices(log).items()
+              if STAGE.match(name) and " FROM " not in name}
+    steps = {name: re.match(r"\[([\w-]+) (\d+)/", name) for name in cached}
+    hits = {(m.group(1), int(m.group(2))) for name, m in steps.items() if m and cached[name]}
+    return sorted(name for name, m in steps.items() if m and not cached[name] and not any(
+        stage == m.group(1) and step > int(m.group(2)) for stage, step in hits))

@@ -1,0 +1,180 @@
+"""The modern engine generation (issue 21): Engine 26 on the containerd image store, the daemon
+scripts/setup.sh starts beside the shared Engine 20.10. Its GitLab CI pipeline builds, tests,
+slims and pushes the example with a registry cache of every stage (CACHE_TO, mode=max); the same
+pipeline on an empty Engine 26 takes every stage of dev and run from that cache; Engine 26
+reached through a docker context (BUILDER) is a build server whose images land in a registry
+and run on the shared engine."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import uuid
+from pathlib import Path
+from typing import Dict, Iterator
+
+import pytest
+
+from docker_ros import engine
+from tests.ci.cihelp import REPO, assert_pulled_image_runs, example_repository, git, registry_tags
+from tests.ci.test_gitlab_template import gitlab_ci_local
+from tests.docker.buildhelp import docker_ros, not_from_cache, write_env
+from tests.docker.test_fast_rebuilds import compiled_objects
+from tests.engines import ENGINE26_HOST
+
+pytestmark = pytest.mark.docker
+
+IMAGE = "docker-ros-test/engine26"
+REGISTRY_CACHE = "CACHE_TO: registry cache of every stage (mode=max)"
+
+
+def pipeline(repo: Path, registry: str, host: str, **variables: str
+             ) -> subprocess.CompletedProcess:
+    """The GitLab template's pipeline on main with every job's docker on the engine at host."""
+    return gitlab_ci_local(repo, {
+        "GITLAB_CI": "true", "IMAGE_NAME": f"{registry}/{IMAGE}",
+        "DOCKER_ROS_PIP_SPEC": str(REPO), "DOCKER_HOST": host, "BUILD_NETWORK": "host",
+        **variables})
+
+
+def build_log(repo: Path) -> str:
+    return (repo / ".gitlab-ci-local" / "output" / "build-amd64.log").read_text()
+
+
+@pytest.fixture(scope="module")
+def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
+                   tmp_path_factory: pytest.TempPathFactory) -> Iterator[Dict[str, object]]:
+    """The example's main-branch pipeline on Engine 26: build, test, slim, push, manifest.
+    Engine 26 keeps no image of it afterwards (the names hold this run's registry port)."""
+    repo = example_repository(tmp_path_factory.mktemp("engine26"), ros1_base_image)
+    (repo / ".gitlab-ci").mkdir()
+    shutil.copy(REPO / ".gitlab-ci" / "docker-ros.yml", repo / ".gitlab-ci" / "docker-ros.yml")
+    (repo / ".gitlab-ci.yml").write_text(
+        "include:\n  - local: .gitlab-ci/docker-ros.yml\n\ndefault:\n  services: []\n\n"
+        "variables:\n  TARGET: dev,run\n")
+    git(repo, "add", "-A")
+    git(repo, "commit", "-qm", "ci")
+    secret = f"docker-ros-test-secret-{uuid.uuid4().hex}"
+    result = pipeline(repo, local_registry, engine26, ENABLE_SLIM="true",
+                      ENABLE_INDUSTRIAL_CI="true", GIT_HTTPS_PASSWORD=secret)
+    yield {"repo": repo, "registry": local_registry, "result": result,
+           "build": build_log(repo), "secret": secret, "host": engine26}
+    env = {**os.environ, "DOCKER_HOST": engine26}
+    listed = subprocess.run(["docker", "images", "--format", "{{.Repository}}:{{.Tag}}"],
+                            env=env, capture_output=True, text=True)
+    mine = [ref for ref in listed.stdout.split() if ref.startswith(f"{local_registry}/")]
+    if mine:
+        subprocess.run(["docker", "rmi", "-f", *mine], env=env, capture_output=True)
+
+
+def test_ci_template_builds_tests_slims_and_pushes_on_engine26(first_pipeline: dict) -> None:
+    result = first_pipeline["result"]
+    assert result.returncode == 0, result.stdout[-6000:]
+    assert "PASS  build-amd64" in result.stdout and "PASS  manifest" in result.stdout
+    log = first_pipeline["build"]
+    for task in ("build", "test", "slim", "push"):
+        assert f"docker-ros ci: docker-ros {task}" in log, task
+    assert "docker-ros test (amd64): " in log
+    assert "containerd image store" in log and REGISTRY_CACHE in log
+    assert "exporting cache to registry" in log
+    tags = registry_tags(first_pipeline["registry"], IMAGE)
+    assert {"latest", "latest-dev", "latest-slim", "latest-build-state-amd64",
+            "latest-cache-dev-amd64", "latest-cache-run-amd64"} <= set(tags), tags
+
+
+def test_the_secret_stays_out_of_engine26_images_and_the_log(first_pipeline: dict) -> None:
+    assert first_pipeline["result"].returncode == 0
+    secret = first_pipeline["secret"]
+    assert secret not in first_pipeline["build"]
+    env = {**os.environ, "DOCKER_HOST": first_pipeline["host"]}
+    for tag in ("latest", "latest-dev", "latest-slim"):
+        ref = f"{first_pipeline['registry']}/{IMAGE}:{tag}"
+        for argv in (["docker", "history", "--no-trunc", ref], ["docker", "image", "inspect", ref]):
+            shown = subprocess.run(argv, env=env, capture_output=True, text=True)
+            assert shown.returncode == 0, shown.stderr
+            assert secret not in shown.stdout, argv
+
+
+def test_images_pushed_from_engine26_run_on_the_shared_engine(first_pipeline: dict) -> None:
+    assert first_pipeline["result"].returncode == 0
+    assert_pulled_image_runs(f"{first_pipeline['registry']}/{IMAGE}:latest")
+    assert_pulled_image_runs(f"{first_pipeline['registry']}/{IMAGE}:latest-slim")
+
+
+def sections(log: str) -> Dict[str, str]:
+    """The `docker-ros build` task's log per target (`==> docker-ros build (amd64) dev -> ...`)."""
+    build = log.split("docker-ros ci: docker-ros build", 1)[1].split("docker-ros ci: ", 1)[0]
+    parts = re.split(r"^==> docker-ros build \(\w+\) ([\w-]+) -> .*$", build,
+                     flags=re.MULTILINE)
+    return dict(zip(parts[1::2], parts[2::2]))
+
+
+def test_empty_engine26_takes_every_stage_from_the_registry_cache(
+    first_pipeline: dict, empty_engine26: str
+) -> None:
+    """Nothing changed, a fresh runner: every stage of dev and run comes from the registry
+    cache but the colcon RUN, whose input, the build state now pulled, is new (the first job
+    had none): it compiles nothing."""
+    assert first_pipeline["result"].returncode == 0
+    repo: Path = first_pipeline["repo"]  # type: ignore[assignment]
+    result = pipeline(repo, first_pipeline["registry"], empty_engine26,  # type: ignore[arg-type]
+                      ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
+    assert result.returncode == 0, result.stdout[-6000:]
+    log = build_log(repo)
+    assert REGISTRY_CACHE in log
+    built = sections(log)
+    assert {"dev", "run"} <= set(built), log[-3000:]
+    assert not_from_cache(built["dev"]) == [], built["dev"][-3000:]
+    ran = not_from_cache(built["run"])
+    assert len(ran) <= 1 and all(name.startswith("[build 1/1] RUN") for name in ran), ran
+    assert "colcon: no package changed" in built["run"] and not compiled_objects(built["run"])
+
+
+@pytest.fixture
+def engine26_context(engine26: str) -> Iterator[str]:
+    """A docker context whose endpoint is Engine 26 (a build server); removed afterwards."""
+    name = f"docker-ros-test-e26-{uuid.uuid4().hex[:8]}"
+    subprocess.run(["docker", "context", "create", name, "--docker", f"host={engine26}"],
+                   check=True, capture_output=True)
+    yield name
+    subprocess.run(["docker", "context", "rm", "-f", name], capture_output=True)
+
+
+def test_context_host_reads_the_clis_context_store(engine26_context: str) -> None:
+    """The SDK client's engine follows the CLI's docker context (DOCKER_CONTEXT here)."""
+    environ = {k: v for k, v in os.environ.items() if k != "DOCKER_HOST"}
+    assert engine.context_host(engine26_context, environ) == ENGINE26_HOST
+    assert engine.cli_host({**environ, "DOCKER_CONTEXT": engine26_context}) == ENGINE26_HOST
+    assert engine.cli_host({**environ, "DOCKER_HOST": "unix:///x.sock",
+                            "DOCKER_CONTEXT": engine26_context}) == "unix:///x.sock"
+
+
+def test_build_server_through_a_docker_context_pushes_to_the_registry(
+    engine26_context: str, ros1_base_image: str, local_registry: str, tmp_path: Path
+) -> None:
+    """BUILDER names a docker context: the images are built by Engine 26 (nothing of them in
+    the shared engine), pushed from there with its registry cache, and run on the shared
+    engine after a pull."""
+    project = tmp_path / "example"
+    shutil.copytree(REPO / "example", project)
+    ref = f"{local_registry}/docker-ros-test/remote-{uuid.uuid4().hex[:8]}:1"
+    write_env(project, BASE_IMAGE=ros1_base_image, IMAGE=ref, TARGET="dev,run",
+              COMMAND="roslaunch docker_ros_example talker_listener.launch",
+              BUILDER=engine26_context, CACHE_TO=f"{ref}-cache", BUILD_NETWORK="host")
+    try:
+        result = docker_ros(project, "push")
+    finally:  # the build server keeps nothing of this test
+        subprocess.run(["docker", "rmi", "-f", ref, f"{ref}-dev"], capture_output=True,
+                       env={**os.environ, "DOCKER_HOST": ENGINE26_HOST})
+    assert result.returncode == 0, result.stdout[-6000:]
+    assert (f"builder: {engine26_context} (docker driver of the engine at {ENGINE26_HOST}: "
+            "--load keeps the images in that engine, not the local one") in result.stdout
+    assert REGISTRY_CACHE in result.stdout
+    shared = subprocess.run(["docker", "image", "inspect", ref], capture_output=True)
+    assert shared.returncode != 0, "the image was built in the shared engine"
+    repository, tag = ref.split("/", 1)[1].rsplit(":", 1)
+    assert {tag, f"{tag}-dev", f"{tag}-cache-run-amd64"} <= set(
+        registry_tags(local_registry, repository))
+    assert_pulled_image_runs(ref)
