@@ -287,8 +287,8 @@ class Bench:
         pushes the run image and its build state to a local registry; each later job works in
         a checkout of its own (another path: a build/ cache that holds nothing of the
         project), its local images removed: 9b one .cpp changed in the last package (then
-        pushed, untimed), 9c nothing changed since. The engine is shared and never pruned: BuildKit's layer cache is not
-        emptied, the colcon build/ cache is."""
+        pushed, untimed), 9c nothing changed since. The engine is shared and never pruned:
+        BuildKit's layer cache is not emptied, the colcon build/ cache is."""
         ref = f"{registry}/docker-ros-bench/ci:latest"
         state = f"{ref}-build-state"
         args = ("--image", ref, "--target", "run", "--cache-from", ref,
