@@ -58,6 +58,7 @@ want_debs docker.io docker.io
 want_debs debootstrap debootstrap
 want_debs "qemu-user-static + binfmt-support" qemu-user-static binfmt-support
 want_debs docker-registry docker-registry
+want_debs "htpasswd (registry with authentication in tests)" apache2-utils
 want_debs git git
 want_debs "openssh client + server" openssh-client openssh-server
 want_debs ca-certificates ca-certificates

@@ -4,14 +4,17 @@ host's CA bundle. Tests that need Docker are marked `@pytest.mark.docker`."""
 from __future__ import annotations
 
 import contextlib
+import secrets
 import shutil
 import socket
 import subprocess
 import time
+import urllib.error
 import urllib.request
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Optional
 
 import docker
 import pytest
@@ -118,12 +121,51 @@ def ros2_base_image(docker_client: docker.DockerClient) -> str:
 def local_registry(
     docker_client: docker.DockerClient, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[str]:
-    """A private `docker-registry` on 127.0.0.1:5000 with throwaway storage; yields its address."""
+    """A private `docker-registry` on 127.0.0.1 with throwaway storage; yields its address."""
+    with serve_registry(docker_client, tmp_path_factory.mktemp("registry")) as address:
+        yield address
+
+
+@dataclass(frozen=True)
+class AuthRegistry:
+    """A registry that answers only with a user and password (htpasswd), as a CI's does."""
+
+    address: str
+    user: str
+    password: str
+
+    @property
+    def auth(self) -> dict:
+        """Engine API credentials (docker SDK auth_config)."""
+        return {"username": self.user, "password": self.password}
+
+
+@pytest.fixture(scope="session")
+def auth_registry(
+    docker_client: docker.DockerClient, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[AuthRegistry]:
+    """A `docker-registry` that requires authentication; the password is new for every run
+    (tests search logs and command lines for it)."""
+    htpasswd = shutil.which("htpasswd")
+    if htpasswd is None:
+        pytest.fail(f"htpasswd (Debian package apache2-utils) is not installed; {SETUP_HINT}")
+    work = tmp_path_factory.mktemp("auth-registry")
+    user, password = "docker-ros-ci", f"pw-{secrets.token_hex(16)}"
+    entry = subprocess.run([htpasswd, "-iBn", user], input=password, capture_output=True,
+                           text=True, check=True).stdout
+    (work / "htpasswd").write_text(entry)
+    auth = {"htpasswd": {"realm": "docker-ros-test", "path": str(work / "htpasswd")}}
+    with serve_registry(docker_client, work, auth=auth) as address:
+        yield AuthRegistry(address, user, password)
+
+
+@contextlib.contextmanager
+def serve_registry(docker_client: docker.DockerClient, work: Path,
+                   auth: Optional[dict] = None) -> Iterator[str]:
     executable = shutil.which("docker-registry")
     if executable is None:
         pytest.fail(f"docker-registry (Debian package) is not installed; {SETUP_HINT}")
     address = f"{REGISTRY_HOST}:{free_port()}"
-    work = tmp_path_factory.mktemp("registry")
     config = {
         "version": 0.1,
         "log": {"level": "warn"},
@@ -132,6 +174,7 @@ def local_registry(
             "delete": {"enabled": True},
         },
         "http": {"addr": address},
+        **({"auth": auth} if auth else {}),
     }
     (work / "config.yml").write_text(yaml.safe_dump(config))
     log_path = work / "registry.log"
@@ -182,6 +225,10 @@ def wait_for_registry(address: str, server: subprocess.Popen, log_path: Path) ->
             with opener.open(f"http://{address}/v2/", timeout=2) as answer:
                 if answer.status == 200:
                     return
+        except urllib.error.HTTPError as exc:
+            if exc.code == 401:  # it answers, and wants credentials
+                return
+            time.sleep(0.2)
         except OSError:
             time.sleep(0.2)
     pytest.fail(f"docker-registry did not answer on {address} within 15 s:\n{log_path.read_text()}")

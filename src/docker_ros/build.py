@@ -97,6 +97,13 @@ def platform_ref(ref: str, platform: str, platforms: Sequence[str]) -> str:
     return ref if len(platforms) <= 1 else f"{ref}-{platform}"
 
 
+def slim_platforms(platforms: Sequence[str], host: str) -> Tuple[str, ...]:
+    """The platforms whose run image is slimmed. Of several, only the runner's: slimming runs
+    the image, and docker-ros's single-job multi-arch build also slims only what the runner
+    pulls (its own architecture). A lone foreign platform stays, for slim's own error."""
+    return (host,) if len(platforms) > 1 and host in platforms else tuple(platforms)
+
+
 def target_ref(settings: Settings, target: str, platform: str) -> str:
     """The local name of a target's image built for one platform. A build state is always
     per architecture (`-<arch>`): the jobs of several architectures push one each."""

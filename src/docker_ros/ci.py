@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import re
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Collection, List, Mapping, Optional, Sequence, Tuple
@@ -33,10 +34,29 @@ class Pipeline:
 
 
 def slugify(name: str) -> str:
-    """GitLab's CI_COMMIT_REF_SLUG: lower case, 63 bytes, all but [0-9a-z] as `-`, no `-` at
-    the ends (gacts/github-slug, which docker-ros's action uses, gives the same for branches)."""
+    """GitLab's CI_COMMIT_REF_SLUG: lower case, 63 bytes, all but [0-9a-z] as `-` (a run of
+    them stays a run), no `-` at the ends."""
     slug = re.sub(r"[^0-9a-z]", "-", name.lower())[:SLUG_MAX]
     return slug.strip("-")
+
+
+# Symbols the npm `slugify` package (behind gacts/github-slug) spells as words.
+SLUG_WORDS = {"$": "dollar", "%": "percent", "&": "and", "<": "less", ">": "greater", "|": "or"}
+
+
+def github_slug(name: str) -> str:
+    """The slug of gacts/github-slug@v1, which docker-ros's action puts in its CI tags:
+    `._/()#+-` and white space separate words, a few symbols become words, other characters
+    are dropped (accents first lose their mark), words joined by one `-`, lower case."""
+    text = unicodedata.normalize("NFKD", name)
+    text = "".join(SLUG_WORDS.get(ch, ch) for ch in text if not unicodedata.combining(ch))
+    words = re.sub(r"[^A-Za-z0-9\s]", "", re.sub(r"[-._/()#+]", " ", text)).split()
+    return "-".join(words).lower()
+
+
+def ref_slug(pipeline: Pipeline) -> str:
+    """The branch slug as docker-ros's pipeline of that CI spells it."""
+    return github_slug(pipeline.ref) if pipeline.ci == "github" else slugify(pipeline.ref)
 
 
 def docker_tag_part(name: str) -> str:
@@ -72,7 +92,7 @@ def tag_postfix(pipeline: Optional[Pipeline]) -> str:
         return ""
     if pipeline.kind == "tag":
         return "-" + docker_tag_part(pipeline.ref)
-    return f"_{slugify(pipeline.ref)}_ci"
+    return f"_{ref_slug(pipeline)}_ci"
 
 
 def push_also_as(

@@ -7,9 +7,10 @@ import subprocess
 from typing import Dict, List, Mapping, Optional, Sequence
 
 from docker_ros import engine
-from docker_ros.build import BuildError, image_ref, platform_ref, target_ref
+from docker_ros.build import BuildError, image_ref, platform_ref, slim_platforms, target_ref
+from docker_ros.login import LoginError, docker_login, plan_login
 from docker_ros.runtime.workspace import format_argv
-from docker_ros.settings import Settings, made_images
+from docker_ros.settings import Settings, host_platform, made_images
 
 
 def also_ref(ref: str, tag: str, target: str) -> str:
@@ -52,8 +53,9 @@ def manifest_commands(names: Sequence[str], arch_refs: Sequence[str]) -> List[Li
             for name in names]
 
 
-def plan_push(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
-    """docker commands that push the built TARGET images for every PLATFORM."""
+def plan_push(settings: Settings, targets: Sequence[str], *, host: str = "") -> List[List[str]]:
+    """docker commands that push the built TARGET images for every PLATFORM (slim: those of
+    slim_platforms on host, default this machine)."""
     platforms = settings.platform
     commands: List[List[str]] = []
     for target in targets:
@@ -63,14 +65,18 @@ def plan_push(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
             # one per architecture, under the name the next job pulls (BUILD_STATE_FROM)
             commands += [["docker", "push", target_ref(settings, target, p)] for p in platforms]
             continue
-        if len(platforms) == 1:
+        mine = slim_platforms(platforms, host or host_platform()) if target == "slim" else ()
+        if len(platforms) == 1 or len(mine) == 1:
+            # (slim of several platforms: the runner's image under the slim names, docker-ros's)
+            platform = mine[0] if mine else platforms[0]
+            local = platform_ref(ref, platform, platforms)
             if settings.enable_singlearch_push:
                 # Only `<name>-<arch>`, as docker-ros: the runner of one architecture must not
                 # overwrite the multi-arch name; `docker-ros manifest` writes that later.
-                names = [f"{name}-{platforms[0]}" for name in names]
+                names = [f"{name}-{platform}" for name in names]
             for name in names:
-                if name != ref:
-                    commands.append(["docker", "tag", ref, name])
+                if name != local:
+                    commands.append(["docker", "tag", local, name])
                 commands.append(["docker", "push", name])
             continue
         # Several platforms: the per-arch images (`-amd64`, `-arm64`) go to the registry, as the
@@ -128,15 +134,13 @@ def auth_config(settings: Settings) -> Optional[Dict[str, str]]:
 def login(settings: Settings) -> None:
     """`docker login` with the password on standard input (never a command line or log), for
     `docker buildx imagetools`, which reads the CLI's credentials: only when writing manifests."""
-    if not (settings.registry_user and settings.registry_password):
+    argv = plan_login(settings)
+    if argv is None:
         return
-    argv = ["docker", "login", "--username", settings.registry_user, "--password-stdin"]
-    argv += [settings.registry] if settings.registry else []
-    proc = subprocess.run(argv, input=settings.registry_password, capture_output=True, text=True)
-    if proc.returncode != 0:
-        reason = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no reason given"
-        raise BuildError(f"docker login to {settings.registry or 'Docker Hub'} as "
-                         f"{settings.registry_user} failed: {reason}")
+    try:
+        docker_login(argv, settings.registry_password or "", settings.registry or "")
+    except LoginError as exc:
+        raise BuildError(str(exc)) from None
 
 
 def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:

@@ -11,9 +11,16 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple, Union
 
 from docker_ros.ci import NO_POSTFIX, detect_pipeline, push_also_as, tag_postfix
 
+# docker-ros's (the probe runs as a user the entrypoint creates; its files are left out)
 SLIM_BUILD_ARGS_DEFAULT = (
-    "--sensor-ipc-mode proxy --continue-after=10 --show-clogs --http-probe=false"
+    "--sensor-ipc-mode proxy --continue-after=30 --show-clogs --http-probe=false"
+    " --env DOCKER_UID=23456 --env DOCKER_GID=23456 --env DOCKER_USER=dockerslimprobe"
     " --include-path /opt/ros --include-path /docker-ros/ws/install"
+    " --include-path /etc/ld.so.cache --include-path /etc/ld.so.conf"
+    " --include-path /etc/ld.so.conf.d --preserve-path /etc/passwd --preserve-path /etc/group"
+    " --preserve-path /etc/shadow --preserve-path /etc/gshadow"
+    " --exclude-pattern /home/dockerslimprobe --exclude-pattern /home/dockerslimprobe/**"
+    " --exclude-pattern /var/mail/dockerslimprobe"
 )
 TRUE_WORDS = ("true", "1", "yes")
 FALSE_WORDS = ("false", "0", "no")

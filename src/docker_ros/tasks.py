@@ -36,6 +36,7 @@ from docker_ros.settings import (
     display_value,
     env_name,
     flag_name,
+    host_platform,
     is_secret,
     kind_of,
     made_images,
@@ -437,7 +438,7 @@ def _build(settings: Settings, targets: Sequence[str], *, dry_run: bool,
                 if shell_on_failure:
                     reproduce_failure(settings, exc)
                 raise TaskError(str(exc)) from None
-        if slim and "run" in targets:
+        if slim and "run" in targets and _slims(settings, platform):
             slimmed = _slim(settings, platform, dry_run=dry_run)
             built += [] if dry_run else [slimmed]
     if built:
@@ -475,6 +476,16 @@ def _slim_options(settings: Settings) -> None:
         raise TaskError(str(exc)) from None
 
 
+def _slims(settings: Settings, platform: str) -> bool:
+    """Whether platform's run image is slimmed here (build.slim_platforms); says when not."""
+    if platform in build.slim_platforms(settings.platform, host_platform()):
+        return True
+    print(f"slim: {platform}: not slimmed on this {host_platform()} runner (slimming runs the "
+          f"image; as docker-ros, a multi-arch job slims the runner's architecture only)",
+          flush=True)
+    return False
+
+
 def _slim(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
     from docker_ros import slim
 
@@ -503,7 +514,8 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
         print(f"slim: run image {', '.join(refs)} neither local nor pullable: building it")
         _build(settings, ("run",), dry_run=dry_run, slim=True)
         return
-    slimmed = [_slim(settings, p, dry_run=dry_run) for p in settings.platform]
+    slimmed = [_slim(settings, p, dry_run=dry_run) for p in settings.platform
+               if _slims(settings, p)]
     if not dry_run:
         print(build.summary_table(slimmed))
 
@@ -641,7 +653,8 @@ def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     images = made_images(settings)
     if "slim" in images:
         _require_tasks([["slim"]])
-    _push_and_report(settings, images, manifest, dry_run=dry_run)
+    with _job_login(settings, "docker-ros manifest", dry_run=dry_run):
+        _push_and_report(settings, images, manifest, dry_run=dry_run)
 
 
 @settings_task(
@@ -662,15 +675,36 @@ def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     # The tasks re-read .env, invoke.yaml and the environment; flags given to `ci` go along.
     given = [arg for n in FIELDS if settings.source_of(n) == "flag"
              for arg in ("--set", f"{env_name(n)}={display_value(settings, n)}")]
-    for argv in plan:
-        command = [sys.executable, "-m", "docker_ros", *argv, *given]
-        print(f"docker-ros ci: docker-ros {format_argv(argv + given)}", flush=True)
-        if dry_run:
-            continue
-        code = subprocess.call(command)
-        if code != 0:
-            raise TaskError(f"`docker-ros {argv[0]}` failed with exit code {code}; "
-                            "nothing after it ran")
+    with _job_login(settings, "docker-ros ci", dry_run=dry_run):
+        for argv in plan:
+            command = [sys.executable, "-m", "docker_ros", *argv, *given]
+            print(f"docker-ros ci: docker-ros {format_argv(argv + given)}", flush=True)
+            if dry_run:
+                continue
+            code = subprocess.call(command)
+            if code != 0:
+                raise TaskError(f"`docker-ros {argv[0]}` failed with exit code {code}; "
+                                "nothing after it ran")
+
+
+@contextlib.contextmanager
+def _job_login(settings: Settings, label: str, *, dry_run: bool) -> Iterator[None]:
+    """REGISTRY_USER/REGISTRY_PASSWORD logged in before anything else of the job (a private
+    BASE_IMAGE or CACHE_FROM), into a DOCKER_CONFIG of the job's own, removed at its end."""
+    from docker_ros.login import LoginError, job_login, plan_login
+
+    argv = plan_login(settings)
+    if dry_run:
+        if argv:
+            print(f"[dry-run] {label}: {format_argv(argv)} (password on standard input, "
+                  "job-private DOCKER_CONFIG)")
+        yield
+        return
+    try:
+        with job_login(settings, os.environ, label=label):
+            yield
+    except LoginError as exc:
+        raise TaskError(str(exc)) from None
 
 
 def _require_tasks(plan: Sequence[Sequence[str]]) -> None:

@@ -3,15 +3,19 @@ what a registry holds."""
 
 from __future__ import annotations
 
+import base64
+import contextlib
 import json
 import os
 import shutil
 import subprocess
 import urllib.request
 from pathlib import Path
-from typing import Dict, List
+from typing import Any, Dict, List, Mapping, Optional, Tuple
 
+import docker
 import pytest
+import yaml
 
 from tests.docker.buildhelp import EXAMPLE, remove_image, run_until, write_env
 
@@ -43,11 +47,24 @@ def example_repository(root: Path, base_image: str, source: Path = EXAMPLE,
     return repo
 
 
-def registry_tags(registry: str, name: str) -> List[str]:
+def registry_get(registry: str, path: str, auth: Optional[Mapping[str, str]] = None,
+                 accept: str = "") -> Any:
+    """GET a registry API path (JSON), with basic authentication when auth is given."""
     opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+    request = urllib.request.Request(f"http://{registry}/v2/{path}")
+    if auth:
+        pair = f"{auth['username']}:{auth['password']}".encode()
+        request.add_header("Authorization", "Basic " + base64.b64encode(pair).decode())
+    if accept:
+        request.add_header("Accept", accept)
+    with opener.open(request, timeout=10) as answer:
+        return json.load(answer)
+
+
+def registry_tags(registry: str, name: str,
+                  auth: Optional[Mapping[str, str]] = None) -> List[str]:
     try:
-        with opener.open(f"http://{registry}/v2/{name}/tags/list", timeout=10) as answer:
-            return sorted(json.load(answer).get("tags") or [])
+        return sorted(registry_get(registry, f"{name}/tags/list", auth).get("tags") or [])
     except OSError:
         return []
 
@@ -60,10 +77,41 @@ def manifest_architectures(ref: str) -> List[str]:
     return sorted(m["platform"]["architecture"] for m in data.get("manifests", []))
 
 
-def assert_pulled_image_runs(ref: str) -> None:
+def index_architectures(registry: str, name: str, tag: str,
+                        auth: Optional[Mapping[str, str]] = None) -> List[str]:
+    """Architectures of a manifest list (or OCI index) in a loopback registry that may require
+    a login (empty: not a list); attestation entries (`unknown`) left out."""
+    accept = ("application/vnd.docker.distribution.manifest.list.v2+json,"
+              "application/vnd.oci.image.index.v1+json")
+    data = registry_get(registry, f"{name}/manifests/{tag}", auth, accept)
+    return sorted(m["platform"]["architecture"] for m in data.get("manifests", [])
+                  if m.get("platform", {}).get("architecture") != "unknown")
+
+
+def push_private_base_image(source: str, registry: str,
+                            auth: Mapping[str, str]) -> str:
+    """source pushed to an authenticated registry under a name no local image has: a job that
+    builds FROM it must log in and pull it."""
+    ref = f"{registry}/docker-ros-test/private-base:bookworm"
+    client = docker.from_env()
+    client.images.get(source).tag(ref)
+    for event in client.images.push(ref, auth_config=dict(auth), stream=True, decode=True):
+        assert "error" not in event, event
+    forget_local(ref)
+    return ref
+
+
+def forget_local(ref: str) -> None:
+    """Untag ref locally (the layers stay, they are the source's)."""
+    with contextlib.suppress(docker.errors.NotFound):
+        docker.from_env().images.remove(ref)
+
+
+def assert_pulled_image_runs(ref: str, auth: Optional[Mapping[str, str]] = None) -> None:
     """Pull ref afresh from the registry and run it until the example's listener hears."""
     remove_image(ref)
-    subprocess.run(["docker", "pull", "-q", ref], check=True, capture_output=True)
+    repository, tag = ref.rsplit(":", 1)
+    docker.from_env().images.pull(repository, tag=tag, auth_config=dict(auth) if auth else None)
     try:
         out = run_until(ref, HEARD, 90)
         assert HEARD in out, out[-3000:]
@@ -85,16 +133,48 @@ def include_gitlab_template(repo: Path, variables: Dict[str, str]) -> None:
     git(repo, "commit", "-qm", "ci")
 
 
-def gitlab_ci_local(repo: Path, variables: Dict[str, str]) -> subprocess.CompletedProcess:
-    """The whole pipeline, every job through the shell executor (the template's docker:dind
-    image cannot be pulled here; a shell runner is a supported way to run it)."""
+def gitlab_ci_local(repo: Path, variables: Dict[str, str], *jobs: str,
+                    secrets: Optional[Dict[str, str]] = None,
+                    env: Optional[Dict[str, str]] = None) -> subprocess.CompletedProcess:
+    """The whole pipeline (or these jobs), every job through the shell executor (the
+    template's docker:dind image cannot be pulled here; a shell runner is a supported way to
+    run it). secrets come from the project variables file, as from GitLab's settings: no
+    command line holds them (gitlab-ci-local 4.70 reads that file only from the working
+    directory, and makes a file variable of a value that names an existing path)."""
     executable = shutil.which("gitlab-ci-local")
     if executable is None:
         pytest.fail("gitlab-ci-local (npm) is not installed; run `bash scripts/setup.sh` first")
+    if secrets:
+        secrets_file = repo / ".gitlab-ci-local-variables.yml"
+        secrets_file.write_text(yaml.safe_dump(secrets))
+        with (repo / ".git" / "info" / "exclude").open("a") as exclude:
+            exclude.write(f"/{secrets_file.name}\n")
     argv = [executable, "--force-shell-executor", "--no-color",
-            "--ignore-predefined-vars", "GITLAB_CI"]
+            "--ignore-predefined-vars", "GITLAB_CI", *jobs]
     for key, value in variables.items():
         argv += ["--variable", f"{key}={value}"]
-    env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    if env is None:
+        env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
     return subprocess.run(argv, cwd=repo, env=env, stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT, text=True, timeout=1800)
+
+
+def docker_recorder(root: Path) -> Tuple[Path, Path, Path]:
+    """A DOCKER_CONFIG of the test's own (with the user's CLI plugins such as buildx) and a
+    folder to put first on PATH whose `docker` writes each command line to a file, then runs
+    the real docker: what a leaked secret on a command line would show. Returns the config
+    folder, the command-line file and the PATH folder."""
+    real = shutil.which("docker")
+    assert real, "docker CLI not found"
+    config, shim = root / "docker-config", root / "docker-shim"
+    config.mkdir()
+    shim.mkdir()
+    plugins = Path(os.environ.get("DOCKER_CONFIG", Path.home() / ".docker")) / "cli-plugins"
+    if plugins.is_dir():
+        (config / "cli-plugins").symlink_to(plugins)
+    argv_log = root / "docker-argv.log"
+    argv_log.touch()
+    (shim / "docker").write_text(f"#!/bin/sh\nprintf '%s\\n' \"$*\" >> '{argv_log}'\n"
+                                 f"exec '{real}' \"$@\"\n")
+    (shim / "docker").chmod(0o755)
+    return config, argv_log, shim

@@ -23,10 +23,9 @@ THEIRS = Path(__file__).resolve().parent / "data"
 SETUP_HINT = "run `bash scripts/setup.sh` first"
 # Settings that are no CI input: the host workspace; IMAGE (IMAGE_NAME/IMAGE_TAG are inputs).
 NOT_INPUTS = {"workspace", "image"}
-# Deliberately not docker-ros's action defaults: derived from image-name as the README table
-# says (docker-ros's own ghcr.io default ignored a changed image-name), the README's slim args.
-OUR_DEFAULTS = {"dev-image-name": None, "slim-image-name": None,
-                "slim-build-args": SLIM_BUILD_ARGS_DEFAULT}
+# Deliberately not docker-ros's action defaults (README, Migrating from docker-ros): derived from
+# image-name (docker-ros's own ghcr.io default ignored a changed image-name).
+OUR_DEFAULTS = {"dev-image-name": None, "slim-image-name": None}
 
 
 class GitLabLoader(yaml.SafeLoader):
@@ -137,8 +136,6 @@ def test_template_has_every_docker_ros_variable_with_its_default() -> None:
         assert name in ours, name
         if name in derived:
             assert ours[name] == "", name  # derived by docker-ros from IMAGE_NAME/IMAGE_TAG
-        elif name == "SLIM_BUILD_ARGS":
-            assert ours[name] == SLIM_BUILD_ARGS_DEFAULT
         else:
             assert str(ours[name]) == str(default), name
     for name in FIELDS:
@@ -146,13 +143,101 @@ def test_template_has_every_docker_ros_variable_with_its_default() -> None:
             assert name.upper() in ours, name
 
 
+def test_slim_build_args_default_is_docker_ros_s() -> None:
+    assert theirs("gitlab-variables")["SLIM_BUILD_ARGS"] == SLIM_BUILD_ARGS_DEFAULT
+    assert theirs("action-inputs")["slim-build-args"] == SLIM_BUILD_ARGS_DEFAULT
+
+
 def test_template_installs_at_docker_ros_git_ref_and_runs_the_tasks() -> None:
     template = load(TEMPLATE)
     setup = "\n".join(template["default"]["before_script"])
     assert 'spec="git+${DOCKER_ROS_GIT_URL}@${DOCKER_ROS_GIT_REF}"' in setup
-    assert template[".docker-ros-build"]["script"] == ['PLATFORM="$_PLATFORM" docker-ros ci']
-    assert template["manifest"]["script"] == ["docker-ros manifest"]
-    assert {"build-amd64", "build-arm64"} <= set(template)
+    assert template[".build"]["script"] == [[".docker-ros-qemu", "script"],
+                                            'PLATFORM="$_PLATFORM" docker-ros ci']
+    assert template[".push"]["script"] == ["docker-ros manifest"]
+    assert template["Push"] == {"extends": ".push"}
+    assert template["default"]["image"] == "docker:27.5.1-git"  # pinned, as docker-ros
+    assert template["default"]["services"] == ["docker:27.5.1-dind"]
+
+
+def test_switching_gitlab_is_one_include_line() -> None:
+    """DOCKER_ROS_GIT_URL defaults to where the template is published (the README's include)."""
+    url = load(TEMPLATE)["variables"]["DOCKER_ROS_GIT_URL"]
+    include = load(EXAMPLES / "gitlab-ci.yml")["include"][0]["remote"]
+    owner_repo = include.split("raw.githubusercontent.com/", 1)[1].rsplit("/", 3)[0]
+    assert url == f"https://github.com/{owner_repo}.git"
+    assert "DOCKER_ROS_GIT_URL" not in load(EXAMPLES / "gitlab-ci.yml")["variables"]
+
+
+def stage_of(template: dict, job: str) -> object:
+    """A job's stage, following `extends` (the last one that sets it wins, as in GitLab)."""
+    spec = template[job]
+    if "stage" in spec:
+        return spec["stage"]
+    parents = spec.get("extends", [])
+    for parent in reversed([parents] if isinstance(parents, str) else parents):
+        stage = stage_of(template, parent)
+        if stage is not None:
+            return stage
+    return None
+
+
+def test_template_keeps_docker_ros_stages_and_job_names() -> None:
+    """A .gitlab-ci.yml that overrides docker-ros's jobs or names its stages stays valid."""
+    template, recorded = load(TEMPLATE), theirs("gitlab-jobs")
+    assert template["stages"] == recorded["stages"]
+    for job, spec in recorded["jobs"].items():
+        assert job in template, job
+        expected = spec["stage"] or ("Test ROS Industrial CI" if job.startswith("Test")
+                                     else "Build Images")
+        assert stage_of(template, job) == expected, job
+    for job in recorded["jobs"]:
+        if job.startswith(("Test", "Slim", "Push ")):  # moved: never run, fail if made to
+            assert template[job]["extends"] in (".test", ".slim", [".push", ".docker-ros-moved"])
+            assert template[job]["variables"]["DOCKER_ROS_MOVED_TO"]
+    for hidden in (".test", ".slim"):
+        assert template[hidden]["extends"] == ".docker-ros-moved"
+    assert template[".docker-ros-moved"]["rules"] == [{"when": "never"}]
+
+
+QEMU_CASES = [
+    ("amd64", ["qemu-aarch64"], "", None),
+    ("arm64", ["qemu-aarch64"], "QEMU (qemu-aarch64) is registered", None),
+    ("arm64", [], "registering QEMU (multiarch/qemu-user-static:7.2.0-1)",
+     "run --rm --privileged multiarch/qemu-user-static:7.2.0-1 --reset -p yes"),
+]
+
+
+@pytest.mark.parametrize("platform,handlers,said,docker_argv", QEMU_CASES)
+def test_gitlab_job_of_another_architecture_registers_qemu(
+        tmp_path: Path, platform: str, handlers: list, said: str, docker_argv: object) -> None:
+    """The build jobs' QEMU snippet, run by bash on this amd64 machine. Registering is recorded
+    by a `docker` that only writes its command line: pulling multiarch/qemu-user-static needs
+    Docker Hub, which this machine cannot reach."""
+    template = load(TEMPLATE)
+    snippet = template[".docker-ros-qemu"]["script"][0]
+    binfmt = tmp_path / "binfmt"
+    binfmt.mkdir()
+    for handler in handlers:
+        (binfmt / handler).touch()
+    shim = tmp_path / "bin"
+    shim.mkdir()
+    (shim / "docker").write_text(f"#!/bin/sh\necho \"$*\" > {tmp_path}/docker-argv\n")
+    (shim / "docker").chmod(0o755)
+    env = {"PATH": f"{shim}:/usr/bin:/bin", "_PLATFORM": platform, "BINFMT_MISC": str(binfmt),
+           "DOCKER_ROS_QEMU_IMAGE": template["variables"]["DOCKER_ROS_QEMU_IMAGE"]}
+    result = subprocess.run(["bash", "-ec", snippet], env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert said in result.stdout and (said or result.stdout == "")
+    recorded = tmp_path / "docker-argv"
+    assert (recorded.read_text().strip() if recorded.exists() else None) == docker_argv
+
+
+def test_action_keeps_later_steps_python() -> None:
+    """The venv's bin is not put on GITHUB_PATH; the docker-ros step calls it by its path."""
+    steps = {step.get("id"): step for step in load(ACTION)["runs"]["steps"]}
+    assert "GITHUB_PATH" not in steps["setup"]["run"]
+    assert steps["docker-ros"]["run"] == '"$DOCKER_ROS_BIN/docker-ros" "$DOCKER_ROS_TASK"'
 
 
 def test_readme_shows_the_example_files() -> None:

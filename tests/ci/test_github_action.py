@@ -1,6 +1,8 @@
 """The GitHub Action run for real as far as this machine allows: github_harness runs
 action.yml's steps in order for a push to a feature branch and to the default branch of a copy
-of example/, pushing to a local registry."""
+of example/, with the inputs of docker-ros's README example, pushing to a local registry that
+requires a login (github.actor / github.token, the defaults of registry-user/-password), FROM a
+private base image there."""
 
 from __future__ import annotations
 
@@ -10,10 +12,14 @@ import subprocess
 import pytest
 
 from tests.ci.cihelp import (
+    EXAMPLE_COMMAND,
     REPO,
     assert_pulled_image_runs,
+    docker_recorder,
     example_repository,
+    forget_local,
     git,
+    push_private_base_image,
     registry_tags,
 )
 from tests.ci.github_harness import Event, run_action
@@ -21,33 +27,33 @@ from tests.ci.github_harness import Event, run_action
 pytestmark = pytest.mark.docker
 
 IMAGE = "docker-ros-test/ci-github"
-FEATURE = "Feature/GitHub_Test"
+FEATURE = "Feature/GitHub--Test"
 
 
 @pytest.fixture(scope="module")
-def runs(ros1_base_image: str, local_registry: str,
-         tmp_path_factory: pytest.TempPathFactory) -> dict:
+def runs(ros1_base_image: str, auth_registry, tmp_path_factory: pytest.TempPathFactory) -> dict:
     root = tmp_path_factory.mktemp("github")
-    repo = example_repository(root, ros1_base_image)
+    base = push_private_base_image(ros1_base_image, auth_registry.address, auth_registry.auth)
+    repo = example_repository(root, base)
     git(repo, "push", "-q", "origin", f"main:{FEATURE}")
-    inputs = {
-        "base-image": ros1_base_image,
-        "target": "dev,run",
-        "image-name": f"{local_registry}/{IMAGE}",
-        "registry": local_registry,
-        "registry-user": "",  # the local registry needs no login
-        "registry-password": "",
-        "enable-slim": "false",
-        "enable-industrial-ci": "false",
-        "enable-push-as-latest": "true",
-    }
+    # docker-ros's README example "Build development and deployment images" as it is, plus
+    # where to push (ghcr.io cannot be reached here)
+    example = {"base-image": base, "command": EXAMPLE_COMMAND, "target": "dev,run"}
+    inputs = {**example, "image-name": f"{auth_registry.address}/{IMAGE}",
+              "registry": auth_registry.address, "enable-push-as-latest": "true"}
+    docker_config, argv_log, shim = docker_recorder(root)
     env = {k: v for k, v in os.environ.items()
            if k not in ("TARGET", "COMMAND", "IMAGE") and not k.startswith(("GITHUB_", "CI_"))}
+    env.update({"PATH": f"{shim}{os.pathsep}{env['PATH']}", "DOCKER_CONFIG": str(docker_config)})
     results = {}
-    for key, branch in (("feature", FEATURE), ("main", "main")):
-        event = Event(origin=root / "origin.git", repository="Org/Example-Repo", ref_name=branch)
-        results[key] = run_action(REPO, inputs, event, root / key, env)
-    return {"registry": local_registry, **results}
+    for key, branch, extra in (("feature", FEATURE, {"enable-slim": "false"}),
+                               ("main", "main", {})):
+        forget_local(base)  # each run pulls it
+        event = Event(origin=root / "origin.git", repository="Org/Example-Repo", ref_name=branch,
+                      actor=auth_registry.user, token=auth_registry.password)
+        results[key] = run_action(REPO, {**inputs, **extra}, event, root / key, env)
+    return {"registry": auth_registry, "root": root, "docker_config": docker_config,
+            "argv_log": argv_log, **results}
 
 
 def test_action_runs_every_step(runs: dict) -> None:
@@ -58,18 +64,21 @@ def test_action_runs_every_step(runs: dict) -> None:
         checkout = run.replaced[0]
         assert checkout == {"uses": "actions/checkout@v4",
                             "with": {"submodules": "recursive", "lfs": "true"}}
+        assert "docker-ros setup: docker-ros " in run.log
 
 
 def test_feature_branch_gets_the_ci_postfix_and_main_also_latest(runs: dict) -> None:
-    assert registry_tags(runs["registry"], IMAGE) == [
-        "latest", "latest-build-state-amd64", "latest-dev",
-        "latest-dev_feature-github-test_ci", "latest_feature-github-test_ci",
+    """The branch slug as docker-ros's action makes it (gacts/github-slug: `--` collapses)."""
+    auth = runs["registry"]
+    assert registry_tags(auth.address, IMAGE, auth.auth) == [
+        "latest", "latest-build-state-amd64", "latest-dev", "latest-dev_feature-github-test_ci",
+        "latest-slim", "latest_feature-github-test_ci",
         "latest_feature-github-test_ci-build-state-amd64",
     ]
 
 
 def test_outputs_name_the_pushed_images(runs: dict) -> None:
-    name = f"{runs['registry']}/{IMAGE}"
+    name = f"{runs['registry'].address}/{IMAGE}"
     assert runs["feature"].outputs["docker-ros"] == {
         "images": f"{name}:latest-dev_feature-github-test_ci,{name}:latest_feature-github-test_ci",
         "dev-image": f"{name}:latest-dev_feature-github-test_ci",
@@ -77,20 +86,30 @@ def test_outputs_name_the_pushed_images(runs: dict) -> None:
         "build-state-image": f"{name}:latest_feature-github-test_ci-build-state-amd64",
     }
     # IMAGE_TAG is latest already: ENABLE_PUSH_AS_LATEST adds no second push of it
-    assert runs["main"].outputs["docker-ros"]["images"] == f"{name}:latest-dev,{name}:latest"
+    assert runs["main"].outputs["docker-ros"]["images"] == (
+        f"{name}:latest-dev,{name}:latest,{name}:latest-slim")
 
 
 def test_token_never_reaches_the_log(runs: dict) -> None:
-    """git-https-password defaults to github.token: it goes to the build as a secret only."""
-    token = "ghs_harnessTokenNeverLogged0123456789"
+    """github.token is the registry password and the git password by default: logged in with
+    it on standard input, it is in no log, docker command line or image history, and no
+    login is left in the runner's DOCKER_CONFIG or its temporary folder."""
+    auth = runs["registry"]
     for key in ("feature", "main"):
-        assert token not in runs[key].log
+        assert auth.password not in runs[key].log
+        assert f"docker-ros ci: logged in to {auth.address} as {auth.user}" in runs[key].log
+        assert list((runs["root"] / key / "runner-temp").glob("docker-ros-login-*")) == []
+    argvs = runs["argv_log"].read_text()
+    assert f"login --username {auth.user} --password-stdin {auth.address}" in argvs
+    assert auth.password not in argvs
+    config = runs["docker_config"] / "config.json"
+    assert auth.address not in (config.read_text() if config.exists() else "")
     history = subprocess.run(["docker", "history", "--no-trunc",
-                              f"{runs['registry']}/{IMAGE}:latest"],
+                              f"{auth.address}/{IMAGE}:latest"],
                              capture_output=True, text=True, check=True).stdout
-    assert token not in history
+    assert auth.password not in history
 
 
 def test_pushed_run_image_runs(runs: dict) -> None:
-    ref = f"{runs['registry']}/{IMAGE}:latest_feature-github-test_ci"
-    assert_pulled_image_runs(ref)
+    ref = f"{runs['registry'].address}/{IMAGE}:latest_feature-github-test_ci"
+    assert_pulled_image_runs(ref, runs["registry"].auth)

@@ -1,81 +1,192 @@
 """The GitLab CI template run for real: gitlab-ci-local executes its jobs with the shell executor
-on a copy of example/ (a git repository with an origin), pushing to a local registry."""
+on a copy of example/ (a git repository with an origin) whose .gitlab-ci.yml is docker-ros's
+README example with overrides of docker-ros's job and stage names, pushing to a local registry
+that requires a login, FROM a private base image in it."""
 
 from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from tests.ci.cihelp import (
+    EXAMPLE_COMMAND,
     REPO,
     assert_pulled_image_runs,
+    docker_recorder,
     example_repository,
+    forget_local,
     git,
     gitlab_ci_local,
-    include_gitlab_template,
-    manifest_architectures,
+    index_architectures,
+    push_private_base_image,
     registry_tags,
 )
 
 pytestmark = pytest.mark.docker
 
 IMAGE = "docker-ros-test/ci-gitlab"
-FEATURE = "Feature/GitLab_Test"
+FEATURE = "Feature/GitLab--Test"
+# docker-ros's README example ("Build development and deployment images") with the `include:`
+# changed as the migration notes say (local: the template of this checkout), then overrides of
+# docker-ros's jobs and stages as users write them.
+GITLAB_CI = """\
+include:
+  - local: .gitlab-ci/docker-ros.yml
+
+variables:
+  BASE_IMAGE: {base_image}
+  COMMAND: {command}
+  TARGET: dev,run
+
+# A shell runner ignores services; gitlab-ci-local would try to pull docker:dind.
+default:
+  services: []
+
+build-amd64:
+  tags: [privileged, amd64, own-runner]
+Test dev-amd64:
+  variables:
+    BEFORE_INIT: echo industrial_ci-only
+Slim run-amd64:
+  tags: [own-runner]
+Push latest:
+  tags: [own-runner]
+image-check:
+  stage: Slim Images
+  needs: [build-amd64]
+  before_script: []
+  script: [echo checked by a job in a docker-ros stage]
+"""
+
+
+def docker_ros_wheel(folder: Path) -> Path:
+    """This checkout as a wheel, built once: each job installs it (a pip requirement as
+    DOCKER_ROS_PIP_SPEC allows) in seconds instead of building the package again."""
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet",
+                    "--disable-pip-version-check", "-w", str(folder), str(REPO)], check=True)
+    return next(folder.glob("docker_ros-*.whl"))
 
 
 @pytest.fixture(scope="module")
-def pipelines(ros1_base_image: str, local_registry: str,
-              tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """The template included by a repository; one pipeline on a feature branch, one on main."""
-    repo = example_repository(tmp_path_factory.mktemp("gitlab"), ros1_base_image)
-    include_gitlab_template(repo, {"TARGET": "dev,run", "ENABLE_SLIM": "false",
-                                   "ENABLE_INDUSTRIAL_CI": "false"})
+def pipelines(ros1_base_image: str, auth_registry, tmp_path_factory: pytest.TempPathFactory
+              ) -> dict:
+    """One pipeline on a feature branch, one on main; jobs log in to a registry that requires
+    it, build FROM a private image there, and run docker with a recorded command line."""
+    root = tmp_path_factory.mktemp("gitlab")
+    base = push_private_base_image(ros1_base_image, auth_registry.address, auth_registry.auth)
+    repo = example_repository(root, base)
+    (repo / ".gitlab-ci").mkdir()
+    shutil.copy(REPO / ".gitlab-ci" / "docker-ros.yml", repo / ".gitlab-ci" / "docker-ros.yml")
+    (repo / ".gitlab-ci.yml").write_text(GITLAB_CI.format(base_image=base,
+                                                          command=EXAMPLE_COMMAND))
+    git(repo, "add", "-A")
+    git(repo, "commit", "-qm", "ci")
     variables = {
         "GITLAB_CI": "true",  # gitlab-ci-local says false; GitLab says true
-        "IMAGE_NAME": f"{local_registry}/{IMAGE}",
-        "DOCKER_ROS_PIP_SPEC": str(REPO),
+        "IMAGE_NAME": f"{auth_registry.address}/{IMAGE}",
+        "REGISTRY": auth_registry.address,
+        "REGISTRY_USER": auth_registry.user,
+        "DOCKER_ROS_PIP_SPEC": str(docker_ros_wheel(root / "wheel")),
+        "ENABLE_SLIM": "false",
+        "ENABLE_INDUSTRIAL_CI": "false",
     }
+    runner_tmp = root / "runner-tmp"
+    runner_tmp.mkdir()
+    docker_config, argv_log, shim = docker_recorder(root)
+    env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    env.update({"PATH": f"{shim}{os.pathsep}{env['PATH']}", "DOCKER_CONFIG": str(docker_config),
+                "TMPDIR": str(runner_tmp)})
     results = {}
     git(repo, "checkout", "-q", "-b", FEATURE)
-    results["feature"] = gitlab_ci_local(repo, variables)
+    secrets = {"REGISTRY_PASSWORD": auth_registry.password}
+    results["feature"] = gitlab_ci_local(repo, variables, secrets=secrets, env=env)
     git(repo, "checkout", "-q", "main")
-    # On main, as docker-ros's defaults: tests and the slim image (pipeline variables beat the
-    # file's, as in GitLab).
+    forget_local(base)  # the main pipeline pulls it again
+    # On main, as docker-ros's defaults: tests and the slim image.
     results["main"] = gitlab_ci_local(repo, {**variables, "ENABLE_SLIM": "true",
-                                             "ENABLE_INDUSTRIAL_CI": "true"})
-    return {"registry": local_registry, **results}
+                                             "ENABLE_INDUSTRIAL_CI": "true"},
+                                     secrets=secrets, env=env)
+    return {"registry": auth_registry, "repo": repo, "env": env, "variables": variables,
+            "secrets": secrets,
+            "docker_config": docker_config, "argv_log": argv_log, "runner_tmp": runner_tmp,
+            **results}
 
 
 def test_pipelines_pass(pipelines: dict) -> None:
     for branch in ("feature", "main"):
         result = pipelines[branch]
         assert result.returncode == 0, result.stdout[-6000:]
-        assert "PASS  build-amd64" in result.stdout and "PASS  manifest" in result.stdout
+        for job in ("build-amd64", "Push", "image-check"):
+            assert f"PASS  {job}" in result.stdout, job
         assert "build-arm64" not in result.stdout  # PLATFORM=amd64: no arm64 job
+        assert "Slim run-amd64" not in result.stdout  # overridden, never run: build slims
+        assert "docker-ros setup: docker-ros " in result.stdout
 
 
 def test_feature_branch_and_main_push_docker_ros_tags(pipelines: dict) -> None:
-    assert registry_tags(pipelines["registry"], IMAGE) == [
+    auth = pipelines["registry"]
+    assert registry_tags(auth.address, IMAGE, auth.auth) == [
         "latest", "latest-amd64", "latest-build-state-amd64", "latest-dev", "latest-dev-amd64",
-        "latest-dev_feature-gitlab-test_ci", "latest-dev_feature-gitlab-test_ci-amd64",
+        "latest-dev_feature-gitlab--test_ci", "latest-dev_feature-gitlab--test_ci-amd64",
         "latest-slim", "latest-slim-amd64",
-        "latest_feature-gitlab-test_ci", "latest_feature-gitlab-test_ci-amd64",
-        "latest_feature-gitlab-test_ci-build-state-amd64",
+        "latest_feature-gitlab--test_ci", "latest_feature-gitlab--test_ci-amd64",
+        "latest_feature-gitlab--test_ci-build-state-amd64",
     ]
-    assert manifest_architectures(f"{pipelines['registry']}/{IMAGE}:latest") == ["amd64"]
+    assert index_architectures(auth.address, IMAGE, "latest", auth.auth) == ["amd64"]
 
 
 def test_secrets_and_setup_stay_out_of_the_log(pipelines: dict) -> None:
+    """Each job logs in first, password on standard input; the password is in no log and no
+    docker command line; no credential is left behind."""
+    auth = pipelines["registry"]
     log = pipelines["main"].stdout
     for task in ("build", "test", "slim", "push"):
         assert f"docker-ros ci: docker-ros {task}" in log, task
     assert "docker-ros test (amd64): " in log
-    assert "--password" not in log.replace("--password-stdin", "")
+    for branch in ("feature", "main"):
+        out = pipelines[branch].stdout
+        assert auth.password not in out
+        assert f"docker-ros ci: logged in to {auth.address} as {auth.user}" in out
+        assert f"docker-ros manifest: logged in to {auth.address} as {auth.user}" in out
+    argvs = pipelines["argv_log"].read_text()
+    assert f"login --username {auth.user} --password-stdin {auth.address}" in argvs
+    assert "buildx build" in argvs or "buildx bake" in argvs
+    assert auth.password not in argvs
+    # the DOCKER_CONFIG of the runner holds no login; the jobs' folders are gone
+    config = pipelines["docker_config"] / "config.json"
+    assert auth.address not in (config.read_text() if config.exists() else "")
+    assert list(pipelines["runner_tmp"].iterdir()) == []
 
 
 def test_pushed_run_image_runs(pipelines: dict) -> None:
-    ref = f"{pipelines['registry']}/{IMAGE}:latest_feature-gitlab-test_ci"
-    assert_pulled_image_runs(ref)
+    ref = f"{pipelines['registry'].address}/{IMAGE}:latest_feature-gitlab--test_ci"
+    assert_pulled_image_runs(ref, pipelines["registry"].auth)
 
 
 def test_pushed_slim_image_runs(pipelines: dict) -> None:
-    assert_pulled_image_runs(f"{pipelines['registry']}/{IMAGE}:latest-slim")
+    assert_pulled_image_runs(f"{pipelines['registry'].address}/{IMAGE}:latest-slim",
+                             pipelines["registry"].auth)
+
+
+def test_a_moved_job_made_to_run_says_where_its_work_is(pipelines: dict) -> None:
+    """An override that gives docker-ros's `Slim run-amd64` rules of its own: that job fails
+    with one line naming the job that slims now."""
+    repo = pipelines["repo"]
+    ci = repo / ".gitlab-ci.yml"
+    original = ci.read_text()
+    try:
+        ci.write_text(original.replace("Slim run-amd64:\n",
+                                       "Slim run-amd64:\n  rules:\n    - when: always\n"))
+        result = gitlab_ci_local(repo, pipelines["variables"], "Slim run-amd64",
+                                 secrets=pipelines["secrets"], env=pipelines["env"])
+    finally:
+        ci.write_text(original)
+    assert result.returncode != 0
+    assert ('docker-ros: job "Slim run-amd64" no longer exists (its work runs in build-amd64 '
+            '(ENABLE_SLIM)); move your override of "Slim run-amd64" to build-amd64 (ENABLE_SLIM)'
+            in result.stdout), result.stdout[-3000:]

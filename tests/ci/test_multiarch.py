@@ -1,7 +1,7 @@
 """Two architectures for real (issue 21): amd64 natively and arm64 under QEMU, each from its
 own base image (`<BASE_IMAGE>-arm64`, as bootstrap tags it), pushed to a local registry with
 one manifest list per image, both by `docker-ros push` with PLATFORM=amd64,arm64 and by the
-GitLab template's per-architecture jobs and its manifest job (gitlab-ci-local). The pulled
+GitLab template's per-architecture jobs and its Push job (gitlab-ci-local). The pulled
 arm64 run image runs its talker and listener.
 
 The workspace is one Python catkin package (a real colcon build, no C++ compile and no -dev
@@ -142,7 +142,7 @@ def test_two_platforms_push_both_images_and_one_manifest_list_per_image(
 def test_gitlab_jobs_per_architecture_then_the_manifest_job(
     repository: Path, local_registry: str, tmp_path: Path
 ) -> None:
-    """build-amd64 and build-arm64 push `-<arch>` (ENABLE_SINGLEARCH_PUSH), manifest joins."""
+    """build-amd64 and build-arm64 push `-<arch>` (ENABLE_SINGLEARCH_PUSH), Push joins."""
     repo = tmp_path / "repo"
     subprocess.run(["git", "clone", "-q", str(repository), str(repo)], check=True)
     include_gitlab_template(repo, {"TARGET": "run", "PLATFORM": "amd64,arm64",
@@ -153,7 +153,7 @@ def test_gitlab_jobs_per_architecture_then_the_manifest_job(
                                     "IMAGE_NAME": f"{local_registry}/{image}"})
     print(f"gitlab-ci-local, PLATFORM=amd64,arm64: {time.monotonic() - began:.0f} s")
     assert result.returncode == 0, result.stdout[-6000:]
-    for job in ("build-amd64", "build-arm64", "manifest"):
+    for job in ("build-amd64", "build-arm64", "Push"):
         assert f"PASS  {job}" in result.stdout, job
     assert registry_tags(local_registry, image) == [
         "latest", "latest-amd64", "latest-arm64",

@@ -9,9 +9,11 @@ from docker_ros.ci import (
     Pipeline,
     detect_pipeline,
     github_default_branch,
+    github_slug,
     missing_tasks,
     plan_ci_job,
     slugify,
+    tag_postfix,
 )
 from docker_ros.config import read_settings
 from docker_ros.push import plan_outputs, plan_push, push_targets
@@ -67,6 +69,26 @@ def test_slug_is_gitlabs_ci_commit_ref_slug():
     assert slugify("-fix--Ü-") == "fix"
     assert slugify("x" * 70 + "/y") == "x" * 63
     assert slugify("a" * 62 + "/b") == "a" * 62  # cut at 63, then no trailing -
+    assert slugify("feat--x__y") == "feat--x--y"  # GitLab keeps runs of `-`
+
+
+def test_github_slug_is_the_one_of_docker_ros_s_action():
+    """gacts/github-slug@v1's own test cases, and branch names."""
+    assert github_slug(" Foo_bar--_--baz V1.2.3 %_#$ \t\n\r ") == (
+        "foo-bar-baz-v1-2-3-percent-dollar")
+    assert github_slug("\n\r foo/bar_1.2.3(aaa_bbb)\t") == "foo-bar-1-2-3-aaa-bbb"
+    assert github_slug("^*()_=+\\/?~`@;:'\"") == ""
+    assert github_slug("Feature/GitHub--Test") == "feature-github-test"
+    assert github_slug("fix/Ä@b&c") == "fix-abandc"  # accents lose their mark, @ is dropped
+
+
+@pytest.mark.parametrize("ci,environ", [
+    ("gitlab", {**GITLAB, "CI_COMMIT_BRANCH": "feat--x", "CI_COMMIT_REF_NAME": "feat--x"}),
+    ("github", {**GITHUB, "GITHUB_REF_TYPE": "branch", "GITHUB_REF_NAME": "feat--x"}),
+])
+def test_each_ci_gets_its_own_docker_ros_slug(ci, environ):
+    postfix = tag_postfix(detect_pipeline(environ))
+    assert postfix == ("_feat--x_ci" if ci == "gitlab" else "_feat-x_ci")
 
 
 @pytest.mark.parametrize("case", ["github-tag", "gitlab-tag"])

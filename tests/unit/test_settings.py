@@ -219,6 +219,10 @@ def test_every_docker_ros_variable_is_declared_with_its_default():
         for name, default in ref.items()
         if default and "<" not in default and "$" not in default and "runner" not in default
     }
+    # docker-ros's README documents an older SLIM_BUILD_ARGS than its action.yml and GitLab
+    # template run (--continue-after=30, env, include, preserve, exclude): we take what its
+    # pipelines run (tests/ci/test_ci_files.py compares those).
+    assert plain.pop("SLIM_BUILD_ARGS").startswith("--sensor-ipc-mode proxy --continue-after=10")
     for name, default in plain.items():
         value = FIELDS[name.lower()].default
         shown = ",".join(value) if isinstance(value, tuple) else value

@@ -31,7 +31,7 @@ from docker_ros.slim import (
     watch,
 )
 
-# docker-ros's current GitLab default (its action/older default is SLIM_BUILD_ARGS_DEFAULT)
+# a shorter variant of docker-ros's default (SLIM_BUILD_ARGS_DEFAULT)
 DOCKER_ROS_GITLAB_DEFAULT = (
     "--sensor-ipc-mode proxy --continue-after=30 --show-clogs --http-probe=false "
     "--env DOCKER_UID=23456 --env DOCKER_GID=23456 --env DOCKER_USER=dockerslimprobe "
@@ -43,8 +43,10 @@ DOCKER_ROS_GITLAB_DEFAULT = (
 
 def test_default_args_parse_and_report_ignored_options_once() -> None:
     options = parse_slim_args(SLIM_BUILD_ARGS_DEFAULT + " --show-clogs")
-    assert options.continue_after == 10
-    assert options.include == ("/opt/ros", "/docker-ros/ws/install")
+    assert options.continue_after == 30
+    assert options.include == ("/opt/ros", "/docker-ros/ws/install", "/etc/ld.so.cache",
+                               "/etc/ld.so.conf", "/etc/ld.so.conf.d", "/etc/passwd",
+                               "/etc/group", "/etc/shadow", "/etc/gshadow")
     assert options.ignored == ("--sensor-ipc-mode", "--show-clogs", "--http-probe")
 
 

@@ -1,0 +1,71 @@
+"""CI jobs: registry login (argv, the job-private DOCKER_CONFIG) and the single-job multi-arch
+slim (the runner's architecture only, pushed under the slim names as docker-ros does)."""
+
+import json
+from pathlib import Path
+
+from docker_ros.build import slim_platforms
+from docker_ros.login import mirror_docker_config, plan_login, private_config
+from docker_ros.push import plan_push, push_targets
+from docker_ros.settings import load_settings
+
+
+def test_login_takes_the_password_on_standard_input_only() -> None:
+    s = load_settings(environ={"REGISTRY": "reg.example:5000", "REGISTRY_USER": "me",
+                               "REGISTRY_PASSWORD": "s3cret-value"})
+    argv = plan_login(s)
+    assert argv == ["docker", "login", "--username", "me", "--password-stdin",
+                    "reg.example:5000"]
+    assert "s3cret-value" not in " ".join(argv)
+    assert plan_login(load_settings(environ={"REGISTRY_USER": "me"})) is None
+
+
+def test_private_docker_config_copies_logins_and_links_the_rest(tmp_path: Path) -> None:
+    user = tmp_path / "user"
+    (user / "cli-plugins").mkdir(parents=True)
+    (user / "config.json").write_text('{"auths": {"other.example": {"auth": "eA=="}}}')
+    private = tmp_path / "private"
+    mirror_docker_config(user, private, "reg.example")
+    assert (private / "cli-plugins").resolve() == (user / "cli-plugins").resolve()
+    assert not (private / "config.json").is_symlink()
+    assert json.loads((private / "config.json").read_text()) == {
+        "auths": {"other.example": {"auth": "eA=="}}}
+    (private / "config.json").write_text("{}")  # what a login changes
+    assert "other.example" in (user / "config.json").read_text()
+    mirror_docker_config(tmp_path / "missing", tmp_path / "fresh", "reg.example")
+    assert list((tmp_path / "fresh").iterdir()) == []
+
+
+def test_the_login_never_goes_to_a_credential_store() -> None:
+    config = {"credsStore": "desktop", "credHelpers": {"reg.example": "ecr", "gcr.io": "gcr"},
+              "currentContext": "ci"}
+    assert private_config(config, "reg.example") == {"credHelpers": {"gcr.io": "gcr"},
+                                                     "currentContext": "ci"}
+
+
+def test_several_platforms_slim_the_runners_only() -> None:
+    assert slim_platforms(("amd64", "arm64"), "amd64") == ("amd64",)
+    assert slim_platforms(("amd64", "arm64"), "arm64") == ("arm64",)
+    assert slim_platforms(("amd64",), "amd64") == ("amd64",)
+    assert slim_platforms(("arm64",), "amd64") == ("arm64",)  # slim's own error says why
+
+
+def test_single_job_multi_arch_pushes_the_runners_slim_image_under_the_slim_names() -> None:
+    """docker-ros's "Build multi-arch images" example: both architectures as manifest lists,
+    the slim image of the runner's architecture as it is."""
+    s = load_settings(environ={"IMAGE": "reg/x:v1", "TARGET": "run", "PLATFORM": "amd64,arm64",
+                               "ENABLE_SLIM": "true",
+                               "ENABLE_PUSH_AS_LATEST": "true"})
+    assert push_targets(s) == ["run", "slim"]
+    commands = plan_push(s, push_targets(s), host="arm64")
+    slim = [c for c in commands if "slim" in c[-1]]
+    assert slim == [["docker", "tag", "reg/x:v1-slim-arm64", "reg/x:v1-slim"],
+                    ["docker", "push", "reg/x:v1-slim"],
+                    ["docker", "tag", "reg/x:v1-slim-arm64", "reg/x:latest-slim"],
+                    ["docker", "push", "reg/x:latest-slim"]]
+    assert ["docker", "push", "reg/x:v1-amd64"] in commands
+    assert ["docker", "push", "reg/x:v1-arm64"] in commands
+    single = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": "amd64,arm64",
+                                    "ENABLE_SLIM": "true", "ENABLE_SINGLEARCH_PUSH": "true"})
+    assert [c for c in plan_push(single, ["slim"], host="amd64")] == [
+        ["docker", "push", "reg/x:v1-slim-amd64"]]
