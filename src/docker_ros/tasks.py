@@ -167,8 +167,7 @@ def settings_task(
         for n in settings_flags:
             help_map[n] = setting_help(n)
         for n in SECRETS:
-            help_map[n] = (f"Refused: a secret is never a flag; set {env_name(n)} in the "
-                           "environment or .env")
+            help_map[n] = f"Refused (a secret): set {env_name(n)} in the env or .env"
         repeatable = ["set"] + [n for n, d, _ in flags if isinstance(d, list)]
         # `--enable-slim` alone means true; `--enable-slim=false` (or a value after it) too.
         optional = [n for n in settings_flags if kind_of(n) == "bool"] + list(SECRETS)
@@ -321,7 +320,7 @@ def config(c: Context, settings: Settings) -> None:
 
 
 @settings_task(
-    "lock", "Write docker-ros.lock: per target (dev, run) and PLATFORM what a build installs\n\n"
+    "lock", "Write docker-ros.lock: what a build installs, per target and PLATFORM\n\n"
     "Resolves in the image's lock stages, where the installs run, without building the "
     "images: imported commits, apt and pip versions (dependencies included), the collect "
     "phases' inputs and the rosdep rules' digest; the base image's digest from the host. "

@@ -140,7 +140,7 @@ def test_a_secret_given_as_a_flag_says_where_it_goes(repo: Path, task: str, flag
         assert "hunter2" not in proc.stdout + proc.stderr
     shown = run(["docker_ros", task, "--help"], repo, env={"COLUMNS": "200"})
     assert shown.returncode == 0
-    assert f"Refused: a secret is never a flag; set {variable} in the environment or .env" \
+    assert f"Refused (a secret): set {variable} in the env or .env" \
         in " ".join(shown.stdout.split())
 
 
