@@ -12,6 +12,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, MutableMapping, Optional
 
+from docker_ros.engine import docker_config_dir
 from docker_ros.settings import Settings
 
 
@@ -25,12 +26,6 @@ def plan_login(settings: Settings) -> Optional[List[str]]:
         return None
     argv = ["docker", "login", "--username", settings.registry_user, "--password-stdin"]
     return argv + [settings.registry] if settings.registry else argv
-
-
-def user_docker_config(environ: MutableMapping[str, str]) -> Path:
-    """The docker CLI's config folder: DOCKER_CONFIG, else ~/.docker."""
-    given = environ.get("DOCKER_CONFIG")
-    return Path(given) if given else Path.home() / ".docker"
 
 
 def private_config(config: Mapping[str, Any], registry: str) -> Dict[str, Any]:
@@ -84,7 +79,7 @@ def job_login(
     folder = Path(tempfile.mkdtemp(prefix="docker-ros-login-"))
     previous = environ.get("DOCKER_CONFIG")
     try:
-        mirror_docker_config(user_docker_config(environ), folder / "config",
+        mirror_docker_config(docker_config_dir(environ), folder / "config",
                              settings.registry or "https://index.docker.io/v1/")
         environ["DOCKER_CONFIG"] = str(folder / "config")
         docker_login(argv, settings.registry_password or "", settings.registry or "")
