@@ -8,6 +8,7 @@ import secrets
 import shutil
 import socket
 import subprocess
+import sys
 import time
 import urllib.error
 import urllib.request
@@ -30,6 +31,7 @@ ROS2_BASE_IMAGE = "docker-ros-test/ros2:trixie"
 REGISTRY_HOST = "127.0.0.1"
 HOST_CA_BUNDLE = Path("/etc/ssl/certs/ca-certificates.crt")
 SETUP_HINT = "run `bash scripts/setup.sh` first"
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="session")
@@ -277,3 +279,14 @@ def engine26(ros1_base_image: str) -> str:
     if not engines.has_image(engines.ENGINE26_HOST, ros1_base_image):
         engines.copy_image(ros1_base_image, engines.ENGINE26_HOST)
     return engines.ENGINE26_HOST
+
+
+@pytest.fixture(scope="session")
+def docker_ros_wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """This checkout as a wheel, built once per run: CI jobs install it (a pip requirement as
+    DOCKER_ROS_PIP_SPEC allows) in seconds, and jobs that run at once do not build in the same
+    source tree (pip builds a local folder in place: two builds at once break each other)."""
+    folder = tmp_path_factory.mktemp("wheel")
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet",
+                    "--disable-pip-version-check", "-w", str(folder), str(REPO)], check=True)
+    return next(folder.glob("docker_ros-*.whl"))

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -64,17 +62,9 @@ image-check:
 """
 
 
-def docker_ros_wheel(folder: Path) -> Path:
-    """This checkout as a wheel, built once: each job installs it (a pip requirement as
-    DOCKER_ROS_PIP_SPEC allows) in seconds instead of building the package again."""
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet",
-                    "--disable-pip-version-check", "-w", str(folder), str(REPO)], check=True)
-    return next(folder.glob("docker_ros-*.whl"))
-
-
 @pytest.fixture(scope="module")
-def pipelines(ros1_base_image: str, auth_registry, tmp_path_factory: pytest.TempPathFactory
-              ) -> dict:
+def pipelines(ros1_base_image: str, auth_registry, docker_ros_wheel: Path,
+              tmp_path_factory: pytest.TempPathFactory) -> dict:
     """One pipeline on a feature branch, one on main; jobs log in to a registry that requires
     it, build FROM a private image there, and run docker with a recorded command line."""
     root = tmp_path_factory.mktemp("gitlab")
@@ -91,7 +81,7 @@ def pipelines(ros1_base_image: str, auth_registry, tmp_path_factory: pytest.Temp
         "IMAGE_NAME": f"{auth_registry.address}/{IMAGE}",
         "REGISTRY": auth_registry.address,
         "REGISTRY_USER": auth_registry.user,
-        "DOCKER_ROS_PIP_SPEC": str(docker_ros_wheel(root / "wheel")),
+        "DOCKER_ROS_PIP_SPEC": str(docker_ros_wheel),
         "ENABLE_SLIM": "false",
         "ENABLE_INDUSTRIAL_CI": "false",
     }

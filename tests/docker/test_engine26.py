@@ -30,12 +30,12 @@ IMAGE = "docker-ros-test/engine26"
 REGISTRY_CACHE = "CACHE_TO: registry cache of every stage (mode=max)"
 
 
-def pipeline(repo: Path, registry: str, host: str, **variables: str
+def pipeline(repo: Path, registry: str, host: str, wheel: Path, **variables: str
              ) -> subprocess.CompletedProcess:
     """The GitLab template's pipeline on main with every job's docker on the engine at host."""
     return gitlab_ci_local(repo, {
         "GITLAB_CI": "true", "IMAGE_NAME": f"{registry}/{IMAGE}",
-        "DOCKER_ROS_PIP_SPEC": str(REPO), "DOCKER_HOST": host, "BUILD_NETWORK": "host",
+        "DOCKER_ROS_PIP_SPEC": str(wheel), "DOCKER_HOST": host, "BUILD_NETWORK": "host",
         **variables})
 
 
@@ -45,7 +45,8 @@ def build_log(repo: Path) -> str:
 
 @pytest.fixture(scope="module")
 def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
-                   tmp_path_factory: pytest.TempPathFactory) -> Iterator[Dict[str, object]]:
+                   docker_ros_wheel: Path, tmp_path_factory: pytest.TempPathFactory
+                   ) -> Iterator[Dict[str, object]]:
     """The example's main-branch pipeline on Engine 26: build, test, slim, push, manifest.
     Engine 26 keeps no image of it afterwards (the names hold this run's registry port)."""
     repo = example_repository(tmp_path_factory.mktemp("engine26"), ros1_base_image)
@@ -57,10 +58,11 @@ def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
     git(repo, "add", "-A")
     git(repo, "commit", "-qm", "ci")
     secret = f"docker-ros-test-secret-{uuid.uuid4().hex}"
-    result = pipeline(repo, local_registry, engine26, ENABLE_SLIM="true",
+    result = pipeline(repo, local_registry, engine26, docker_ros_wheel, ENABLE_SLIM="true",
                       ENABLE_INDUSTRIAL_CI="true", GIT_HTTPS_PASSWORD=secret)
     yield {"repo": repo, "registry": local_registry, "result": result,
-           "build": build_log(repo), "secret": secret, "host": engine26}
+           "build": build_log(repo), "secret": secret, "host": engine26,
+           "wheel": docker_ros_wheel}
     env = {**os.environ, "DOCKER_HOST": engine26}
     listed = subprocess.run(["docker", "images", "--format", "{{.Repository}}:{{.Tag}}"],
                             env=env, capture_output=True, text=True)
@@ -120,7 +122,7 @@ def test_empty_engine26_takes_every_stage_from_the_registry_cache(
     assert first_pipeline["result"].returncode == 0
     repo: Path = first_pipeline["repo"]  # type: ignore[assignment]
     result = pipeline(repo, first_pipeline["registry"], empty_engine26,  # type: ignore[arg-type]
-                      ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
+                      first_pipeline["wheel"], ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
     assert result.returncode == 0, result.stdout[-6000:]
     log = build_log(repo)
     assert REGISTRY_CACHE in log
