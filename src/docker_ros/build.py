@@ -316,6 +316,8 @@ def definition(
         target_def["network"] = settings.build_network
     if not settings.buildx_attestations:
         target_def["attest"] = ["type=provenance,disabled=true"]
+    if settings.no_cache:
+        target_def["no-cache"] = True
     if settings.cache_from:
         target_def["cache-from"] = cache_sources(settings.cache_from, target)
         target_def["cache-to"] = ["type=inline"]
@@ -408,6 +410,8 @@ def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX) -> List[
         argv += ["--network", spec["network"]]
     if "attest" in spec:
         argv += ["--provenance=false"]
+    if spec.get("no-cache"):
+        argv += ["--no-cache"]
     for ref in spec.get("cache-from", []):
         argv += ["--cache-from", ref]
     for cache in spec.get("cache-to", []):

@@ -312,6 +312,12 @@ class Settings:
         default_doc="in CI: `<IMAGE_NAME>:<IMAGE_TAG>-cache`; else none",
         group="ours", build="tool",
     )
+    no_cache: bool = setting(
+        False,
+        "Build every stage anew, reusing no layer of the builder's cache (`--no-cache`); the"
+        " cache mounts stay (apt's downloads, the colcon build/ cache of this repository)",
+        group="ours", build="tool",
+    )
     builder: Optional[str] = setting(
         None,
         "buildx builder or docker context the images are built on (`--builder`); a docker"

@@ -23,7 +23,7 @@ from docker_ros.runtime.lock import (
     local_base_tag,
     lock_digest,
 )
-from tests.docker.buildhelp import docker_ros, remove_image, sh, write_env
+from tests.docker.buildhelp import docker_ros, own_copy, remove_image, sh, write_env
 from tests.rosfixtures import (
     file_http_server,
     git,
@@ -164,6 +164,32 @@ def test_locked_build_installs_exactly_the_lock(project: dict) -> None:
     # the locked commit, not upstream's newest
     version = sh(IMAGE + "-dev", "cat /docker-ros/ws/src/upstream/upstream_libs/VERSION")
     assert version.stdout.strip() == "one", version.stdout + version.stderr
+
+
+def install_space(ref: str) -> str:
+    listed = sh(ref, "cd /docker-ros/ws/install && find . | LC_ALL=C sort")
+    assert listed.returncode == 0, listed.stderr
+    return listed.stdout
+
+
+def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: Path) -> None:
+    """The module's locked build and another locked build of the run image in a copy that
+    reuses no layer of it (NO_CACHE; another folder and name: a colcon build cache of its own),
+    made after upstream and the wheel index moved on: the same Debian and pip packages at the
+    same versions, the same install-space file list."""
+    assert project["build"].returncode == 0
+    again = f"docker-ros-test/lock-ws-again-{uuid.uuid4().hex[:8]}:1"
+    copy = own_copy(project["repo"], tmp_path / "repo", again)
+    try:
+        built = docker_ros(copy, "build", "--target", "run", "--set", "LOCKED=true",
+                           "--set", "NO_CACHE=true", env=project["env"])
+        assert built.returncode == 0, built.stdout[-5000:]
+        # the dependency steps ran again (no cached layer), installing the locked versions
+        assert "rosdep: apt-get install -y --no-install-recommends" in built.stdout
+        for listing in (dpkg_versions, pip_versions, install_space):
+            assert listing(again) == listing(IMAGE), listing.__name__
+    finally:
+        remove_image(again)
 
 
 def test_unlocked_build_takes_the_new_commit_and_wheel(project: dict) -> None:
