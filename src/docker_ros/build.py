@@ -179,87 +179,19 @@ def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:
     return choose_base(base, platform, local)
 
 
-SEED_ARG = "DOCKER_ROS_BUILD_STATE"
-STATE_SEED_LABEL = "io.github.docker-ros.build-state.seed"
-STATE_INPUTS_LABEL = "io.github.docker-ros.build-state.inputs"
-
-
-def context_files(context: Path) -> Iterator[Path]:
-    """The files of the build context, sorted, but .git and what our own .dockerignore lines
-    leave out (`.env` files, gitlab-ci-local's folder)."""
-    for dirpath, dirnames, filenames in os.walk(context):
-        folder = Path(dirpath)
-        dirnames[:] = sorted(d for d in dirnames if d != ".git"
-                             and not left_out((folder / d).relative_to(context).as_posix()))
-        for name in sorted(filenames):
-            if not left_out((folder / name).relative_to(context).as_posix()):
-                yield folder / name
-
-
-def inputs_fingerprint(context: Path, args: Mapping[str, str], platform: str) -> str:
-    """One digest of what a build starts from: the platform, the build arguments (but the
-    seed) and every file of the build context. Equal fingerprints, the same build: a heuristic
-    for choosing the seed (chosen_seed); any seed gives a correct build."""
-    digest = hashlib.sha256(f"{platform}\0".encode())
-    for key, value in sorted(args.items()):
-        if key != SEED_ARG:
-            digest.update(f"{key}={value}\0".encode())
-    for path in context_files(context):
-        data = os.readlink(path).encode() if path.is_symlink() else path.read_bytes()
-        digest.update(path.relative_to(context).as_posix().encode() + b"\0" + data + b"\0")
-    return digest.hexdigest()
-
-
-def chosen_seed(pulled: str, labels: Mapping[str, str], fingerprint: str,
-                registry_cache: bool = True) -> Tuple[Optional[str], str]:
-    """The seed of a build whose inputs have `fingerprint`, given a pulled build state and its
-    labels: the state itself (an incremental build over it); or, when the state was built
-    from these same inputs and a registry cache of every stage is imported, the seed that
-    build had (None: the empty one), so that the colcon step's cache key is that build's and
-    the registry cache serves it with everything after. (Without a registry cache the colcon
-    step is never cached on an empty runner: over the state it compiles nothing.)"""
-    recorded = labels.get(STATE_SEED_LABEL, "")
-    if not registry_cache:
-        return pulled, "building over it (no registry cache of the build stage to reuse)"
-    if not recorded or labels.get(STATE_INPUTS_LABEL) != fingerprint:
-        return pulled, "its inputs differ from this build's: building over it"
-    return (None if recorded == "none" else recorded,
-            "built from these same inputs: seeding as that build was"
-            f" ({'empty' if recorded == 'none' else recorded}) to reuse its cached steps")
-
-
-def repo_digest(ref: str) -> str:
-    """ref's registry name by digest (`<repository>@sha256:...`), or "" when unknown."""
-    attrs = engine.inspect_image(ref) or {}
-    repository = ref.rsplit("@", 1)[0]
-    if ":" in repository.rsplit("/", 1)[-1]:
-        repository = repository.rsplit(":", 1)[0]
-    return next((d for d in attrs.get("RepoDigests") or [] if d.startswith(f"{repository}@")), "")
-
-
-def build_state_seed(settings: Settings, platform: str, fingerprint: str, out: IO[str],
-                     registry_cache: bool) -> Tuple[Dict[str, str], str]:
-    """The build argument that seeds an empty build cache (from the first pullable
-    BUILD_STATE_FROM image of this platform, see chosen_seed), and the seed's name to record
-    in the build state it makes ("none": empty). No pullable state: the empty seed (colcon then
-    builds everything and says why)."""
+def build_state_seed(settings: Settings, platform: str, out: IO[str]) -> Dict[str, str]:
+    """The build argument that seeds an empty build cache with the first pullable
+    BUILD_STATE_FROM image of this platform; none when none can be pulled (colcon then builds
+    everything and says why)."""
     for candidate in settings.build_state_from:
         ref = f"{candidate}-{platform}"
         start = time.monotonic()
-        if not engine.pull(ref):
-            print(f"build state: {ref} could not be pulled (none pushed yet?)", file=out)
-            continue
-        print(f"build state: {ref} pulled in {time.monotonic() - start:.1f} s"
-              f" ({image_size(ref) / 1e6:.0f} MB)", file=out)
-        labels = ((engine.inspect_image(ref) or {}).get("Config") or {}).get("Labels") or {}
-        seed, why = chosen_seed(ref, labels, fingerprint, registry_cache)
-        if seed is not None and seed != ref and not engine.pull(seed):
-            seed, why = ref, f"the seed it was built from, {seed}, is gone: building over it"
-        print(f"build state: {why}", file=out)
-        if seed is None:
-            return {}, "none"
-        return {SEED_ARG: seed}, repo_digest(seed) if seed == ref else seed
-    return {}, "none"
+        if engine.pull(ref):
+            print(f"build state: {ref} pulled in {time.monotonic() - start:.1f} s"
+                  f" ({image_size(ref) / 1e6:.0f} MB)", file=out)
+            return {"DOCKER_ROS_BUILD_STATE": ref}
+        print(f"build state: {ref} could not be pulled (none pushed yet?)", file=out)
+    return {}
 
 
 def build_args(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
@@ -826,6 +758,7 @@ def build_images(
             bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
+        seed = build_state_seed(settings, platform, out) if "run" in targets else {}
         base, why = platform_base(settings, platform)
         if why:
             print(why, file=out)
@@ -833,13 +766,10 @@ def build_images(
                                     tools_image=tools, tag=tag,
                                     secrets=plan_secrets(settings, bundle), push=push,
                                     dockerfile=dockerfile, output=output,
-                                    extra_build_args=extra_build_args,
+                                    extra_build_args={**extra_build_args, **seed},
                                     imports_image=imports, base_image=base,
                                     cache_export=export)
                  for target, tag in targets.items()}
-        if "run" in specs:
-            seed_from_build_state(settings, specs, platform, out,
-                                  registry_cache=bool(settings.cache_to) and export == "registry")
         if bake and can_bake(settings):
             definition_file = Path(tmp) / "docker-ros.bake.json"
             definition_file.write_text(bake_file(specs))
@@ -852,21 +782,6 @@ def build_images(
                                  header=", ".join(f"{t} -> {targets[t]}" for t in names))
             built += [BuiltImage(t, targets[t], platform, seconds) for t in names]
     return built
-
-
-def seed_from_build_state(settings: Settings, specs: Mapping[str, Dict[str, Any]],
-                          platform: str, out: IO[str], registry_cache: bool) -> None:
-    """Seed the builds of specs (run among them) from BUILD_STATE_FROM (build_state_seed);
-    a build-state target records the seed and the inputs' fingerprint as labels."""
-    fingerprint = inputs_fingerprint(Path(settings.build_context), specs["run"]["args"],
-                                     platform)
-    seed, recorded = build_state_seed(settings, platform, fingerprint, out, registry_cache)
-    for spec in specs.values():
-        spec["args"].update(seed)
-    if "build-state" in specs:
-        specs["build-state"]["labels"] = {**specs["build-state"].get("labels", {}),
-                                          STATE_SEED_LABEL: recorded,
-                                          STATE_INPUTS_LABEL: fingerprint}
 
 
 def build_image(settings: Settings, *, target: str, platform: str, tag: str,

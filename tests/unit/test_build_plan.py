@@ -303,37 +303,3 @@ def test_a_base_is_in_a_registry_only_under_a_name_it_was_pulled_or_pushed_as():
     assert build.from_registry("127.0.0.1:5000/other:tag", digests)
     assert not build.from_registry("docker-ros/ros1:bookworm", digests)
     assert not build.from_registry("127.0.0.1:5000/ros:noetic", digests)
-
-
-def test_a_build_state_of_the_same_inputs_seeds_as_its_own_build_did() -> None:
-    """Same fingerprint: the recorded seed (so the colcon step's cache key is the earlier
-    build's); other inputs, no record, or an unlabelled state: the state itself."""
-    ref = "reg/p:latest-build-state-amd64"
-    same = {build.STATE_INPUTS_LABEL: "f1", build.STATE_SEED_LABEL: "none"}
-    assert build.chosen_seed(ref, same, "f1")[0] is None
-    earlier = {**same, build.STATE_SEED_LABEL: "reg/p@sha256:ab"}
-    assert build.chosen_seed(ref, earlier, "f1")[0] == "reg/p@sha256:ab"
-    assert build.chosen_seed(ref, earlier, "f2") == (
-        ref, "its inputs differ from this build's: building over it")
-    assert build.chosen_seed(ref, {build.STATE_INPUTS_LABEL: "f1"}, "f1")[0] == ref
-    assert build.chosen_seed(ref, {}, "f1")[0] == ref
-    # without a registry cache the empty seed would compile everything: the state, always
-    assert build.chosen_seed(ref, same, "f1", registry_cache=False)[0] == ref
-
-
-def test_the_inputs_fingerprint_follows_files_and_arguments_but_not_the_seed(
-    tmp_path: Path
-) -> None:
-    (tmp_path / "pkg").mkdir()
-    (tmp_path / "pkg" / "a.cpp").write_text("int a;\n")
-    args = {"CMAKE_ARGS": "", build.SEED_ARG: "reg/p:x"}
-    first = build.inputs_fingerprint(tmp_path, args, "amd64")
-    assert build.inputs_fingerprint(tmp_path, {**args, build.SEED_ARG: "y"}, "amd64") == first
-    (tmp_path / ".env").write_text("GIT_HTTPS_PASSWORD=x\n")  # left out of the context
-    (tmp_path / ".git").mkdir()
-    (tmp_path / ".git" / "HEAD").write_text("ref: refs/heads/main\n")
-    assert build.inputs_fingerprint(tmp_path, args, "amd64") == first
-    assert build.inputs_fingerprint(tmp_path, args, "arm64") != first
-    assert build.inputs_fingerprint(tmp_path, {**args, "CMAKE_ARGS": "-DX=1"}, "amd64") != first
-    (tmp_path / "pkg" / "a.cpp").write_text("int a = 1;\n")
-    assert build.inputs_fingerprint(tmp_path, args, "amd64") != first
