@@ -21,7 +21,7 @@ import docker
 import pytest
 import yaml
 
-from docker_ros import baseimage
+from docker_ros.host import baseimage
 from tests import engines
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"

@@ -15,7 +15,7 @@ import urllib.request
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
-import docker_ros.baseimage as baseimage
+import docker_ros.host.baseimage as baseimage
 from bench import BenchError
 from bench.buildlog import (
     Scenario,
@@ -52,7 +52,7 @@ from bench.workspace import (
     set_mark,
     write_workspace,
 )
-from docker_ros.settings import host_platform
+from docker_ros.in_image.settings import host_platform
 
 BUILD_STATE_PULLED = re.compile(r"build state: \S+ pulled in ([\d.]+) s \((\d+) MB\)")
 LEAN = ("--target", "run", "--image-tag", "lean", "--set", "ENABLE_LEAN_RUN_IMAGE=true")

@@ -22,13 +22,13 @@ from typing import Any, Callable, Dict, Iterator, List, Mapping, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
 
-from docker_ros import build, engine
-from docker_ros.build import BuiltImage
-from docker_ros.config import config_table, input_problems, read_settings
-from docker_ros.lock import lock_status
-from docker_ros.runtime.lock import LockError
-from docker_ros.runtime.workspace import StepError, Workspace, format_argv, setup_logging
-from docker_ros.settings import (
+from docker_ros.host import build, engine
+from docker_ros.host.build import BuiltImage
+from docker_ros.host.config import config_table, input_problems, read_settings
+from docker_ros.host.lock import lock_status
+from docker_ros.in_image.runtime.lock import LockError
+from docker_ros.in_image.runtime.workspace import StepError, Workspace, format_argv, setup_logging
+from docker_ros.in_image.settings import (
     FIELDS,
     Settings,
     SettingsError,
@@ -45,7 +45,7 @@ from docker_ros.settings import (
     required_for_build,
     settings_where,
 )
-from docker_ros.steps import BY_NAME, STEPS
+from docker_ros.in_image.steps import BY_NAME, STEPS
 
 Flag = Tuple[str, object, str]  # name, default, help
 DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change nothing")
@@ -247,7 +247,7 @@ def check_inputs(settings: Settings, targets: Sequence[str] = ()) -> None:
 
 
 def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -> None:
-    from docker_ros.steps import run_step
+    from docker_ros.in_image.steps import run_step
 
     check_inputs(settings)
     with host_workspace(settings, dry_run=dry_run) as ws:
@@ -265,7 +265,7 @@ def make_step_task(step: str) -> Task:
     def step_task(c: Context, settings: Settings, *, dry_run: bool, in_container: bool,
                   shell_on_failure: bool) -> None:
         if in_container:
-            from docker_ros import container
+            from docker_ros.host import container
 
             run_in_container(settings, container.plan_step(settings, step), dry_run=dry_run,
                              shell_on_failure=shell_on_failure)
@@ -281,7 +281,7 @@ def make_step_task(step: str) -> Task:
 def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
                      shell_on_failure: bool) -> str:
     """Build the plan's start stage, run its commands in one container, tag the result."""
-    from docker_ros import container
+    from docker_ros.host import container
 
     runs_command = plan.start == "run" or ("command",) in plan.commands
     require(settings, ["base_image"] + (["command"] if runs_command else []))
@@ -332,7 +332,7 @@ def config(c: Context, settings: Settings) -> None:
     + tuple(n for n in IMAGE_SETTINGS if n != "locked"),  # (it resolves afresh, unlocked)
 )
 def lock_task(c: Context, settings: Settings, *, check: bool, host: bool) -> None:
-    from docker_ros.lock import lock
+    from docker_ros.host.lock import lock
 
     started = time.monotonic()
     if not host:
@@ -380,7 +380,7 @@ def _composite(settings: Settings, name: str, *, host: bool, dry_run: bool, in_c
     if name == "run" and (host or in_container) and not settings.command:
         raise SettingsError("missing required configuration: COMMAND")
     if in_container:
-        from docker_ros import container
+        from docker_ros.host import container
 
         run_in_container(settings, container.plan_composite(settings, name), dry_run=dry_run,
                          shell_on_failure=shell_on_failure)
@@ -467,7 +467,7 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failur
 
 def _slim_options(settings: Settings) -> None:
     """SLIM_BUILD_ARGS and ADDITIONAL_SLIM_BUILD_ARGS checked before anything is built."""
-    from docker_ros import slim
+    from docker_ros.host import slim
 
     try:
         slim.parse_slim_args(slim.slim_args(settings))
@@ -486,7 +486,7 @@ def _slims(settings: Settings, platform: str) -> bool:
 
 
 def _slim(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
-    from docker_ros import slim
+    from docker_ros.host import slim
 
     try:
         result = slim.slim_image(settings, platform, dry_run=dry_run)
@@ -527,7 +527,7 @@ def default_results_dir(settings: Settings) -> Path:
 
 def _test(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
     """Build the test stage per platform, export its results; fail when a test failed."""
-    from docker_ros import testing
+    from docker_ros.in_image import testing
 
     require(settings, required_for_build(settings))
     root = Path(results_dir).resolve() if results_dir else default_results_dir(settings)
@@ -582,7 +582,7 @@ def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str
 def reproduce_failure(settings: Settings, error: build.BuildError) -> None:
     """--shell-on-failure of an image build: the failed step again, in a container of the state
     before it, with the shell where it fails."""
-    from docker_ros import container
+    from docker_ros.host import container
 
     if error.stage not in container.STAGES:
         print(f"docker-ros build: --shell-on-failure: the failure is not in one of the ten "
@@ -596,7 +596,7 @@ def reproduce_failure(settings: Settings, error: build.BuildError) -> None:
 
 def _build_until(settings: Settings, step: str, *, dry_run: bool,
                  shell_on_failure: bool) -> None:
-    from docker_ros import container
+    from docker_ros.host import container
 
     if step not in STEPS:
         raise TaskError(f"--until {step!r}: use one of {', '.join(STEPS)}")
@@ -616,7 +616,7 @@ def _build_until(settings: Settings, step: str, *, dry_run: bool,
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
-    from docker_ros.push import push, push_targets
+    from docker_ros.host.push import push, push_targets
 
     _build(settings, settings.target, dry_run=dry_run, slim=settings.enable_slim)
     _push_and_report(settings, push_targets(settings), push, dry_run=dry_run)
@@ -626,7 +626,7 @@ def _push_and_report(
     settings: Settings, targets: Sequence[str], action: Callable[..., List[str]], *, dry_run: bool
 ) -> None:
     """Run push or manifest; print the pushed names and hand them to the CI as outputs."""
-    from docker_ros.push import plan_outputs, write_outputs
+    from docker_ros.host.push import plan_outputs, write_outputs
 
     try:
         pushed = action(settings, targets, dry_run=dry_run)
@@ -647,7 +647,7 @@ def _push_and_report(
     uses=("target", "image", "image_tag", "platform") + PUSH_SETTINGS,
 )
 def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
-    from docker_ros.push import manifest
+    from docker_ros.host.push import manifest
 
     images = made_images(settings)
     if "slim" in images:
@@ -664,7 +664,7 @@ def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
 )
 def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
-    from docker_ros.ci import plan_ci_job
+    from docker_ros.in_image.ci import plan_ci_job
 
     plan = plan_ci_job(target=settings.target, enable_industrial_ci=settings.enable_industrial_ci,
                        enable_slim=settings.enable_slim)
@@ -690,7 +690,7 @@ def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 def _job_login(settings: Settings, label: str, *, dry_run: bool) -> Iterator[None]:
     """REGISTRY_USER/REGISTRY_PASSWORD logged in before anything else of the job (a private
     BASE_IMAGE or CACHE_FROM), into a DOCKER_CONFIG of the job's own, removed at its end."""
-    from docker_ros.login import LoginError, job_login, plan_login
+    from docker_ros.host.login import LoginError, job_login, plan_login
 
     argv = plan_login(settings)
     if dry_run:
@@ -707,7 +707,7 @@ def _job_login(settings: Settings, label: str, *, dry_run: bool) -> Iterator[Non
 
 
 def _require_tasks(plan: Sequence[Sequence[str]]) -> None:
-    from docker_ros.ci import missing_tasks
+    from docker_ros.in_image.ci import missing_tasks
 
     problems = missing_tasks(plan, ns.task_names)
     if problems:
@@ -741,7 +741,7 @@ def dev_shell(
     network: str, name: str, privileged: bool, device: List[str], x11: str, gpus: str,
     rebuild: bool, dry_run: bool,
 ) -> None:
-    from docker_ros import devshell
+    from docker_ros.host import devshell
 
     ref = build.image_ref(settings, "dev")
     try:
@@ -787,7 +787,7 @@ def dev_shell(
 def bootstrap_base_image(
     c: Context, settings: Settings, *, flavor: str, tag: str, mirror: str, force: bool
 ) -> None:
-    from docker_ros import baseimage
+    from docker_ros.host import baseimage
 
     if flavor not in baseimage.FLAVORS:
         raise TaskError(f"--flavor {flavor!r}: use one of {', '.join(baseimage.FLAVORS)}")
@@ -802,7 +802,7 @@ def bootstrap_base_image(
     [("seconds", 20, "How long to let the example's run image run")],
 )
 def example(c: Context, settings: Settings, *, seconds: int) -> None:
-    from docker_ros import baseimage
+    from docker_ros.host import baseimage
 
     project = Path(__file__).resolve().parents[2] / "example"
     if not project.is_dir():

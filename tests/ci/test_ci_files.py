@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from docker_ros.settings import FIELDS, SLIM_BUILD_ARGS_DEFAULT
+from docker_ros.in_image.settings import FIELDS, SLIM_BUILD_ARGS_DEFAULT
 
 REPO = Path(__file__).resolve().parents[2]
 ACTION = REPO / "action.yml"

@@ -17,7 +17,7 @@ from typing import Dict, Iterator
 
 import pytest
 
-from docker_ros import engine
+from docker_ros.host import engine
 from tests.ci.cihelp import REPO, assert_pulled_image_runs, example_repository, git, registry_tags
 from tests.ci.test_gitlab_template import gitlab_ci_local
 from tests.docker.buildhelp import docker_ros, not_from_cache, write_env

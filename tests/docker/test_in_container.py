@@ -107,7 +107,7 @@ def test_step_in_container_has_the_output_of_the_full_build(good: Dict) -> None:
     tag = f"{good['image']}-after-custom"
     assert f"tagged {tag}" in custom.stdout
     # the committed state: custom's effect, jq from debs, the step modules usable as written
-    state = sh(tag, "ls /custom-was-here && jq --version && python3 -m docker_ros.steps "
+    state = sh(tag, "ls /custom-was-here && jq --version && python3 -m docker_ros.in_image.steps "
                "custom --phase apply --dry-run")
     assert state.returncode == 0, state.stdout + state.stderr
     assert "[dry-run]" in state.stdout + state.stderr
@@ -124,7 +124,7 @@ def test_until_a_step_in_the_middle_of_a_stage(good: Dict) -> None:
     # the next step by hand, exactly as printed
     line = next(x for x in result.stdout.splitlines() if x.strip().startswith("next step:"))
     argv = shlex.split(line.split("next step:", 1)[1])
-    assert argv[-4:] == ["docker_ros.steps", "debs", "--phase", "apply"]
+    assert argv[-4:] == ["docker_ros.in_image.steps", "debs", "--phase", "apply"]
     after = subprocess.run(argv, capture_output=True, text=True, timeout=300)
     assert after.returncode == 0, after.stdout + after.stderr
     assert "Finished <<< debs" in after.stdout + after.stderr
@@ -139,7 +139,8 @@ def test_shell_on_failure_in_a_terminal(failing: Dict) -> None:
     log: List[str] = []
     child.logfile_read = _Collect(log)
     child.expect("custom is about to fail")
-    child.expect(r"failed with exit code 3: python3 -m docker_ros.steps custom --phase apply")
+    child.expect(r"failed with exit code 3: "
+                 r"python3 -m docker_ros.in_image.steps custom --phase apply")
     child.expect(PROMPT)
     child.sendline("echo shell-in-$(pwd); ls /docker-ros/ws/.docker-ros/hooks/custom")
     child.expect("shell-in-/docker-ros/ws")
@@ -148,7 +149,8 @@ def test_shell_on_failure_in_a_terminal(failing: Dict) -> None:
     child.expect(pexpect.EOF)
     child.close()
     assert child.exitstatus == 3, "".join(log)[-3000:]
-    assert ("docker-ros custom: python3 -m docker_ros.steps custom --phase apply failed with "
+    assert ("docker-ros custom: python3 -m docker_ros.in_image.steps custom --phase apply "
+            "failed with "
             "exit code 3") in "".join(log)
     assert not image_exists(f"{failing['image']}-after-custom")
 
@@ -164,7 +166,7 @@ def test_build_shell_on_failure_without_terminal(failing: Dict) -> None:
     # entering it as printed, in a terminal: the failing command runs again there
     child = pexpect.spawn(enter.split(":", 1)[1].strip(), encoding="utf-8", timeout=120)
     child.expect(PROMPT)
-    child.sendline("python3 -m docker_ros.steps custom --phase apply; echo exit=$?")
+    child.sendline("python3 -m docker_ros.in_image.steps custom --phase apply; echo exit=$?")
     child.expect("custom is about to fail")
     child.expect("exit=3")
     child.sendline("exit")

@@ -15,8 +15,8 @@ from typing import Dict, Iterator
 
 import pytest
 
-from docker_ros import engine
-from docker_ros.runtime.lock import (
+from docker_ros.host import engine
+from docker_ros.in_image.runtime.lock import (
     LOCK_FILE,
     dump_lock,
     host_platform,

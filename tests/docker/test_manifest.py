@@ -14,8 +14,8 @@ from typing import Tuple
 
 import pytest
 
-from docker_ros.push import manifest
-from docker_ros.settings import load_settings
+from docker_ros.host.push import manifest
+from docker_ros.in_image.settings import load_settings
 
 pytestmark = pytest.mark.docker
 

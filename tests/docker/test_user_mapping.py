@@ -10,7 +10,7 @@ from typing import List, Optional
 
 import pytest
 
-from docker_ros.build import PACKAGE_DIR
+from docker_ros.host.build import PACKAGE_DIR
 
 pytestmark = pytest.mark.docker
 

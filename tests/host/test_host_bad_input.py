@@ -52,7 +52,8 @@ def test_files_dir_symlinked_to_etc_is_refused_on_host_and_in_image_steps(repo: 
     ws = tmp_path / "image-ws"
     (ws / "src").mkdir(parents=True)
     (ws / "src" / "target").symlink_to(repo)
-    proc = run(["docker_ros.steps", "files", "--workspace", str(ws), "--phase", "collect"], repo)
+    proc = run(["docker_ros.in_image.steps", "files", "--workspace", str(ws),
+                "--phase", "collect"], repo)
     assert proc.returncode == 1
     assert "leads to /etc through a symlink" in last_line(proc)
     assert not (ws / ".docker-ros" / "additional-files" / "passwd").exists()

@@ -5,8 +5,8 @@ import subprocess
 
 import pytest
 
-from docker_ros.runtime.workspace import StepError
-from docker_ros.steps import blacklist, colcon, command
+from docker_ros.in_image.runtime.workspace import StepError
+from docker_ros.in_image.steps import blacklist, colcon, command
 from tests.rosfixtures import make_package, tree_snapshot
 
 pytestmark = pytest.mark.host

@@ -1,4 +1,4 @@
-"""`python3 -m docker_ros.steps`: the entry the Dockerfile uses (real subprocesses)."""
+"""`python3 -m docker_ros.in_image.steps`: the entry the Dockerfile uses (real subprocesses)."""
 
 import os
 import subprocess
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.runtime.workspace import StepError
-from docker_ros.steps import run_step
+from docker_ros.in_image.runtime.workspace import StepError
+from docker_ros.in_image.steps import run_step
 
 pytestmark = pytest.mark.host
 SRC = Path(__file__).resolve().parents[2] / "src"
@@ -17,7 +17,8 @@ SRC = Path(__file__).resolve().parents[2] / "src"
 def steps_cli(*args, env=None):
     full = {**os.environ, "PYTHONPATH": str(SRC), **(env or {})}
     return subprocess.run(
-        [sys.executable, "-m", "docker_ros.steps", *args], env=full, capture_output=True, text=True
+        [sys.executable, "-m", "docker_ros.in_image.steps", *args], env=full,
+        capture_output=True, text=True
     )
 
 
@@ -95,7 +96,7 @@ def test_cli_runs_several_steps_in_order_and_names_the_one_that_failed(project, 
 
 
 def test_each_step_of_a_call_gets_only_its_own_options():
-    from docker_ros.steps.__main__ import step_options
+    from docker_ros.in_image.steps.__main__ import step_options
 
     given = {"mark_ignored": "true", "dependency_types": "exec"}
     assert step_options("clone", given) == {}

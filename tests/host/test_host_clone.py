@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.runtime.workspace import StepError
-from docker_ros.steps import clone
+from docker_ros.in_image.runtime.workspace import StepError
+from docker_ros.in_image.steps import clone
 from tests.rosfixtures import git, make_git_repo, tree_snapshot, write_repos
 
 pytestmark = pytest.mark.host
@@ -240,9 +240,9 @@ def test_read_without_vcstool_in_our_interpreter(project, tmp_path):
     """Our interpreter without site-packages (no vcstool, no PyYAML): the file is read by the
     python3 that has vcstool, with the same result."""
     (project.repo / ".repos").write_text(FORMS["rosinstall"].format(a="file:///a", c="file:///c"))
-    src = Path(clone.__file__).resolve().parents[2]
+    src = Path(clone.__file__).resolve().parents[3]
     code = (f"import sys, json; sys.path.insert(0, {str(src)!r})\n"
-            "from docker_ros.runtime.repos import read_repos\n"
+            "from docker_ros.in_image.runtime.repos import read_repos\n"
             "print(json.dumps(read_repos(sys.argv[1], step='clone')))\n"
             "import importlib.util; print(importlib.util.find_spec('yaml'))")
     proc = subprocess.run([sys.executable, "-I", "-S", "-c", code,

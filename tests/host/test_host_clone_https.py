@@ -4,8 +4,8 @@ import logging
 
 import pytest
 
-from docker_ros.runtime.workspace import StepError
-from docker_ros.steps import clone
+from docker_ros.in_image.runtime.workspace import StepError
+from docker_ros.in_image.steps import clone
 from tests.rosfixtures import git_http_server, make_git_repo, write_repos
 
 pytestmark = pytest.mark.host

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.runtime.workspace import StepError
-from docker_ros.steps import clone
+from docker_ros.in_image.runtime.workspace import StepError
+from docker_ros.in_image.steps import clone
 from tests.rosfixtures import make_git_repo, ssh_keygen, sshd_server, write_repos
 
 pytestmark = pytest.mark.host

@@ -11,7 +11,7 @@ from typing import Set
 
 import pytest
 
-from docker_ros.steps import STEPS
+from docker_ros.in_image.steps import STEPS
 from docker_ros.tasks import ns
 
 pytestmark = pytest.mark.host

@@ -2,8 +2,8 @@
 
 import pytest
 
-from docker_ros.runtime.workspace import StepError
-from docker_ros.steps import custom, scripts
+from docker_ros.in_image.runtime.workspace import StepError
+from docker_ros.in_image.steps import custom, scripts
 from tests.rosfixtures import tree_snapshot
 
 pytestmark = pytest.mark.host

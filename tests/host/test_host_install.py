@@ -9,9 +9,9 @@ from typing import Iterator
 
 import pytest
 
-from docker_ros.runtime.process import is_root
-from docker_ros.runtime.workspace import StepError
-from docker_ros.steps import blacklist, debs, files, pip, rosdep
+from docker_ros.in_image.runtime.process import is_root
+from docker_ros.in_image.runtime.workspace import StepError
+from docker_ros.in_image.steps import blacklist, debs, files, pip, rosdep
 from tests.rosfixtures import (
     make_package,
     make_wheel,

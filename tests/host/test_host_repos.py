@@ -18,6 +18,8 @@ pytestmark = pytest.mark.host
 SRC = Path(__file__).resolve().parents[2] / "src"
 RULES = "my_tool:\n  debian: [jq]\n  ubuntu: [jq]\n"
 
+STEPS = "docker_ros.in_image.steps"
+
 
 def run(args: list, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
     full = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
@@ -49,7 +51,7 @@ def test_blacklisted_packages_get_colcon_ignore_in_the_image_copy_only(repo: Pat
     assert tree_snapshot(repo) == before  # the host task never marks the user's repository
     image_ws = tmp_path / "image-ws"  # the image's copy: src/target is a real folder
     shutil.copytree(repo, image_ws / "src" / "target")
-    proc = run(["docker_ros.steps", "blacklist", "--workspace", str(image_ws), "--mark-ignored"],
+    proc = run([STEPS, "blacklist", "--workspace", str(image_ws), "--mark-ignored"],
                repo)
     assert proc.returncode == 0, proc.stderr
     assert (image_ws / "src" / "target" / "unwanted" / "COLCON_IGNORE").is_file()
@@ -89,7 +91,7 @@ def test_own_rules_live_in_the_workspace_with_the_base_rules_it_reaches(
     ws = tmp_path / "ws"
     (ws / "src").mkdir(parents=True)
     (ws / "src" / "target").symlink_to(repo)
-    proc = run(["docker_ros.steps", "rosdep", "--workspace", str(ws), "--phase", "collect"],
+    proc = run([STEPS, "rosdep", "--workspace", str(ws), "--phase", "collect"],
                repo, env={**no_rosdep_database, "ROSDISTRO_INDEX_URL": "file:///nonexistent"})
     assert proc.returncode == 0, proc.stderr
     assert "rules source not reachable, its keys stay unresolved: http://127.0.0.1:9/gone" in (
@@ -100,7 +102,7 @@ def test_own_rules_live_in_the_workspace_with_the_base_rules_it_reaches(
     assert sorted(sources.iterdir()) == [sources / "10-base.list", sources / "20-gone.list"]
     assert not Path(no_rosdep_database["ROS_HOME"]).exists()
     assert not Path("/etc/ros/rosdep").exists()
-    again = run(["docker_ros.steps", "rosdep", "--workspace", str(ws), "--phase", "collect"],
+    again = run([STEPS, "rosdep", "--workspace", str(ws), "--phase", "collect"],
                 repo, env=no_rosdep_database)
     assert again.returncode == 0 and "rosdep update" not in again.stderr  # inputs unchanged
 
@@ -137,7 +139,7 @@ def test_rules_file_overriding_a_base_key_is_named_once(
     (ws / "src" / "target").symlink_to(repo)
     env = {**no_rosdep_database, "ROSDISTRO_INDEX_URL": "file:///nonexistent",
            "ROS_OS_OVERRIDE": "debian:bookworm"}
-    proc = run(["docker_ros.steps", "rosdep", "--workspace", str(ws), "--phase", "collect"],
+    proc = run([STEPS, "rosdep", "--workspace", str(ws), "--phase", "collect"],
                repo, env=env)
     assert proc.returncode == 0, proc.stderr
     lines = [line for line in proc.stderr.splitlines() if "overrides" in line]
@@ -161,7 +163,7 @@ def test_malformed_rules_file_stops_before_anything_runs(
     # the image's entry (the resolve stage runs it): the step itself
     ws = tmp_path / "image-ws"
     shutil.copytree(repo, ws / "src" / "target")
-    step = run(["docker_ros.steps", "rosdep", "--workspace", str(ws), "--phase", "collect"],
+    step = run([STEPS, "rosdep", "--workspace", str(ws), "--phase", "collect"],
                repo, env=no_rosdep_database)
     assert step.returncode == 1
     assert step.stderr.strip().splitlines()[-1] == f"docker-ros rosdep: {BAD_LINE}"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.runtime.process import executable_argv, tool_path
+from docker_ros.in_image.runtime.process import executable_argv, tool_path
 from tests.rosfixtures import make_git_repo, write_repos
 
 pytestmark = pytest.mark.host

@@ -4,12 +4,12 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.config import config_table, dotenv_warnings, image_problems, path_problems
-from docker_ros.runtime.files import path_problem
-from docker_ros.runtime.packages import Package, duplicate_packages
-from docker_ros.runtime.process import script_hint
-from docker_ros.settings import SettingsError, explicitly_set, load_settings
-from docker_ros.steps import clone, pip
+from docker_ros.host.config import config_table, dotenv_warnings, image_problems, path_problems
+from docker_ros.in_image.runtime.files import path_problem
+from docker_ros.in_image.runtime.packages import Package, duplicate_packages
+from docker_ros.in_image.runtime.process import script_hint
+from docker_ros.in_image.settings import SettingsError, explicitly_set, load_settings
+from docker_ros.in_image.steps import clone, pip
 
 
 def settings_for(repository: Path, **env: str):

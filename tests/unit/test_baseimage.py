@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros import baseimage
-from docker_ros.runtime.workspace import StepError
+from docker_ros.host import baseimage
+from docker_ros.in_image.runtime.workspace import StepError
 
 
 def test_every_flavor_is_a_dockerfile_stage() -> None:

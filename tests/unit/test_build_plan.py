@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros import build
-from docker_ros.settings import FIELDS, load_settings
+from docker_ros.host import build
+from docker_ros.in_image.settings import FIELDS, load_settings
 
 
 def settings(**environ):
@@ -195,7 +195,7 @@ def test_base_run_is_base_with_one_env_first():
 
 
 def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path):
-    from docker_ros.build import skeleton_files, source_stages
+    from docker_ros.host.build import skeleton_files, source_stages
 
     (tmp_path / "pkg" / "src").mkdir(parents=True)
     (tmp_path / "pkg" / "package.xml").write_text("<package/>")
@@ -232,7 +232,7 @@ def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path)
 
 # The endings of real buildx runs (docker driver, buildx 0.13, Engine 20.10).
 DAEMON_RESTARTED = [
-    "#19 [source 1/1] RUN python3 -m docker_ros.steps clone\n",
+    "#19 [source 1/1] RUN python3 -m docker_ros.in_image.steps clone\n",
     "#19 1.399 Starting >>> clone\n",
     "ERROR: failed to receive status: rpc error: code = Unavailable desc = error reading from "
     "server: EOF\n",

@@ -4,10 +4,10 @@ slim (the runner's architecture only, pushed under the slim names as docker-ros 
 import json
 from pathlib import Path
 
-from docker_ros.build import slim_platforms
-from docker_ros.login import mirror_docker_config, plan_login, private_config
-from docker_ros.push import plan_push, push_targets
-from docker_ros.settings import load_settings
+from docker_ros.host.build import slim_platforms
+from docker_ros.host.login import mirror_docker_config, plan_login, private_config
+from docker_ros.host.push import plan_push, push_targets
+from docker_ros.in_image.settings import load_settings
 
 
 def test_login_takes_the_password_on_standard_input_only() -> None:

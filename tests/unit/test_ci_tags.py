@@ -5,7 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.ci import (
+from docker_ros.host.config import read_settings
+from docker_ros.host.push import plan_outputs, plan_push, push_targets
+from docker_ros.in_image.ci import (
     Pipeline,
     detect_pipeline,
     github_default_branch,
@@ -15,9 +17,7 @@ from docker_ros.ci import (
     slugify,
     tag_postfix,
 )
-from docker_ros.config import read_settings
-from docker_ros.push import plan_outputs, plan_push, push_targets
-from docker_ros.settings import load_settings
+from docker_ros.in_image.settings import load_settings
 
 GITHUB = {"GITHUB_ACTIONS": "true", "GITHUB_DEFAULT_BRANCH": "main"}
 GITLAB = {"GITLAB_CI": "true", "CI_DEFAULT_BRANCH": "main"}

@@ -4,9 +4,11 @@ a step starts, --until, composites, resuming, the failed step of a BuildKit log.
 import re
 from pathlib import Path
 
-from docker_ros import build, container
-from docker_ros.settings import load_settings
-from docker_ros.steps import BY_NAME, OPTIONS, STEPS, step_options
+from docker_ros.host import build, container
+from docker_ros.in_image.settings import load_settings
+from docker_ros.in_image.steps import BY_NAME, OPTIONS, STEPS, step_options
+
+STEP_CALL = r"python3 -m docker_ros\.in_image\.steps ([-a-z ]+?)\s*(?:&&|$)"
 
 
 def settings(**environ):
@@ -42,7 +44,7 @@ def dockerfile_stages():
             current = start.group(2)
             stages[current] = (start.group(1), [])
             continue
-        for args in re.findall(r"python3 -m docker_ros\.steps ([-a-z ]+?)\s*(?:&&|$)", line):
+        for args in re.findall(STEP_CALL, line):
             if current and not args.startswith("prepare"):
                 stages[current][1].extend(one_per_step(args.split()))
     return stages
@@ -69,9 +71,9 @@ def test_stages_are_the_dockerfiles_step_commands():
 
 
 def test_the_dockerfile_calls_each_step_where_its_declaration_says():
-    """A step's declaration (docker_ros.steps) names its stage and options: the Dockerfile's
-    step calls run it there (the resolve stage collects the phased ones), with no option of
-    another step's."""
+    """A step's declaration (docker_ros.in_image.steps) names its stage and options: the
+    Dockerfile's step calls run it there (the resolve stage collects the phased ones), with no
+    option of another step's."""
     stages = dockerfile_stages()
     for step in STEPS:
         declared = BY_NAME[step]
@@ -165,7 +167,7 @@ def test_environment_has_the_declared_settings_and_never_a_secret():
 
 def test_failed_step_and_stage_from_a_buildkit_log():
     log = [
-        "#12 [resolve 1/1] RUN --mount=... python3 -m docker_ros.steps rosdep\n",
+        "#12 [resolve 1/1] RUN --mount=... python3 -m docker_ros.in_image.steps rosdep\n",
         "#16 [dependencies-dev 1/1] RUN --mount=...\n",
         "#12 0.5 Starting >>> rosdep\n",
         "#16 3.1 docker-ros custom: bash -e hooks/custom/01-custom.sh failed with exit code 3\n",
@@ -177,13 +179,13 @@ def test_failed_step_and_stage_from_a_buildkit_log():
 
 def test_printed_docker_run_lines_quote_what_needs_it():
     line = container.docker_run_line("r/i:v1-failed-x", ["/a b:/docker-ros/ws/src/target"],
-                                     ["python3", "-m", "docker_ros.steps", "x"], tty=True)
+                                     ["python3", "-m", "docker_ros.in_image.steps", "x"], tty=True)
     assert line == ("docker run --rm -it -v '/a b:/docker-ros/ws/src/target' r/i:v1-failed-x "
-                    "python3 -m docker_ros.steps x")
+                    "python3 -m docker_ros.in_image.steps x")
 
 
 def test_every_declared_step_has_its_module_with_main():
-    from docker_ros.steps import step_main
+    from docker_ros.in_image.steps import step_main
 
     for name in BY_NAME:
         assert callable(step_main(name)), name

@@ -7,8 +7,8 @@ from importlib.metadata import requires
 
 import pytest
 
-from docker_ros.runtime.process import HOST_EXTRA, probe, run, run_tee
-from docker_ros.runtime.workspace import StepError
+from docker_ros.in_image.runtime.process import HOST_EXTRA, probe, run, run_tee
+from docker_ros.in_image.runtime.workspace import StepError
 
 HOST_TOOLS = {"vcstool", "rosdep", "colcon-common-extensions"}
 

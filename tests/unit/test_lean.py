@@ -5,8 +5,8 @@ tests/docker/test_lean.py."""
 import json
 from pathlib import Path
 
-from docker_ros.build import definition, run_resolution
-from docker_ros.runtime.lean import (
+from docker_ros.host.build import definition, run_resolution
+from docker_ros.in_image.runtime.lean import (
     canonical,
     dpkg_index,
     imported_modules,
@@ -19,8 +19,8 @@ from docker_ros.runtime.lean import (
     parse_ldd,
     providers,
 )
-from docker_ros.runtime.workspace import Workspace
-from docker_ros.settings import load_settings
+from docker_ros.in_image.runtime.workspace import Workspace
+from docker_ros.in_image.settings import load_settings
 
 LDD = """\
 \tlinux-vdso.so.1 (0x00007ffd5b3f6000)

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.runtime import lock
-from docker_ros.settings import host_platform
+from docker_ros.in_image.runtime import lock
+from docker_ros.in_image.settings import host_platform
 
 
 def test_apt_simulation_gives_every_package_with_its_version():
@@ -37,7 +37,7 @@ def test_apt_pins_hold_dependencies_and_name_what_is_not_locked():
 
 
 def test_pip_constraints_hold_every_locked_version_and_need_recorded_versions(tmp_path):
-    from docker_ros.runtime.workspace import Workspace
+    from docker_ros.in_image.runtime.workspace import Workspace
 
     locked = {"six": {"version": "1.16.0"}, "idna": {"version": "3.4", "sha256": "ab"}}
     assert lock.pip_constraints(locked) == ["idna==3.4", "six==1.16.0"]
@@ -100,7 +100,7 @@ def test_base_image_by_digest():
 
 
 def test_base_image_record_prefers_the_registry_digest_of_its_repository():
-    from docker_ros.lock import base_image_record
+    from docker_ros.host.lock import base_image_record
 
     attrs = {"Id": "sha256:" + "1" * 64,
              "RepoDigests": ["other/x@sha256:" + "2" * 64, "reg:5000/ros@sha256:" + "3" * 64]}
@@ -114,8 +114,8 @@ def test_base_image_record_prefers_the_registry_digest_of_its_repository():
 
 
 def _plan(tmp_path: Path, target: str = "run", **environ):
-    from docker_ros import build
-    from docker_ros.settings import load_settings
+    from docker_ros.host import build
+    from docker_ros.in_image.settings import load_settings
 
     s = load_settings(environ={"BASE_IMAGE": "reg:5000/ros:noetic", "BUILD_CONTEXT": str(tmp_path),
                                **environ}, project_dir=tmp_path)
@@ -151,8 +151,8 @@ def test_unlocked_builds_are_unchanged_and_a_locked_one_builds_from_the_digest(t
 
 
 def _locked_ws(tmp_path: Path, debs: str, inputs):
-    from docker_ros.runtime.workspace import Workspace
-    from docker_ros.settings import load_settings
+    from docker_ros.in_image.runtime.workspace import Workspace
+    from docker_ros.in_image.settings import load_settings
 
     ws = Workspace(tmp_path / "ws")
     ws.target.mkdir(parents=True)
@@ -166,7 +166,7 @@ def _locked_ws(tmp_path: Path, debs: str, inputs):
 
 
 def test_locked_debs_step_installs_the_locked_versions(tmp_path: Path, capsys):
-    from docker_ros.steps import debs
+    from docker_ros.in_image.steps import debs
 
     ws, settings = _locked_ws(tmp_path, "sl\n", ["sl"])
     debs.main(ws, settings, dry_run=True)
@@ -174,8 +174,8 @@ def test_locked_debs_step_installs_the_locked_versions(tmp_path: Path, capsys):
 
 
 def test_locked_debs_step_stops_on_a_new_line_naming_it(tmp_path: Path):
-    from docker_ros.runtime.workspace import StepError
-    from docker_ros.steps import debs
+    from docker_ros.in_image.runtime.workspace import StepError
+    from docker_ros.in_image.steps import debs
 
     ws, settings = _locked_ws(tmp_path, "sl\ncmatrix\n", ["sl"])
     with pytest.raises(StepError, match="debs: added cmatrix.*run `inv lock`"):
@@ -183,7 +183,7 @@ def test_locked_debs_step_stops_on_a_new_line_naming_it(tmp_path: Path):
 
 
 def test_locked_rosdep_plan_pins_and_names_a_new_dependency(tmp_path: Path):
-    from docker_ros.runtime.workspace import StepError
+    from docker_ros.in_image.runtime.workspace import StepError
 
     ws, settings = _locked_ws(tmp_path, "", [])
     data = json.loads((ws.target / lock.LOCK_FILE).read_text())
@@ -199,7 +199,7 @@ def test_locked_rosdep_plan_pins_and_names_a_new_dependency(tmp_path: Path):
 
 
 def test_recorded_inputs_are_what_the_collect_phases_wrote(tmp_path: Path):
-    from docker_ros.runtime.workspace import Workspace
+    from docker_ros.in_image.runtime.workspace import Workspace
 
     ws = Workspace(tmp_path)
     ws.write_state("debs.json", {"packages": ["sl", "cmatrix"]})
@@ -240,7 +240,7 @@ def test_which_entry_a_step_honours():
 
 
 def test_entry_changes_name_each_difference_by_entry():
-    from docker_ros.lock import entry_changes
+    from docker_ros.host.lock import entry_changes
 
     old = {"inputs": {"debs": ["sl"]}, "apt": {"sl": "1"}, "pip": {"six": {"version": "1"}},
            "repos": {"upstream/a": {"url": "u", "commit": "c1"}},
@@ -254,8 +254,8 @@ def test_entry_changes_name_each_difference_by_entry():
 
 
 def test_lock_status_says_whether_a_lock_is_in_use(tmp_path: Path):
-    from docker_ros.lock import lock_status
-    from docker_ros.settings import load_settings
+    from docker_ros.host.lock import lock_status
+    from docker_ros.in_image.settings import load_settings
 
     def status(**environ):
         return lock_status(load_settings(environ={"BUILD_CONTEXT": str(tmp_path), **environ},
@@ -271,8 +271,8 @@ def test_lock_status_says_whether_a_lock_is_in_use(tmp_path: Path):
 
 
 def test_a_locked_build_takes_the_lock_into_its_imports_even_with_a_hook(tmp_path: Path):
-    from docker_ros import build
-    from docker_ros.settings import load_settings
+    from docker_ros.host import build
+    from docker_ros.in_image.settings import load_settings
 
     (tmp_path / ".repos").write_text("repositories: {}\n")
     (tmp_path / lock.LOCK_FILE).write_text(lock.dump_lock({"format": 1, "targets": {}}))

@@ -2,13 +2,13 @@
 
 import pytest
 
-from docker_ros.runtime.prepare import (
+from docker_ros.in_image.runtime.prepare import (
     plan_ros_installation,
     plan_tool_packages,
     ros_package_names,
     ros_present,
 )
-from docker_ros.runtime.workspace import StepError
+from docker_ros.in_image.runtime.workspace import StepError
 
 
 def plan(**kw):
@@ -80,7 +80,7 @@ def test_tool_packages_prefer_ros_repo_then_debian():
 
 
 def test_image_installs_skip_dpkg_syncs_host_installs_do_not():
-    from docker_ros.runtime.apt import install_options
+    from docker_ros.in_image.runtime.apt import install_options
 
     unsafe = ["-o", "Dpkg::Options::=--force-unsafe-io"]
     assert install_options("image")[-2:] == unsafe

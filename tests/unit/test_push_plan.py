@@ -2,14 +2,14 @@
 
 from pathlib import Path
 
-from docker_ros.push import (
+from docker_ros.host.push import (
     latest_ref,
     plan_manifest,
     plan_outputs,
     plan_push,
     write_outputs,
 )
-from docker_ros.settings import load_settings
+from docker_ros.in_image.settings import load_settings
 
 
 def settings(**environ):

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.config import input_problems
-from docker_ros.runtime.rosdeprules import (
+from docker_ros.host.config import input_problems
+from docker_ros.in_image.runtime.rosdeprules import (
     cached_sources,
     describe,
     os_name,
@@ -15,7 +15,7 @@ from docker_ros.runtime.rosdeprules import (
     override_lines,
     rules_problem,
 )
-from docker_ros.settings import load_settings
+from docker_ros.in_image.settings import load_settings
 
 
 def write(tmp_path: Path, text: str) -> Path:

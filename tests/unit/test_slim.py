@@ -9,10 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros import slimtrace
-from docker_ros.push import plan_push, push_targets
-from docker_ros.settings import SLIM_BUILD_ARGS_DEFAULT, load_settings
-from docker_ros.slim import (
+from docker_ros.host.push import plan_push, push_targets
+from docker_ros.host.slim import (
     Probe,
     SlimError,
     SlimOptions,
@@ -30,6 +28,8 @@ from docker_ros.slim import (
     tracer_spec,
     watch,
 )
+from docker_ros.in_image import slimtrace
+from docker_ros.in_image.settings import SLIM_BUILD_ARGS_DEFAULT, load_settings
 
 # a shorter variant of docker-ros's default (SLIM_BUILD_ARGS_DEFAULT)
 DOCKER_ROS_GITLAB_DEFAULT = (

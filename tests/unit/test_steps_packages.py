@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.runtime.packages import (
+from docker_ros.in_image.runtime.packages import (
     blacklisted_dependents,
     condition_context,
     find_package_dirs,
@@ -17,8 +17,8 @@ from docker_ros.runtime.packages import (
     parse_package_xml,
     select_keys,
 )
-from docker_ros.runtime.process import HOST_EXTRA
-from docker_ros.runtime.workspace import StepError, Workspace
+from docker_ros.in_image.runtime.process import HOST_EXTRA
+from docker_ros.in_image.runtime.workspace import StepError, Workspace
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 
@@ -216,8 +216,8 @@ def test_without_catkin_pkg_the_error_names_the_host_extra(tmp_path):
     (ws.target / "a").mkdir(parents=True)
     (ws.target / "a" / "package.xml").write_text(manifest("a"))
     code = (f"import sys; sys.path.insert(0, {str(SRC)!r})\n"
-            "from docker_ros.runtime.packages import find_packages\n"
-            "from docker_ros.runtime.workspace import StepError, Workspace\n"
+            "from docker_ros.in_image.runtime.packages import find_packages\n"
+            "from docker_ros.in_image.runtime.workspace import StepError, Workspace\n"
             "try:\n"
             f"    find_packages(Workspace({str(ws.root)!r}), object(), step='blacklist')\n"
             "except StepError as exc:\n"

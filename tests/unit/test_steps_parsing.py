@@ -6,21 +6,21 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.runtime.files import read_list_file
-from docker_ros.runtime.lock import dump_repos
-from docker_ros.runtime.packages import Package
-from docker_ros.runtime.repos import interpreters, read_repos
-from docker_ros.runtime.requirements import nested_file, read_requirement_file
-from docker_ros.runtime.rosenv import (
+from docker_ros.in_image.runtime.files import read_list_file
+from docker_ros.in_image.runtime.lock import dump_repos
+from docker_ros.in_image.runtime.packages import Package
+from docker_ros.in_image.runtime.repos import interpreters, read_repos
+from docker_ros.in_image.runtime.requirements import nested_file, read_requirement_file
+from docker_ros.in_image.runtime.rosenv import (
     parse_env0,
     read_secret,
     ros_setup_files,
     ros_version,
     sourced_env,
 )
-from docker_ros.runtime.workspace import StepError, Workspace, phases
-from docker_ros.settings import load_settings
-from docker_ros.steps import clone, colcon, debs, pip, rosdep
+from docker_ros.in_image.runtime.workspace import StepError, Workspace, phases
+from docker_ros.in_image.settings import load_settings
+from docker_ros.in_image.steps import clone, colcon, debs, pip, rosdep
 
 
 def test_read_list_file_comments_blanks_and_spaces(tmp_path):
@@ -520,8 +520,8 @@ def test_workspace_relative_and_state(tmp_path):
 def test_colcon_stamps_only_files_whose_content_changed(tmp_path):
     import os
 
-    from docker_ros.runtime.workspace import Workspace
-    from docker_ros.steps import colcon
+    from docker_ros.in_image.runtime.workspace import Workspace
+    from docker_ros.in_image.steps import colcon
 
     ws = Workspace(tmp_path)
     (ws.src / "pkg").mkdir(parents=True)

@@ -11,21 +11,16 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parents[2] / "src"
-STEP_FILES = sorted((SRC / "docker_ros" / "steps").glob("*.py")) + sorted(
-    (SRC / "docker_ros" / "runtime").glob("*.py"))
-# testing.py runs in the image's test stage, slimtrace.py in the run image being slimmed,
-# ci.py with settings.py
-IN_IMAGE = [SRC / "docker_ros" / name
-            for name in ("settings.py", "ci.py", "testing.py", "slimtrace.py")]
-CHECKED = STEP_FILES + IN_IMAGE
+# Everything under in_image/ runs in images (the steps, their runtime, settings, CI detection,
+# the test runner, the slim tracer): the folder is the rule, no list of names.
+IN_IMAGE = SRC / "docker_ros" / "in_image"
+CHECKED = sorted(IN_IMAGE.rglob("*.py"))
 
 IMPORT_ALL = """
 import importlib, json, pkgutil, sys
-import docker_ros.settings, docker_ros.slimtrace, docker_ros.steps, docker_ros.testing
-import docker_ros.runtime
-for package in (docker_ros.steps, docker_ros.runtime):
-    for info in pkgutil.iter_modules(package.__path__):
-        importlib.import_module(package.__name__ + "." + info.name)
+import docker_ros.in_image
+for info in pkgutil.walk_packages(docker_ros.in_image.__path__, "docker_ros.in_image."):
+    importlib.import_module(info.name)
 print(json.dumps(sorted(sys.modules)))
 """
 
@@ -49,7 +44,10 @@ def test_imports_only_the_standard_library():
         if m.split(".")[0] not in stdlib and m.split(".")[0] != "docker_ros" and m != "__main__"
     )
     assert foreign == []
-    assert "docker_ros.steps.clone" in modules and "docker_ros.steps.rosdep" in modules
+    # and of this package only in_image itself (and the version in docker_ros/__init__.py)
+    ours = [m for m in modules if m.split(".")[0] == "docker_ros"]
+    assert [m for m in ours if m != "docker_ros" and not m.startswith("docker_ros.in_image")] == []
+    assert {"docker_ros.in_image.steps.clone", "docker_ros.in_image.slimtrace"} <= set(ours)
 
 
 def test_same_check_fails_for_a_third_party_import(tmp_path):
@@ -125,7 +123,7 @@ def test_runs_on_python_38(tmp_path):
     (ws / "src" / "target" / "docker").mkdir(parents=True)
     (ws / "src" / "target" / "docker" / "additional-debs.txt").write_text("jq\n")
     proc = subprocess.run(
-        [python, "-m", "docker_ros.steps", "debs", "--workspace", str(ws), "--dry-run"],
+        [python, "-m", "docker_ros.in_image.steps", "debs", "--workspace", str(ws), "--dry-run"],
         env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"},
         capture_output=True,
         text=True,

@@ -2,9 +2,10 @@
 
 from pathlib import Path
 
-from docker_ros import build, testing
-from docker_ros.settings import load_settings
-from docker_ros.testing import Counts
+from docker_ros.host import build
+from docker_ros.in_image import testing
+from docker_ros.in_image.settings import load_settings
+from docker_ros.in_image.testing import Counts
 
 # What pytest writes for colcon (one passed, one failed, one skipped).
 PYTEST_XML = """<?xml version="1.0" encoding="utf-8"?><testsuites><testsuite name="pytest"

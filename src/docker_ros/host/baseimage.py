@@ -1,0 +1,239 @@
+"""Build a ROS base image from a Debian mirror (debootstrap), for machines without a registry.
+
+Debian packages ROS 1 (bookworm) and the ROS 2 build tooling (trixie) in /usr, so a minbase
+rootfs plus those packages is a base image that docker-ros can build on when neither `ros:*`
+nor `rwthika/*` images can be pulled.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+from docker_ros.host.engine import image_exists, inspect_image, remove_image
+from docker_ros.in_image.runtime.process import privileged, run
+from docker_ros.in_image.runtime.workspace import StepError, format_argv, step_log
+from docker_ros.in_image.settings import host_platform
+
+LOG = logging.getLogger(__name__)
+STEP = "baseimage"
+DEFAULT_MIRROR = "http://deb.debian.org/debian"
+DOCKERFILE = Path(__file__).parents[1] / "docker" / "baseimage.Dockerfile"
+
+# What colcon-common-extensions brings, as Debian packages (same names in bookworm and trixie).
+COLCON_DEBS = tuple(
+    "python3-colcon-" + name
+    for name in (
+        "bash", "cd", "cmake", "core", "defaults", "devtools", "library-path", "metadata",
+        "output", "package-information", "package-selection", "parallel-executor",
+        "pkg-config", "python-setup-py", "recursive-crawl", "ros", "test-result",
+    )
+)
+# The tools the steps need (openssh-client: git over ssh in the clone step). No compiler: run
+# images are built on this base and must not carry one; dev images get build-essential from the
+# image's prepare stage.
+TOOL_DEBS = (
+    "ca-certificates", "colcon", "git", "openssh-client", "python3-pip", "python3-rosdep2", "tini",
+    "vcstool",
+)
+# Image label holding the recipe fingerprint: an existing image is reused only if it was built
+# from the same recipe (a changed package list or Dockerfile rebuilds it).
+RECIPE_LABEL = "org.docker-ros.base-recipe"
+
+
+@dataclass(frozen=True)
+class Flavor:
+    """A Debian suite and the ROS packages it provides; the name is the Dockerfile target."""
+
+    name: str
+    suite: str
+    debs: Tuple[str, ...]
+
+
+# ros1 is like `ros:noetic-ros-core`: no compiler, so docker-ros's dev stage must bring it.
+# ROS 1 at run time (roscore, roslaunch, rostopic...); -dev packages come from rosdep.
+ROS1_DEBS = ("ros-core", "rosbash")
+# ros2 is build tooling only (Debian has no rclcpp/rclpy), with the compiler to use it.
+ROS2_DEBS = (
+    "ament-cmake", "ament-cmake-python", "python3-ament-index", "python3-ament-package",
+    "build-essential",
+)
+FLAVORS = {
+    "ros1": Flavor("ros1", "bookworm", ROS1_DEBS + TOOL_DEBS + COLCON_DEBS),
+    "ros2": Flavor("ros2", "trixie", ROS2_DEBS + TOOL_DEBS + COLCON_DEBS),
+}
+
+
+def default_tag(flavor: str) -> str:
+    """docker-ros/ros1:bookworm, docker-ros/ros2:trixie."""
+    return f"docker-ros/{flavor}:{FLAVORS[flavor].suite}"
+
+
+def arch_ref(ref: str, platform: str) -> str:
+    """The local name of ref's image for another architecture: `<ref>-<arch>` (`name` without
+    a tag: `name:latest-<arch>`). The classic image store holds one image per tag, so the
+    images of several architectures need a tag each."""
+    return f"{ref}-{platform}" if ":" in ref.rsplit("/", 1)[-1] else f"{ref}:latest-{platform}"
+
+
+def platform_tag(tag: str, platform: str, host: str) -> str:
+    """The tag bootstrap gives the image of platform: `tag` for the host's architecture,
+    arch_ref for any other, so that no architecture's image replaces another's."""
+    return tag if platform == host else arch_ref(tag, platform)
+
+
+def bootstrap(
+    flavor: str,
+    *,
+    tag: str,
+    mirror: str = DEFAULT_MIRROR,
+    platform: str = "",
+    ca_bundle: Optional[Path] = None,
+    force: bool = False,
+) -> str:
+    """Build the base image of `flavor` ("ros1" or "ros2") for `platform`, tagged `tag` for the
+    host's architecture and `<tag>-<platform>` for another (platform_tag); return that name.
+    Reuse an image of that name built from the current recipe (RECIPE_LABEL), else rebuild it.
+    platform: this machine's architecture unless given."""
+    if flavor not in FLAVORS:
+        raise StepError(STEP, f"unknown flavor {flavor!r}; choose one of {', '.join(FLAVORS)}")
+    platform = platform or host_platform()
+    tag = platform_tag(tag, platform, host_platform())
+    if ca_bundle is not None and not Path(ca_bundle).is_file():
+        raise StepError(STEP, f"CA bundle '{ca_bundle}' not found")
+    spec = FLAVORS[flavor]
+    if not force and image_exists(tag):
+        reason = stale_reason(image_label(tag, RECIPE_LABEL), image_architecture(tag),
+                              recipe=recipe(spec), platform=platform)
+        if not reason:
+            LOG.info("%s: %s exists, not rebuilding it (force=True does)", STEP, tag)
+            return tag
+        LOG.info("%s: %s %s, rebuilding it", STEP, tag, reason)
+    with step_log(f"{STEP} {tag}"), tempfile.TemporaryDirectory(prefix="docker-ros-base-") as tmp:
+        work = Path(tmp)
+        rootfs = work / "rootfs"
+        rootfs_tag = f"docker-ros-rootfs/{spec.suite}:{platform}-{work.name.lower()}"
+        try:
+            with step_log(f"{STEP} debootstrap {spec.suite} ({platform})"):
+                run(privileged(debootstrap_argv(spec.suite, rootfs, mirror, platform)), step=STEP)
+            with step_log(f"{STEP} import rootfs"):
+                import_rootfs(rootfs, rootfs_tag, platform, work)
+        finally:
+            remove_rootfs(rootfs)
+        try:
+            with step_log(f"{STEP} apt-get install ({len(spec.debs)} packages)"):
+                context = work / "context"
+                context.mkdir()
+                run(build_argv(spec, tag, rootfs_tag, platform, ca_bundle, context), step=STEP)
+        finally:
+            remove_image(rootfs_tag)
+    return tag
+
+
+def recipe(spec: Flavor) -> str:
+    """Fingerprint of what an image of `spec` is built from: Dockerfile, target and packages."""
+    text = "\0".join([DOCKERFILE.read_text(), spec.name, spec.suite, *spec.debs])
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def stale_reason(
+    label: Optional[str], architecture: Optional[str], *, recipe: str, platform: str
+) -> str:
+    """Why an existing base image cannot be reused ('' when it can)."""
+    if architecture != platform:
+        return f"is built for {architecture or 'an unknown architecture'}, not {platform}"
+    if label != recipe:
+        return "was built from another recipe (package list)"
+    return ""
+
+
+def image_architecture(tag: str) -> Optional[str]:
+    attrs = inspect_image(tag)
+    return str(attrs.get("Architecture") or "") or None if attrs else None
+
+
+def image_label(tag: str, label: str) -> Optional[str]:
+    attrs = inspect_image(tag)
+    labels = ((attrs or {}).get("Config") or {}).get("Labels") or {}
+    value = labels.get(label)
+    return str(value) if value is not None else None
+
+
+def debootstrap_argv(suite: str, rootfs: Path, mirror: str, platform: str) -> List[str]:
+    return ["debootstrap", "--variant=minbase", f"--arch={platform}", suite, str(rootfs), mirror]
+
+
+def build_argv(
+    spec: Flavor,
+    tag: str,
+    rootfs_image: str,
+    platform: str,
+    ca_bundle: Optional[Path],
+    context: Path,
+) -> List[str]:
+    argv = ["docker", "buildx", "build", "--load", "--platform", f"linux/{platform}"]
+    argv += ["--file", str(DOCKERFILE), "--target", spec.name, "--tag", tag]
+    argv += ["--build-arg", f"ROOTFS_IMAGE={rootfs_image}"]
+    argv += ["--build-arg", "DEBS=" + " ".join(spec.debs)]
+    argv += ["--label", f"{RECIPE_LABEL}={recipe(spec)}"]
+    if ca_bundle is not None:
+        argv += ["--secret", f"id=EXTRA_CA_CERTS,src={ca_bundle}"]
+    return argv + [str(context)]
+
+
+def import_rootfs(rootfs: Path, tag: str, platform: str, work: Path) -> None:
+    """Make the rootfs an image. `docker import --platform` records the wrong architecture on
+    Engine 20.10, so a foreign rootfs goes through a `FROM scratch` build instead."""
+    if platform == host_platform():
+        pack = privileged(["tar", "-C", str(rootfs), "-c", "."])
+        tar = subprocess.Popen(pack, stdout=subprocess.PIPE)
+        imported = subprocess.run(
+            ["docker", "import", "-", tag], stdin=tar.stdout, stdout=subprocess.DEVNULL
+        )
+        assert tar.stdout is not None
+        tar.stdout.close()
+        if tar.wait() != 0 or imported.returncode != 0:
+            raise StepError(
+                STEP,
+                f"importing {rootfs} as {tag} failed"
+                f" (tar: exit code {tar.returncode}, docker import: {imported.returncode})",
+            )
+        return
+    context = work / "import"
+    context.mkdir()
+    run(privileged(["tar", "-C", str(rootfs), "-cf", str(context / "rootfs.tar"), "."]), step=STEP)
+    (context / "Dockerfile").write_text("FROM scratch\nADD rootfs.tar /\nCMD [\"bash\"]\n")
+    try:
+        build = ["docker", "buildx", "build", "--load", "--platform", f"linux/{platform}"]
+        run(build + ["--tag", tag, str(context)], step=STEP)
+    finally:
+        (context / "rootfs.tar").unlink()
+
+
+def remove_rootfs(rootfs: Path) -> None:
+    """debootstrap leaves root-owned files and, when interrupted, mounts (proc, sys, dev):
+    unmount those first and never cross into another file system while removing."""
+    if not rootfs.exists():
+        return
+    for mount in reversed(mounts_below(rootfs)):
+        LOG.warning("%s: unmounting leftover %s", STEP, mount)
+        subprocess.run(privileged(["umount", "--lazy", mount]))
+    argv = privileged(["rm", "-rf", "--one-file-system", str(rootfs)])
+    if subprocess.run(argv).returncode != 0:
+        LOG.warning("%s: could not remove %s (%s)", STEP, rootfs, format_argv(argv))
+
+
+def mounts_below(path: Path) -> List[str]:
+    """Mount points at or below `path`, outermost first (/proc/self/mounts escapes spaces)."""
+    prefix = str(path.resolve())
+    found = []
+    for line in Path("/proc/self/mounts").read_text().splitlines():
+        point = line.split()[1].replace("\\040", " ")
+        if point == prefix or point.startswith(prefix + "/"):
+            found.append(point)
+    return sorted(found, key=len)

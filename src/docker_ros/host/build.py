@@ -1,0 +1,829 @@
+"""Image builds with docker buildx (BuildKit): plan the argv (pure), run it, fold its log."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
+
+import docker_ros
+from docker_ros.host import builder, engine
+from docker_ros.host.baseimage import arch_ref
+from docker_ros.host.engine import image_exists, image_size
+from docker_ros.host.lock import lock_labels, locked_build_args, tag_local_base
+from docker_ros.in_image.runtime.files import walk
+from docker_ros.in_image.runtime.inputs import resolve_inputs
+from docker_ros.in_image.runtime.lock import LOCK_FILE
+from docker_ros.in_image.runtime.workspace import StepError, Workspace
+from docker_ros.in_image.settings import FIELDS, Settings, as_env, build_secrets, env_name
+
+PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
+DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
+TOOLS_REPOSITORY = "docker-ros-tools"
+IMPORTS_REPOSITORY = "docker-ros-imports"
+# Files of the package that the images need (stdlib-only step modules and the image scripts).
+TOOLS_PATTERNS = ("__init__.py", "in_image/*.py", "in_image/*/*.py", "docker/*.sh")
+SECRETS = build_secrets()
+SCRATCH_FOLDER = ".gitlab-ci-local"  # gitlab-ci-local's copies of the repository
+STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
+STEP_START = re.compile(r"Starting >>> (\w+)")
+STEP_END = re.compile(r"(Finished|Failed  ) <<< (\w+)")
+# buildx's own lines (not a build step's output, `#N ...`) when the engine went away mid-build
+ENGINE_LOST = re.compile(
+    r"code = Unavailable|error reading from server: EOF|transport is closing|"
+    r"Cannot connect to the Docker daemon|docker\.sock: connect: |connection reset by peer",
+)
+BUILDX = ("docker", "buildx")  # the command reaching the default builder
+# The targets that export a registry cache (CACHE_TO); build-state imports run's, test dev's.
+CACHED_TARGETS = ("dev", "run")
+# a build step of a stage; bake puts the target first: `#7 [run build 1/1]`
+VERTEX = re.compile(r"#(\d+) \[(?:[\w-]+ )?([\w-]+) \d+/\d+\]")
+
+
+class BuildError(Exception):
+    """A build failed: which target, which step, why."""
+
+    def __init__(self, message: str, returncode: int = 1, *, stage: str = "",
+                 step: str = "") -> None:
+        super().__init__(message)
+        self.returncode = returncode
+        self.stage = stage  # the Dockerfile stage and docker-ros step that failed, when known
+        self.step = step
+
+
+@dataclass(frozen=True)
+class BuiltImage:
+    target: str
+    ref: str
+    platform: str
+    seconds: float
+
+
+def until_ref(settings: Settings, step: str) -> str:
+    """Tag of an image built up to a step: <IMAGE_NAME>:<IMAGE_TAG>-until-<step>."""
+    return f"{settings.image_name}:{settings.image_tag}-until-{step}"
+
+
+def dockerfile_args(dockerfile: Path = DOCKERFILE) -> List[str]:
+    """Names of the ARGs the Dockerfile declares."""
+    names = re.findall(r"^ARG\s+([A-Z_]+)", dockerfile.read_text(), flags=re.MULTILINE)
+    return sorted(set(names))
+
+
+def image_ref(settings: Settings, target: str) -> str:
+    if target == "dev":
+        return f"{settings.dev_image_name}:{settings.dev_image_tag}"
+    if target == "slim":
+        return f"{settings.slim_image_name}:{settings.slim_image_tag}"
+    if target == "build-state":
+        return f"{settings.image_name}:{settings.image_tag}-build-state"
+    return f"{settings.image_name}:{settings.image_tag}"
+
+
+def platform_ref(ref: str, platform: str, platforms: Sequence[str]) -> str:
+    """Several platforms: one local tag per architecture (`-amd64`/`-arm64` postfix)."""
+    return ref if len(platforms) <= 1 else f"{ref}-{platform}"
+
+
+def slim_platforms(platforms: Sequence[str], host: str) -> Tuple[str, ...]:
+    """The platforms whose run image is slimmed. Of several, only the runner's: slimming runs
+    the image, and docker-ros's single-job multi-arch build also slims only what the runner
+    pulls (its own architecture). A lone foreign platform stays, for slim's own error."""
+    return (host,) if len(platforms) > 1 and host in platforms else tuple(platforms)
+
+
+def target_ref(settings: Settings, target: str, platform: str) -> str:
+    """The local name of a target's image built for one platform. A build state is always
+    per architecture (`-<arch>`): the jobs of several architectures push one each."""
+    ref = image_ref(settings, target)
+    return f"{ref}-{platform}" if target == "build-state" else platform_ref(
+        ref, platform, settings.platform)
+
+
+@dataclass(frozen=True)
+class LocalBase:
+    """What the local image store holds under a base image's name."""
+
+    architecture: str
+    from_registry: bool  # pulled or pushed under this name: its registry has it
+
+
+def choose_base(base_image: str, platform: str,
+                local: Mapping[str, Optional[LocalBase]]) -> Tuple[str, str]:
+    """The image the build FROMs for platform, and a line saying why when that is not
+    BASE_IMAGE's local image ('' when it is). local: the local images of BASE_IMAGE and of its
+    arch_ref (None: not local). The classic image store holds one architecture per tag; a
+    local image of another architecture is used only as its registry's multi-arch name
+    (BuildKit then pulls the platform's image), never as the platform's image."""
+    own, tagged = local.get(base_image), local.get(arch_ref(base_image, platform))
+    if own is not None and own.architecture == platform:
+        return base_image, ""
+    if tagged is not None and tagged.architecture == platform:
+        return arch_ref(base_image, platform), (
+            f"base image ({platform}): {arch_ref(base_image, platform)}, the {platform} image "
+            f"of BASE_IMAGE {base_image}")
+    if own is None:
+        return base_image, ""  # a registry's name: BuildKit pulls the platform's image
+    if own.from_registry:
+        return base_image, (
+            f"base image ({platform}): {base_image} is a local {own.architecture} image; "
+            f"BuildKit pulls its {platform} image from its registry")
+    raise BuildError(
+        f"BASE_IMAGE {base_image} is a local {own.architecture or 'unknown'} image from no "
+        f"registry, and no {platform} image is tagged {arch_ref(base_image, platform)}: make "
+        f"one with `inv bootstrap-base-image --platform {platform}` (which tags it so), tag "
+        f"your {platform} base image {arch_ref(base_image, platform)}, or set BASE_IMAGE to a "
+        "multi-arch image in a registry")
+
+
+def local_base(ref: str) -> Optional[LocalBase]:
+    attrs = engine.inspect_image(ref)
+    if attrs is None:
+        return None
+    return LocalBase(str(attrs.get("Architecture") or ""),
+                     from_registry(ref, attrs.get("RepoDigests") or []))
+
+
+def from_registry(ref: str, repo_digests: Sequence[str]) -> bool:
+    """Whether ref's own repository holds the image (a digest of that name; the image's digests
+    are those of every name it was pulled or pushed as, also under other names)."""
+    name = ref.split("@")[0]
+    repository = name.rsplit(":", 1)[0] if ":" in name.rsplit("/", 1)[-1] else name
+    return any(digest.split("@")[0] == repository for digest in repo_digests)
+
+
+def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:
+    """choose_base with what this engine holds; a BASE_IMAGE that is neither local (under
+    either name) nor pullable is a BuildError."""
+    base = settings.base_image or ""
+    names = (base, arch_ref(base, platform))
+    local = {name: local_base(name) for name in names}
+    if not any(local.values()):
+        if not engine.pull(base):
+            raise BuildError(
+                f"BASE_IMAGE '{base}' is neither a local image nor pullable: check the name, "
+                "`docker login`, or make one with `inv bootstrap-base-image`")
+        local[base] = local_base(base)
+    return choose_base(base, platform, local)
+
+
+def build_state_seed(settings: Settings, platform: str, out: IO[str]) -> Dict[str, str]:
+    """The build argument that seeds an empty build cache with the first pullable
+    BUILD_STATE_FROM image of this platform; none when none can be pulled (colcon then builds
+    everything and says why)."""
+    for candidate in settings.build_state_from:
+        ref = f"{candidate}-{platform}"
+        start = time.monotonic()
+        if engine.pull(ref):
+            print(f"build state: {ref} pulled in {time.monotonic() - start:.1f} s"
+                  f" ({image_size(ref) / 1e6:.0f} MB)", file=out)
+            return {"DOCKER_ROS_BUILD_STATE": ref}
+        print(f"build state: {ref} could not be pulled (none pushed yet?)", file=out)
+    return {}
+
+
+def build_args(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
+    """The value of every declared ARG whose setting is set (docker-ros's add_arg_if_set).
+    Secrets are never build arguments (they would stay in the image history)."""
+    values = as_env(settings)
+    return {name: values[name] for name in declared if name in values and name.lower() in FIELDS}
+
+
+def definition(
+    settings: Settings,
+    *,
+    target: str,
+    platform: str,
+    tools_image: str,
+    tag: str,
+    secrets: Mapping[str, str],
+    dockerfile: Path = DOCKERFILE,
+    push: bool = False,
+    output: str = "",
+    extra_build_args: Mapping[str, str] = {},
+    imports_image: str = f"{IMPORTS_REPOSITORY}:<hash>",
+    base_image: str = "",
+    cache_export: str = "inline",
+) -> Dict[str, Any]:
+    """One target and platform as a `docker buildx bake` target: the single description behind
+    both plan_build (one `buildx build`) and plan_bake (several targets in one BuildKit run).
+    `output`: an --output exporter instead of loading or pushing the image; `base_image`: the
+    platform's base (platform_base) when it is not BASE_IMAGE; `cache_export`: what CACHE_TO
+    exports, `registry` or `inline` (the builder's choice, see builder.py)."""
+    args = {"BASE_IMAGE": base_image or settings.base_image or "",
+            "DOCKER_ROS_TOOLS": tools_image,
+            "DOCKER_ROS_IMPORTS": imports_image,
+            "DOCKER_ROS_RUN_RESOLUTION": run_resolution(settings),
+            "DOCKER_ROS_RUN_BASE": run_base(settings),
+            "DOCKER_ROS_SYSTEM": system_stage(settings), **source_stages(settings)}
+    args.update(build_args(settings, [a for a in dockerfile_args(dockerfile) if a not in args]))
+    args.update(sorted(extra_build_args.items()))
+    args.update(locked_build_args(settings, target=target, platform=platform))
+    target_def: Dict[str, Any] = {
+        "context": str(Path(settings.build_context)),
+        "dockerfile": str(dockerfile),
+        "target": target,
+        "platforms": [f"linux/{platform}"],
+        "tags": [tag],
+        "args": args,
+        "secret": [f"id={i},{source}" for i, source in sorted(secrets.items())],
+        "output": [output or ("type=registry" if push else "type=docker")],
+    }
+    labels = lock_labels(settings, target)
+    if labels:
+        target_def["labels"] = labels
+    if settings.build_network:
+        target_def["network"] = settings.build_network
+    if not settings.buildx_attestations:
+        target_def["attest"] = ["type=provenance,disabled=true"]
+    if settings.no_cache:
+        target_def["no-cache"] = True
+    if settings.cache_from:
+        target_def["cache-from"] = cache_sources(settings.cache_from, target)
+        target_def["cache-to"] = ["type=inline"]
+    if settings.cache_to:
+        cache_from, cache_to = registry_cache(settings, target, platform, tag, cache_export)
+        target_def["cache-from"] = list(dict.fromkeys(
+            target_def.get("cache-from", []) + cache_from))
+        target_def["cache-to"] = cache_to
+    return target_def
+
+
+def cache_ref(settings: Settings, target: str, platform: str) -> str:
+    """The registry cache of one target and platform: `<CACHE_TO>-<target>-<arch>`."""
+    return f"{settings.cache_to}-{target}-{platform}"
+
+
+def registry_cache(settings: Settings, target: str, platform: str, tag: str,
+                   cache_export: str) -> Tuple[List[str], List[str]]:
+    """(--cache-from, --cache-to) of CACHE_TO. `registry`: dev and run export every stage to
+    their own cache ref (mode=max) and import it; build-state imports run's, test dev's.
+    `inline`: the dev and run images carry their cache and are the cache of their next build."""
+    exports = target in CACHED_TARGETS
+    if cache_export != "registry":
+        return ([tag], ["type=inline"]) if exports else ([], [])
+    own = target if exports else "run" if target == "build-state" else "dev"
+    ref = f"type=registry,ref={cache_ref(settings, own, platform)}"
+    return [ref], ([f"{ref},mode=max"] if exports else [])
+
+
+def run_resolution(settings: Settings) -> str:
+    """The Dockerfile stage resolving the run image's dependencies."""
+    return "lean-resolution" if settings.enable_lean_run_image else "resolve"
+
+
+def has_identification_hook(settings: Settings) -> bool:
+    return (Path(settings.build_context) / settings.before_dependency_identification_script
+            ).is_file()
+
+
+def system_stage(settings: Settings) -> str:
+    """The Dockerfile stage resolution and the dev image's installs start from: the base, or
+    with a before-dependency-identification hook the base with what the hook changed in the
+    system (hooked-system), which docker-ros's installs see too. Without a hook the stages
+    share nothing with the source stage, which a source edit then leaves cached."""
+    return "hooked-system" if has_identification_hook(settings) else "base"
+
+
+def run_base(settings: Settings) -> str:
+    """The Dockerfile stage the run image's dependencies are installed on: with CACHE_FROM a
+    copy of base that shares no stage with the dev image, so that on an empty machine the run
+    image's registry cache serves its dependency layers too (see the Dockerfile's base-run);
+    either with the hook's system changes when there is one (system_stage)."""
+    stage = "base-run" if imports_cache(settings) else "base"
+    return stage.replace("base", "hooked-system") if system_stage(settings) != "base" else stage
+
+
+def imports_cache(settings: Settings) -> bool:
+    """Whether the build imports a cache from a registry (CACHE_FROM, CACHE_TO)."""
+    return bool(settings.cache_from or settings.cache_to)
+
+
+def cache_sources(refs: Sequence[str], target: str) -> List[str]:
+    """The CACHE_FROM refs a target imports: the dev images' (a `-dev` in the tag) for dev, the
+    others for run and every other target; all refs when none is of that kind. Each image is
+    the cache of its own target: BuildKit takes the first cache that matches a stage both
+    targets share, so another image's records would stand for the target's own."""
+    dev = [r for r in refs if "-dev" in r.rpartition(":")[2]]
+    mine = dev if target == "dev" else [r for r in refs if r not in dev]
+    return mine or list(refs)
+
+
+def plan_build(settings: Settings, **options: Any) -> List[str]:
+    """The `docker buildx build` argv for one target and platform (options: see definition)."""
+    return build_argv(definition(settings, **options))
+
+
+def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX) -> List[str]:
+    """A bake target's definition as one `docker buildx build` argv (buildx: the command
+    reaching the builder, builder.buildx_command)."""
+    argv = [*buildx, "build", "--progress=plain", "--file", spec["dockerfile"]]
+    argv += ["--target", spec["target"], "--platform", spec["platforms"][0]]
+    argv += ["--tag", spec["tags"][0]]
+    for name, value in spec["args"].items():
+        argv += ["--build-arg", f"{name}={value}"]
+    for name, value in spec.get("labels", {}).items():
+        argv += ["--label", f"{name}={value}"]
+    for secret in spec["secret"]:
+        argv += ["--secret", secret]
+    if "network" in spec:
+        argv += ["--network", spec["network"]]
+    if "attest" in spec:
+        argv += ["--provenance=false"]
+    if spec.get("no-cache"):
+        argv += ["--no-cache"]
+    for ref in spec.get("cache-from", []):
+        argv += ["--cache-from", ref]
+    for cache in spec.get("cache-to", []):
+        argv += ["--cache-to", cache]
+    exporter = spec["output"][0]
+    loads = {"type=docker": "--load", "type=registry": "--push"}
+    argv += [loads[exporter]] if exporter in loads else ["--output", exporter]
+    argv.append(spec["context"])
+    return argv
+
+
+def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str,
+              buildx: Sequence[str] = BUILDX) -> List[str]:
+    """The `docker buildx bake` argv building the targets (bake target name -> definition,
+    written as JSON to definition_file) in one BuildKit run: stages they share are built once,
+    the others in parallel, from one load of the build context."""
+    return [*buildx, "bake", "--progress=plain", "--file", definition_file, *targets]
+
+
+def can_bake(settings: Settings) -> bool:
+    """Whether one bake run can build the targets. Not with BUILD_NETWORK: the buildx of Debian
+    (0.13) knows no `network` attribute. Not with CACHE_FROM: in one bake run, which target's
+    dependency layers missed the registry cache on an empty machine varied from run to run;
+    built one after the other, dev first, the dev image's always hit (measured, issue 13)."""
+    return not settings.build_network and not imports_cache(settings)
+
+
+def bake_file(targets: Mapping[str, Dict[str, Any]]) -> str:
+    """The bake definition (JSON). It names secrets' environment variables, never values."""
+    return json.dumps({"target": dict(targets)}, indent=2, sort_keys=True) + "\n"
+
+
+def shown_definition(settings: Settings, *, target: str, platform: str, tag: str,
+                     output: str = "", extra_build_args: Mapping[str, str] = {}
+                     ) -> Dict[str, Any]:
+    """definition as a dry run shows it, before the tools image and CA bundle exist."""
+    return definition(settings, target=target, platform=platform,
+                      tools_image=f"{TOOLS_REPOSITORY}:<hash>", tag=tag,
+                      secrets=plan_secrets(settings, None), output=output,
+                      extra_build_args=extra_build_args)
+
+
+def plan_shown(settings: Settings, **options: Any) -> List[str]:
+    """plan_build as a dry run shows it (options: see shown_definition)."""
+    return build_argv(shown_definition(settings, **options))
+
+
+def secret_env(settings: Settings) -> Dict[str, str]:
+    """The environment of the buildx process that carries the secret values."""
+    return {f"DOCKER_ROS_SECRET_{env_name(n)}": getattr(settings, n) for n in SECRETS
+            if getattr(settings, n)}
+
+
+def plan_secrets(settings: Settings, ca_bundle: Optional[Path]) -> Dict[str, str]:
+    """BuildKit secret id -> source. Values come from the environment (secret_env), so the
+    argv (and a dry run printing it) holds only variable names, never a secret."""
+    secrets = {env_name(n): f"env=DOCKER_ROS_SECRET_{env_name(n)}" for n in SECRETS
+               if getattr(settings, n)}
+    if settings.extra_ca_certs:
+        secrets["EXTRA_CA_CERTS"] = f"src={ca_bundle or '<bundle of EXTRA_CA_CERTS>'}"
+    return secrets
+
+
+def cache_id(settings: Settings, platform: str) -> str:
+    """Build caches (colcon build/) are per repository and platform: object files of another
+    workspace or architecture must never be reused."""
+    key = f"{Path(settings.build_context).resolve()}\0{settings.image_name}\0{platform}"
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+def apt_cache_id(settings: Settings, platform: str) -> str:
+    """apt lists and archives are shared by the builds on one base image and platform."""
+    return hashlib.sha256(f"{settings.base_image}\0{platform}".encode()).hexdigest()[:16]
+
+
+def mount_ids(settings: Settings, platform: str) -> Dict[str, str]:
+    """The ARGs the Dockerfile uses in cache mount ids, with their values."""
+    return {
+        "DOCKER_ROS_CACHE_ID": cache_id(settings, platform),
+        "DOCKER_ROS_APT_CACHE_ID": apt_cache_id(settings, platform),
+    }
+
+
+def expand_mount_ids(dockerfile: Path, ids: Mapping[str, str]) -> None:
+    """Write the cache mount ids into the staged Dockerfile. The Dockerfile frontend built into
+    Engine 20.10 (BuildKit v0.8) does not expand ARGs in RUN --mount options (the log shows them
+    expanded, the cache id stays the literal `docker-ros-build-${DOCKER_ROS_CACHE_ID}`), so every
+    repository and platform would share one build/ cache and its change record."""
+    text = dockerfile.read_text()
+    for name, value in ids.items():
+        text = text.replace("${" + name + "}", value)
+    dockerfile.write_text(text)
+
+
+def fold_markers(environ: Mapping[str, str]) -> Tuple[str, str]:
+    """Start/end templates for collapsible log sections of the CI we run in ({id}, {title})."""
+    if environ.get("GITHUB_ACTIONS"):
+        return "::group::{title}", "::endgroup::"
+    if environ.get("GITLAB_CI"):
+        return (
+            "\x1b[0Ksection_start:{time}:{id}[collapsed=true]\r\x1b[0K{title}",
+            "\x1b[0Ksection_end:{time}:{id}\r\x1b[0K",
+        )
+    return "", ""  # plain log: the step's own Starting/Finished lines are the markers
+
+
+def fold(template: str, title: str) -> str:
+    ident = re.sub(r"[^a-z0-9_]", "_", title.lower())
+    return template.format(title=title, id=ident, time=int(time.time()))
+
+
+def stream_build(lines: Iterator[str], out: IO[str], environ: Mapping[str, str]) -> List[str]:
+    """Copy the build log to out, each docker-ros step folded; return the step error lines."""
+    start, end = fold_markers(environ)
+    errors: List[str] = []
+    for line in lines:
+        begun = STEP_START.search(line)
+        if begun and start:
+            out.write(fold(start, begun.group(1)) + "\n")
+        out.write(line)
+        ended = STEP_END.search(line)
+        if ended and end:
+            out.write(fold(end, ended.group(2)) + "\n")
+        failed = STEP_ERROR.search(line)
+        if failed and "docker-ros" in line:
+            errors.append(f"{failed.group(1)}: {failed.group(2).strip()}")
+        out.flush()
+    return errors
+
+
+def failed_step(lines: Sequence[str]) -> Tuple[str, str]:
+    """(stage, step) of the last docker-ros step error in a BuildKit plain log, or ("", "")."""
+    stages: Dict[str, str] = {}
+    found = ("", "")
+    for line in lines:
+        vertex = VERTEX.match(line)
+        if vertex:
+            stages[vertex.group(1)] = vertex.group(2)
+        failed = STEP_ERROR.search(line)
+        number = re.match(r"#(\d+) ", line)
+        if failed and number and number.group(1) in stages:
+            found = (stages[number.group(1)], failed.group(1))
+    return found
+
+
+def engine_lost(lines: Sequence[str]) -> str:
+    """buildx's line saying that the connection to the Docker engine was lost (the daemon
+    stopped or restarted mid-build), '' when the log shows none. A build step's own output
+    (`#N ...`, e.g. a refused git connection) never counts."""
+    for line in reversed(lines):
+        if not line.startswith("#") and ENGINE_LOST.search(line):
+            return line.strip()
+    return ""
+
+
+def cancelled(lines: Sequence[str]) -> bool:
+    """Whether buildx stopped because it was interrupted (SIGINT reached it, maybe only it):
+    its last error is the cancellation itself (`ERROR: failed to solve: Canceled: context
+    canceled`); when one target of several fails, buildx names that failure instead."""
+    own = [line for line in lines if line.startswith(("ERROR", "error:"))]
+    return bool(own) and "context canceled" in own[-1]
+
+
+def failure_reason(lines: Sequence[str], errors: Sequence[str]) -> str:
+    """How a failed buildx run ended, for the one-line message."""
+    lost = engine_lost(lines)
+    if lost:
+        return (f"failed: the connection to the Docker engine was lost ({lost}); nothing was "
+                "tagged, so rerunning is safe once `docker info` answers")
+    return f"failed in step {errors[-1]}" if errors else "failed (see the BuildKit error above)"
+
+
+def _kept(lines: List[str], line: str) -> str:
+    lines.append(line)
+    return line
+
+
+def tools_tree(destination: Path) -> str:
+    """Copy the in-image modules to destination/docker-ros/lib; return their content hash."""
+    digest = hashlib.sha256()
+    lib = destination / "docker-ros" / "lib" / "docker_ros"
+    for pattern in TOOLS_PATTERNS:
+        for path in sorted(PACKAGE_DIR.glob(pattern)):
+            rel = path.relative_to(PACKAGE_DIR)
+            digest.update(str(rel).encode() + b"\0" + path.read_bytes() + b"\0")
+            (lib / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(path, lib / rel)
+            if path.suffix == ".sh":  # a wheel install may not keep the executable bit
+                (lib / rel).chmod(0o755)
+    return digest.hexdigest()[:16]
+
+
+def dockerignore(context: Path) -> str:
+    """The user's .dockerignore plus ours: `.env` files hold credentials and stay out, and so
+    does gitlab-ci-local's scratch folder (copies of the repository made inside it)."""
+    user = context / ".dockerignore"
+    lines = user.read_text().splitlines() if user.is_file() else []
+    ours = ["# added by docker-ros", ".env", "**/.env", SCRATCH_FOLDER]
+    return "\n".join([*lines, *ours]) + "\n"
+
+
+def left_out(rel: str) -> bool:
+    """Whether our own .dockerignore lines (dockerignore) leave the relative path out."""
+    parts = rel.split("/")
+    return parts[-1] == ".env" or parts[0] == SCRATCH_FOLDER
+
+
+def with_run_base(text: str) -> str:
+    """The Dockerfile with base-run: its base stage again, `ENV DOCKER_ROS_RUN_CHAIN=1` first, so
+    that no step of it is one of base's (see run_base and the Dockerfile's DOCKER_ROS_RUN_BASE).
+    Made here rather than written twice in the Dockerfile."""
+    start = text.index("FROM ${BASE_IMAGE} AS base\n")
+    end = text.index("\n# ----", start)
+    copy = text[start:end].replace(" AS base\n", " AS base-run\nENV DOCKER_ROS_RUN_CHAIN=1\n", 1)
+    return text[:end] + "\n\n" + copy + text[end:]
+
+
+def stage_dockerfile(context: Path, destination: Path) -> Path:
+    """Our Dockerfile beside a Dockerfile.dockerignore (BuildKit reads it instead of the
+    context's .dockerignore), so the user's repository is never modified."""
+    dockerfile = destination / "Dockerfile"
+    dockerfile.write_text(with_run_base(DOCKERFILE.read_text()))
+    (destination / "Dockerfile.dockerignore").write_text(dockerignore(context))
+    return dockerfile
+
+
+def ensure_tools_image(platform: str, buildx: Sequence[str] = BUILDX) -> str:
+    """A FROM-scratch image with the step modules, tagged by their content hash."""
+    with tempfile.TemporaryDirectory(prefix="docker-ros-tools-") as tmp:
+        digest = tools_tree(Path(tmp))
+        return scratch_image(Path(tmp), "docker-ros", f"{TOOLS_REPOSITORY}:{digest}-{platform}",
+                             platform, buildx=buildx)
+
+
+def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str = "",
+                  buildx: Sequence[str] = BUILDX) -> str:
+    """ref: FROM scratch with context/folder at /folder (or its contents at into), built
+    (on the builder of the build, where its FROM finds it) unless it exists already."""
+    if image_exists(ref):
+        return ref
+    (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} {into or '/' + folder}\n")
+    argv = [*buildx, "build", "--quiet", "--load", "--platform", f"linux/{platform}",
+            "--tag", ref, str(context)]
+    proc = subprocess.run(argv, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise BuildError(f"building {ref} failed: {proc.stderr.strip()}")
+    return ref
+
+
+def import_inputs(settings: Settings, repository: Path) -> List[str]:
+    """What the image's upstream stage imports from: the repository's .repos files (relative
+    paths), as the clone step finds them there, and with LOCKED docker-ros.lock (the commits
+    it imports at). None when a before-dependency-identification hook exists: it runs first
+    and may change them, so the source stage imports instead (the lock still comes along: the
+    clone step of a locked build reads it, even when it imports nothing)."""
+    found = [LOCK_FILE] if settings.locked and (repository / LOCK_FILE).is_file() else []
+    if (repository / settings.before_dependency_identification_script).is_file():
+        return found
+    top = repository / settings.vcs_import_file
+    if top.is_file():
+        found.append(settings.vcs_import_file)
+    if settings.enable_recursive_vcs_import:
+        for directory in walk(repository):
+            for entry in sorted(directory.glob("*.repos")):
+                rel = entry.relative_to(repository).as_posix()
+                if entry.is_file() and rel not in found:
+                    found.append(rel)
+    return found
+
+
+def reads_whole_context(settings: Settings, repository: Path) -> bool:
+    """Whether the image's source stage (clone, blacklist) must start from the whole build
+    context: with a before-dependency-identification hook, which may change any file, or a
+    .dockerignore, whose patterns skeleton_files (read here) would not apply."""
+    return ((repository / settings.before_dependency_identification_script).is_file()
+            or (repository / ".dockerignore").is_file())
+
+
+def skeleton_files(settings: Settings, repository: Path) -> Optional[List[str]]:
+    """The repository's files the source stage reads when no hook runs (the .repos files and
+    what resolving reads, runtime.inputs), relative paths; None when it must read them all
+    (reads_whole_context), or when a path setting is wrong: then the skeleton is empty and the
+    source stage's own step reports the setting, as it would on the whole context."""
+    if reads_whole_context(settings, repository):
+        return None
+    with tempfile.TemporaryDirectory(prefix="docker-ros-skeleton-") as tmp:
+        ws = Workspace(tmp)
+        ws.src.mkdir()
+        ws.target.symlink_to(repository.resolve(), target_is_directory=True)
+        try:
+            found = resolve_inputs(ws, settings)
+        except StepError:
+            return None
+        inputs = {p.relative_to(ws.target).as_posix() for p in found if ws.target in p.parents}
+    return sorted(r for r in inputs | set(import_inputs(settings, repository)) if not left_out(r))
+
+
+def source_stages(settings: Settings) -> Dict[str, str]:
+    """The build arguments choosing where the source stage starts and what the dev image's
+    sources come from: the skeleton (only the files clone and blacklist read, so a source edit
+    runs neither, nor resolve) and the checkout with the source stage's ignore markers, unless
+    the source stage must read the whole context (reads_whole_context)."""
+    if reads_whole_context(settings, Path(settings.build_context)):
+        return {"DOCKER_ROS_SOURCE_START": "checkout", "DOCKER_ROS_TREE": "source"}
+    return {"DOCKER_ROS_SOURCE_START": "skeleton", "DOCKER_ROS_TREE": "marked"}
+
+
+def ensure_imports_image(settings: Settings, platform: str,
+                         buildx: Sequence[str] = BUILDX) -> str:
+    """A FROM-scratch image with the repository's .repos files at /repository and its
+    skeleton_files at /inputs, tagged by their content. Each is COPY'd by the stage that
+    needs it (content-addressed): the import stays cached while the .repos files do, and the
+    source stage while the skeleton does."""
+    repository = Path(settings.build_context)
+    with tempfile.TemporaryDirectory(prefix="docker-ros-imports-") as tmp:
+        digest = hashlib.sha256()
+        folders = {"repository": import_inputs(settings, repository),
+                   "inputs": skeleton_files(settings, repository) or []}
+        for folder, files in folders.items():
+            # the layout is part of the tag: an image of another version holds other folders
+            digest.update(f"/{folder}/\0".encode())
+            root = Path(tmp) / "context" / folder
+            root.mkdir(parents=True)
+            for rel in files:
+                source, copy = repository / rel, root / rel
+                content = source.read_bytes()
+                copy.parent.mkdir(parents=True, exist_ok=True)
+                copy.write_bytes(content)
+                shutil.copymode(source, copy)  # hooks keep their executable bit
+                digest.update(f"{folder}/{rel}\0{copy.stat().st_mode:o}\0".encode() + content)
+        ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{platform}"
+        return scratch_image(Path(tmp), "context", ref, platform, into="/",
+                             buildx=buildx)
+
+
+def ca_bundle(path: Path, destination: Path) -> Path:
+    """EXTRA_CA_CERTS (one PEM file or a folder of them) as one file for a BuildKit secret."""
+    if not path.exists():
+        raise BuildError(f"EXTRA_CA_CERTS '{path}' not found: give a PEM file or a folder of them")
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    pems = [p.read_text() for p in files if "BEGIN CERTIFICATE" in p.read_text(errors="ignore")]
+    if not pems:
+        raise BuildError(f"EXTRA_CA_CERTS '{path}' holds no PEM certificate")
+    destination.write_text("\n".join(pems))
+    destination.chmod(0o600)
+    return destination
+
+
+def check_engine(settings: Optional[Settings] = None) -> None:
+    """A Docker daemon that answers and the buildx plugin, or one message saying what to do;
+    with settings, the builder too (selected_builder)."""
+    try:
+        buildx = subprocess.run(["docker", "buildx", "version"], capture_output=True)
+    except FileNotFoundError:
+        raise BuildError("no `docker` command: install Docker (scripts/setup.sh)") from None
+    if buildx.returncode != 0:
+        raise BuildError("the docker buildx plugin is missing: install it (scripts/setup.sh)")
+    if settings is not None:
+        selected_builder(settings)
+    try:
+        engine.client()
+    except engine.EngineError as exc:
+        raise BuildError(str(exc)) from None
+
+
+def selected_builder(settings: Settings) -> builder.Builder:
+    """The builder of this run (BUILDER, BUILDX_BUILDER or the current one), inspected once;
+    with CACHE_TO, `docker login` first when credentials are set (buildx exports the cache
+    with the CLI's credentials)."""
+    try:
+        chosen = builder.selected(settings.builder or "", bool(settings.cache_to))
+    except builder.BuilderError as exc:
+        raise BuildError(str(exc)) from None
+    if settings.cache_to and builder.cache_export(chosen) == "registry":
+        from docker_ros.host.push import login  # (push imports this module)
+
+        login(settings)
+    return chosen
+
+
+
+
+def build_images(
+    settings: Settings,
+    *,
+    targets: Mapping[str, str],
+    platform: str,
+    out: IO[str] = sys.stdout,
+    environ: Optional[Mapping[str, str]] = None,
+    push: bool = False,
+    output: str = "",
+    extra_build_args: Mapping[str, str] = {},
+    bake: bool = True,
+) -> List[BuiltImage]:
+    """Build the targets (target -> tag) for one platform, by default in one `docker buildx
+    bake` run (bake=False or not can_bake: one `docker buildx build` per target, one after the
+    other, as docker-ros does); raise BuildError naming the failed step."""
+    environ = os.environ if environ is None else environ
+    chosen = selected_builder(settings)
+    export = builder.cache_export(chosen)
+    buildx = builder.buildx_command(chosen, settings.builder or "")
+    tools = ensure_tools_image(platform, buildx)
+    imports = ensure_imports_image(settings, platform, buildx)
+    tag_local_base(settings, platform)
+    child_env = dict(environ)
+    child_env.setdefault("DOCKER_BUILDKIT", "1")
+    with tempfile.TemporaryDirectory(prefix="docker-ros-build-") as tmp:
+        # Passed by environment to buildx only: never argv, never a file, never a log.
+        child_env.update(secret_env(settings))
+        bundle = None
+        if settings.extra_ca_certs:
+            bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
+        dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
+        expand_mount_ids(dockerfile, mount_ids(settings, platform))
+        seed = build_state_seed(settings, platform, out) if "run" in targets else {}
+        base, why = platform_base(settings, platform)
+        if why:
+            print(why, file=out)
+        specs = {target: definition(settings, target=target, platform=platform,
+                                    tools_image=tools, tag=tag,
+                                    secrets=plan_secrets(settings, bundle), push=push,
+                                    dockerfile=dockerfile, output=output,
+                                    extra_build_args={**extra_build_args, **seed},
+                                    imports_image=imports, base_image=base,
+                                    cache_export=export)
+                 for target, tag in targets.items()}
+        if bake and can_bake(settings):
+            definition_file = Path(tmp) / "docker-ros.bake.json"
+            definition_file.write_text(bake_file(specs))
+            runs = [(tuple(targets), plan_bake(specs, str(definition_file), buildx))]
+        else:
+            runs = [((t,), build_argv(spec, buildx)) for t, spec in specs.items()]
+        built = []
+        for names, argv in runs:
+            seconds = run_buildx(argv, names, platform, env=child_env, out=out, environ=environ,
+                                 header=", ".join(f"{t} -> {targets[t]}" for t in names))
+            built += [BuiltImage(t, targets[t], platform, seconds) for t in names]
+    return built
+
+
+def build_image(settings: Settings, *, target: str, platform: str, tag: str,
+                **options: Any) -> BuiltImage:
+    """Build one target for one platform (options: see build_images)."""
+    return build_images(settings, targets={target: tag}, platform=platform, bake=False,
+                        **options)[0]
+
+
+def run_buildx(argv: Sequence[str], targets: Sequence[str], platform: str, *,
+               env: Mapping[str, str], out: IO[str], environ: Mapping[str, str],
+               header: str) -> float:
+    """Run one buildx command, its log folded into out; its seconds, or a BuildError."""
+    # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
+    out.write(f"==> docker-ros build ({platform}) {header}\n")
+    began = time.monotonic()
+    proc = subprocess.Popen(list(argv), env=dict(env), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, bufsize=1)
+    assert proc.stdout is not None
+    lines: List[str] = []
+    log = (_kept(lines, line) for line in iter(proc.stdout.readline, ""))
+    try:
+        errors = stream_build(log, out, environ)
+        code = proc.wait()
+    except KeyboardInterrupt:
+        # buildx got the same Ctrl-C: let it cancel the build (nothing is tagged) and end.
+        proc.terminate()
+        proc.wait()
+        raise
+    if code != 0 and cancelled(lines) and not engine_lost(lines):
+        raise KeyboardInterrupt  # as if we had seen the Ctrl-C that stopped buildx
+    if code != 0:
+        stage, step = failed_step(lines)
+        what = "target" if len(targets) == 1 else "targets"
+        raise BuildError(f"building {what} {', '.join(repr(t) for t in targets)} ({platform}) "
+                         f"{failure_reason(lines, errors)}", code, stage=stage, step=step)
+    return time.monotonic() - began
+
+
+def summary_table(images: Sequence[BuiltImage]) -> str:
+    rows = [("IMAGE", "TAG", "PLATFORM", "SIZE", "BUILD TIME")]
+    for image in images:
+        name, _, tag = image.ref.rpartition(":")
+        size = image_size(image.ref)
+        rows.append((name, tag, image.platform, f"{size / 1e6:.0f} MB" if size else "-",
+                     f"{image.seconds:.1f} s"))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)

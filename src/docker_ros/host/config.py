@@ -1,0 +1,170 @@
+"""Reading the configuration sources of a project (the impure edge of settings.load_settings),
+and the checks of the configuration against the repository before anything is built."""
+
+from __future__ import annotations
+
+import difflib
+import logging
+import os
+import re
+from pathlib import Path
+from typing import Dict, List, Mapping, Optional, Sequence
+
+from dotenv import dotenv_values
+
+from docker_ros.in_image.ci import github_default_branch
+from docker_ros.in_image.runtime.files import path_problem
+from docker_ros.in_image.runtime.rosdeprules import rules_problem
+from docker_ros.in_image.settings import (
+    FIELDS,
+    Settings,
+    display_value,
+    env_name,
+    explicitly_set,
+    load_settings,
+    path_settings,
+)
+
+LOG = logging.getLogger("docker_ros")
+# docker's reference grammar (distribution/reference): [domain[:port]/]component(/component)*
+_LABEL = r"[a-zA-Z0-9](?:[a-zA-Z0-9-]*[a-zA-Z0-9])?"
+_DOMAIN = rf"(?:{_LABEL}(?:\.{_LABEL})*(?::[0-9]+)?/)"
+_COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
+IMAGE_NAME = re.compile(rf"^{_DOMAIN}?{_COMPONENT}(?:/{_COMPONENT})*$")
+IMAGE_TAG = re.compile(r"^[\w][\w.-]{0,127}$")
+ENV_NAMES = [env_name(n) for n in FIELDS]
+
+
+def read_settings(
+    invoke_config: Optional[Mapping[str, object]],
+    flags: Mapping[str, object],
+    *,
+    project_dir: Optional[Path] = None,
+    environ: Optional[Mapping[str, str]] = None,
+    lenient: bool = False,
+    command: str = "",
+) -> Settings:
+    """Settings of the project in project_dir (default: cwd) from every source, for the task
+    `command`."""
+    project = project_dir or Path.cwd()
+    env_file = project / ".env"
+    dotenv = dotenv_values(env_file) if env_file.is_file() else {}
+    environ = os.environ if environ is None else environ
+    if environ.get("GITHUB_ACTIONS") == "true" and not environ.get("GITHUB_DEFAULT_BRANCH"):
+        # GitHub has no variable for it; the event payload names it (CI tag postfix rules).
+        environ = {**environ, "GITHUB_DEFAULT_BRANCH": github_default_branch(environ)}
+    for warning in dotenv_warnings(dotenv):
+        LOG.warning("docker-ros: %s: %s", env_file, warning)
+    return load_settings(
+        invoke_config=invoke_config,
+        dotenv=dotenv,
+        environ=environ,
+        flags=flags,
+        project_dir=project,
+        lenient=lenient,
+        command=command,
+    )
+
+
+def dotenv_warnings(dotenv: Mapping[str, object]) -> List[str]:
+    """Variables of a .env file that look like a misspelt docker-ros variable (other variables
+    are the user's business and stay silent)."""
+    out = []
+    for key in dotenv:
+        if key in ENV_NAMES:
+            continue
+        close = difflib.get_close_matches(key.upper(), ENV_NAMES, n=1, cutoff=0.85)
+        if close:
+            out.append(f"unknown variable {key} ignored (did you mean {close[0]}?)")
+    return out
+
+
+def path_problems(settings: Settings) -> Dict[str, str]:
+    """Setting name -> what is wrong with it: BUILD_CONTEXT that is no folder, path settings
+    leaving the repository, explicitly set files or folders that do not exist."""
+    repository = Path(settings.build_context).expanduser()
+    if not repository.is_dir():
+        return {"build_context": f"BUILD_CONTEXT '{settings.build_context}' is not a folder: "
+                                 "set it to the ROS repository to build"}
+    problems: Dict[str, str] = {}
+    for name in path_settings():
+        value = str(getattr(settings, name))
+        problem = path_problem(repository, value)
+        if problem:
+            problems[name] = (f"{env_name(name)}={value!r} {problem}: give a path inside the "
+                              "repository")
+            continue
+        kind = FIELDS[name].metadata["path"]
+        switch = FIELDS[name].metadata["recursive"]
+        recursive = bool(switch and getattr(settings, switch))
+        exists = (repository / value).is_dir() if kind == "dir" else (repository / value).is_file()
+        # With recursive discovery the file may come with the imported repositories.
+        if explicitly_set(settings, name) and not exists and not recursive:
+            problems[name] = (f"{env_name(name)} '{value}' not found in the repository, but "
+                              "set explicitly: fix the path or unset it")
+    return problems
+
+
+def content_problems(settings: Settings) -> Dict[str, str]:
+    """Setting name -> what is wrong inside the file it names: a rosdep rules file that is not
+    valid YAML (rosdep would skip it and the build go on without its rules)."""
+    rules = Path(settings.build_context).expanduser() / settings.rosdep_rules_file
+    problem = rules_problem(rules, settings.rosdep_rules_file) if rules.is_file() else None
+    return {"rosdep_rules_file": problem} if problem else {}
+
+
+def input_problems(settings: Settings, targets: Sequence[str], *, images: bool) -> Dict[str, str]:
+    """Everything wrong with the inputs (paths, with `images` image names, then the content of
+    the files that exist), all at once, before anything runs."""
+    problems = {**path_problems(settings),
+                **(image_problems(settings, targets) if images else {})}
+    if not problems.keys() & {"build_context", "rosdep_rules_file"}:
+        problems.update(content_problems(settings))
+    return problems
+
+
+def image_problems(settings: Settings, targets: Sequence[str]) -> Dict[str, str]:
+    """Image names and tags docker would refuse, named by the setting they come from."""
+    refs = {"image_name": ("image_name", "image_tag")}
+    if "dev" in targets:
+        refs["dev_image_name"] = ("dev_image_name", "dev_image_tag")
+    problems: Dict[str, str] = {}
+    for name_field, tag_field in refs.values():
+        for field, pattern in ((name_field, IMAGE_NAME), (tag_field, IMAGE_TAG)):
+            value = str(getattr(settings, field))
+            if not pattern.match(value):
+                problems[field] = (f"{origin_of(settings, field)}: {value!r} is not a valid "
+                                   f"image {'name' if field.endswith('name') else 'tag'}")
+    return problems
+
+
+def origin_of(settings: Settings, name: str) -> str:
+    """The variable a (maybe derived) value comes from, for messages."""
+    source = settings.source_of(name)
+    if "derived from IMAGE " in source or (source.startswith("derived from IMAGE_")
+                                           and settings.image):
+        return f"{env_name(name)} (from IMAGE)"
+    if source != "default" and not source.startswith("derived"):
+        return env_name(name)
+    if name == "image_name":
+        return "IMAGE_NAME (from the repository folder name: set IMAGE or IMAGE_NAME)"
+    return env_name(name)
+
+
+def config_table(settings: Settings, problems: Optional[Mapping[str, str]] = None) -> str:
+    """Every setting with its effective value and where it came from; secrets masked; invalid
+    values shown as given and marked."""
+    bad = set(settings.problems) | set(problems or {})
+    rows = []
+    for n in FIELDS:
+        value = display_value(settings, n)
+        mark = "  <- INVALID" if n in bad else ""
+        if n in settings.problems and not FIELDS[n].metadata["secret"]:
+            value = settings.problems[n][0]
+        rows.append((env_name(n), value, settings.source_of(n) + mark))
+    width = max(len(r[0]) for r in rows)
+    value_width = min(60, max(len(r[1]) for r in rows))
+    lines = [f"{'VARIABLE'.ljust(width)}  {'VALUE'.ljust(value_width)}  SOURCE"]
+    for name, value, source in rows:
+        lines.append(f"{name.ljust(width)}  {value.ljust(value_width)}  {source}")
+    return "\n".join(lines)

@@ -1,0 +1,220 @@
+"""`inv dev-shell`: the `docker run` of the dev image for daily work (pure argv planning), X11
+and GPU detection, and the X authority cookie handed to the container."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import struct
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator, List, Mapping, Optional, Sequence, Tuple
+
+from docker_ros.in_image.settings import FALSE_WORDS, TRUE_WORDS, Settings
+
+TARGET = "/docker-ros/ws/src/target"
+X11_SOCKETS = Path("/tmp/.X11-unix")
+XAUTH_IN_CONTAINER = "/tmp/.docker-ros.xauth"
+FAMILY_WILD = 0xFFFF  # an X authority entry valid for any host name (the container's too)
+
+
+class DevShellError(Exception):
+    """A dev-shell option that cannot work (one line for the user)."""
+
+
+@dataclass(frozen=True)
+class ShellOptions:
+    command: str = ""  # `bash -c COMMAND` instead of an interactive shell
+    volumes: Sequence[str] = ()
+    env: Sequence[str] = ()
+    network: str = ""
+    name: str = ""
+    privileged: bool = False
+    devices: Sequence[str] = ()
+    gpus: str = ""  # a `docker run --gpus` value; empty: none
+    x11_display: str = ""  # DISPLAY to forward; empty: no X11
+    xauthority: str = ""  # host file with the cookie for x11_display (may be empty)
+
+
+@dataclass(frozen=True)
+class HostUser:
+    uid: int
+    gid: int
+    name: str
+    tty: bool = False
+    cwd: Path = field(default_factory=Path.cwd)
+
+
+def parse_display(display: str) -> Optional[Tuple[str, str]]:
+    """DISPLAY -> (host, number): ':1' -> ('', '1'), 'localhost:10.0' (ssh -X) ->
+    ('localhost', '10'); None when it is not a display name."""
+    match = re.fullmatch(r"([\w.\-]*):(\d+)(?:\.\d+)?", display)
+    return (match.group(1), match.group(2)) if match else None
+
+
+def select_x11(mode: str, display: str, sockets: Path = X11_SOCKETS) -> bool:
+    """--x11 auto: on when DISPLAY names a local display whose socket exists in
+    /tmp/.X11-unix; true/false force it (true without DISPLAY is an error; a TCP display such
+    as ssh -X's needs --network host)."""
+    if mode == "auto":
+        parsed = parse_display(display)
+        if parsed is None or parsed[0] not in ("", "unix"):
+            return False
+        return (sockets / f"X{parsed[1]}").exists()
+    if mode.lower() not in TRUE_WORDS + FALSE_WORDS:
+        raise DevShellError(f"--x11 {mode!r}: use auto, true or false")
+    wanted = mode.lower() in TRUE_WORDS
+    if wanted and not display:
+        raise DevShellError("--x11 true: DISPLAY is not set; run it from a graphical session")
+    return wanted
+
+
+def select_gpus(mode: str, runtimes: Sequence[str]) -> str:
+    """--gpus auto: `all` when the nvidia runtime is registered with the Docker daemon
+    (`docker info` lists it), else none; `none` disables; anything else goes to docker."""
+    if mode == "auto":
+        return "all" if "nvidia" in runtimes else ""
+    return "" if mode in ("", "none") else mode
+
+
+def docker_runtimes() -> List[str]:
+    proc = subprocess.run(["docker", "info", "--format", "{{json .Runtimes}}"],
+                          capture_output=True, text=True)
+    try:
+        return sorted(json.loads(proc.stdout or "{}"))
+    except ValueError:
+        return []
+
+
+def xauth_entries(data: bytes) -> Iterator[Tuple[int, bytes, bytes, bytes, bytes]]:
+    """The entries of an Xauthority file: (family, address, number, name, data)."""
+    pos = 0
+    while pos + 2 <= len(data):
+        (family,) = struct.unpack_from(">H", data, pos)
+        pos += 2
+        fields = []
+        for _ in range(4):
+            if pos + 2 > len(data):
+                return
+            (length,) = struct.unpack_from(">H", data, pos)
+            if pos + 2 + length > len(data):  # a truncated file: keep the whole entries
+                return
+            fields.append(data[pos + 2:pos + 2 + length])
+            pos += 2 + length
+        yield (family, fields[0], fields[1], fields[2], fields[3])
+
+
+def wildcard_cookies(data: bytes, number: str) -> bytes:
+    """The cookies of display `number` from an Xauthority file, made valid for any host name
+    (the container has its own), as rocker does with `xauth nlist | sed 's/^..../ffff/'`."""
+    out = b""
+    for _family, address, entry_number, name, cookie in xauth_entries(data):
+        if entry_number.decode(errors="replace") != number:
+            continue
+        out += struct.pack(">H", FAMILY_WILD)
+        for value in (address, entry_number, name, cookie):
+            out += struct.pack(">H", len(value)) + value
+    return out
+
+
+def host_xauthority(environ: Mapping[str, str]) -> Optional[Path]:
+    path = Path(environ.get("XAUTHORITY") or Path.home() / ".Xauthority")
+    return path if path.is_file() else None
+
+
+# docker run -v HOST:CONTAINER[:MODE]: the mode words docker accepts (comma-separated).
+VOLUME_MODES = ("ro", "rw", "z", "Z", "shared", "rshared", "slave", "rslave", "private",
+                "rprivate", "nocopy", "consistent", "cached", "delegated")
+VOLUME_NAME = re.compile(r"^[a-zA-Z0-9][a-zA-Z0-9_.-]+$")  # docker's named volume names
+VOLUME_FORM = "use HOST:CONTAINER[:MODE], e.g. ./data:/data:ro or a volume name, ccache:/ccache"
+
+
+def volume_problem(spec: str) -> str:
+    """Why `docker run -v spec` would fail ('' when it would not), in the words of --volume."""
+    parts = spec.split(":")
+    if len(parts) not in (2, 3):
+        count = "no ':'" if len(parts) == 1 else f"{len(parts) - 1} ':' (one or two belong)"
+        return f"--volume {spec!r}: {count}; {VOLUME_FORM}"
+    host, container = parts[0], parts[1]
+    if not host:
+        return f"--volume {spec!r}: the host side (before ':') is empty; {VOLUME_FORM}"
+    if not host.startswith(("/", ".", "~")) and not VOLUME_NAME.match(host):
+        return (f"--volume {spec!r}: {host!r} is neither a path (/, ./, ~/) nor a volume name; "
+                f"{VOLUME_FORM}")
+    if not container.startswith("/"):
+        return (f"--volume {spec!r}: the container side {container!r} must be an absolute "
+                f"path; {VOLUME_FORM}")
+    bad = [m for m in parts[2].split(",") if m not in VOLUME_MODES] if len(parts) == 3 else []
+    if bad:
+        return (f"--volume {spec!r}: unknown mode {', '.join(map(repr, bad))}; use "
+                f"{', '.join(VOLUME_MODES[:4])} ... (comma-separated)")
+    return ""
+
+
+def check_volumes(specs: Sequence[str]) -> None:
+    """Every --volume checked before the dev image is built (docker would say `invalid spec`
+    only after it)."""
+    problems = [p for p in map(volume_problem, specs) if p]
+    if problems:
+        raise DevShellError("; ".join(problems))
+
+
+def host_path(spec: str, cwd: Path) -> str:
+    """The host side of a --volume made absolute (docker takes a relative one for the name of
+    a named volume); a name without a slash stays a named volume."""
+    host, sep, rest = spec.partition(":")
+    if host.startswith(("/", ".", "~")):
+        host = str((cwd / Path(host).expanduser()).resolve())
+    return host + sep + rest
+
+
+def dev_shell_argv(
+    settings: Settings, ref: str, options: ShellOptions, user: HostUser
+) -> List[str]:
+    """The `docker run` of the dev image: repository at /docker-ros/ws/src/target, the host
+    user mapped by the entrypoint (root stays root), the workspace sourced."""
+    repository = Path(settings.build_context).resolve()
+    argv = ["docker", "run", "--rm", "-i"] + (["-t"] if user.tty else [])
+    if options.name:
+        argv += ["--name", options.name]
+    argv += ["-v", f"{repository}:{TARGET}"]
+    if user.uid != 0:
+        argv += ["-e", f"DOCKER_UID={user.uid}", "-e", f"DOCKER_GID={user.gid}",
+                 "-e", f"DOCKER_USER={user.name}"]
+    for volume in options.volumes:
+        argv += ["-v", host_path(volume, user.cwd)]
+    for variable in options.env:
+        argv += ["-e", variable]
+    if options.network:
+        argv += ["--network", options.network]
+        if options.network == "host":
+            # DDS shared-memory transports see the host's network as local: share IPC too.
+            argv += ["--ipc", "host"]
+    if options.privileged:
+        argv.append("--privileged")
+    for device in options.devices:
+        argv += ["--device", device]
+    if options.x11_display:
+        argv += ["-e", f"DISPLAY={options.x11_display}", "-e", "QT_X11_NO_MITSHM=1",
+                 "-v", f"{X11_SOCKETS}:{X11_SOCKETS}"]
+        if options.xauthority:
+            argv += ["-e", f"XAUTHORITY={XAUTH_IN_CONTAINER}",
+                     "-v", f"{options.xauthority}:{XAUTH_IN_CONTAINER}:ro"]
+    if options.gpus:
+        argv += ["--gpus", options.gpus, "-e", "NVIDIA_DRIVER_CAPABILITIES=all"]
+    argv.append(ref)
+    return argv + (["bash", "-c", options.command] if options.command else ["bash"])
+
+
+def write_cookie(display: str, environ: Mapping[str, str], destination: Path) -> str:
+    """Write the wildcard cookies of display to destination; '' when the host has none (an
+    X server without access control, e.g. after `xhost +local:`)."""
+    source = host_xauthority(environ)
+    parsed = parse_display(display)
+    if source is None or parsed is None:
+        return ""
+    destination.write_bytes(wildcard_cookies(source.read_bytes(), parsed[1]))
+    os.chmod(destination, 0o600)
+    return str(destination)

@@ -1,0 +1,207 @@
+"""Host side of docker-ros.lock: `inv lock` resolves each target and platform in image stages
+(lock-results, exported to the host: no image is built) and adds the base image's digest;
+`--host` resolves this machine's entry for the host steps. What images run (apt's and pip's
+resolution, pins, stale inputs) is runtime/lock.py."""
+
+import json
+import tempfile
+import uuid
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Dict, List, Mapping, Optional
+
+from docker_ros.host import engine
+from docker_ros.in_image.runtime.lock import (
+    FORMAT,
+    HOST_TARGET,
+    LOCK_FILE,
+    LOCKED_ENV,
+    LockError,
+    apt_closure,
+    base_image_ref,
+    dump_lock,
+    image_repository,
+    load_lock,
+    lock_digest,
+    locked_target,
+    pip_report,
+    recorded_inputs,
+    repository_commits,
+    stale_inputs,
+    target_key,
+)
+from docker_ros.in_image.runtime.workspace import Workspace
+from docker_ros.in_image.settings import Settings, host_platform
+
+
+def base_image_record(ref: str, attrs: Optional[Mapping[str, Any]]) -> Dict[str, Any]:
+    """The base image's digest from its inspect data: the registry digest of `ref`'s repository
+    when it was pulled or pushed, else the local image ID, marked local."""
+    if attrs is None:
+        raise LockError(f"lock: BASE_IMAGE {ref} not found locally or in its registry")
+    repository = image_repository(ref)
+    for repo_digest in attrs.get("RepoDigests") or []:
+        name, _, digest = str(repo_digest).partition("@")
+        if name == repository:
+            return {"ref": ref, "digest": digest, "local": False}
+    return {"ref": ref, "digest": str(attrs["Id"]), "local": True}
+
+
+def base_image(ref: str) -> Dict[str, Any]:
+    return base_image_record(ref, engine.inspect_image(ref))
+
+
+def lock_path(settings: Settings) -> Path:
+    return Path(settings.build_context) / LOCK_FILE
+
+
+LOCK_LABEL = "io.github.docker-ros.lock"
+IMAGE_TARGETS = ("dev", "run")  # the targets `inv lock` resolves
+
+
+def locked_build_args(settings: Settings, *, target: str, platform: str) -> Dict[str, str]:
+    """Build arguments a locked build overrides (none unless LOCKED): BASE_IMAGE by digest
+    and DOCKER_ROS_LOCKED, which makes the image's steps honour the lock."""
+    if not settings.locked or target not in IMAGE_TARGETS:
+        return {}
+    if settings.enable_lean_run_image:
+        raise LockError("LOCKED with ENABLE_LEAN_RUN_IMAGE: the lean run image's packages are "
+                        "known only after the build, so they cannot be locked; unset one")
+    entry = locked_target(load_lock(lock_path(settings)), target, platform)
+    record = entry.get("base_image") or {}
+    if record.get("ref") != settings.base_image:
+        raise LockError(
+            f"LOCKED: BASE_IMAGE is {settings.base_image}, docker-ros.lock has {record.get('ref')}:"
+            " run `inv lock`"
+        )
+    return {"BASE_IMAGE": base_image_ref(settings.base_image or "", record), LOCKED_ENV: "true"}
+
+
+def tag_local_base(settings: Settings, platform: str) -> None:
+    """Give a locked local base image (its ID in the lock) the tag base_image_ref names; a
+    lock whose local base image is gone stops the build, naming it."""
+    if not settings.locked:
+        return
+    lock = load_lock(lock_path(settings))
+    for target in IMAGE_TARGETS:
+        record = (lock.get("targets") or {}).get(target_key(target, platform), {}).get(
+            "base_image") or {}
+        if not record.get("local"):
+            continue
+        image_id = str(record.get("digest"))
+        if engine.inspect_image(image_id) is None:
+            raise LockError(f"LOCKED: the local base image {image_id} of docker-ros.lock "
+                            f"({record.get('ref')}, never pushed) no longer exists here: "
+                            "run `inv lock`")
+        engine.tag(image_id, base_image_ref(str(record.get("ref")), record))
+
+
+def lock_labels(settings: Settings, target: str) -> Dict[str, str]:
+    """The label of a locked build's dev and run images: the lock's digest."""
+    if not settings.locked or target not in IMAGE_TARGETS:
+        return {}
+    return {LOCK_LABEL: lock_digest(lock_path(settings).read_text())}
+
+
+def lock_status(settings: Settings) -> str:
+    """One line for the final table and `inv config`: whether a lock is in use."""
+    path = lock_path(settings)
+    if not settings.locked:
+        present = f"; {LOCK_FILE} present" if path.is_file() else ""
+        return f"lock: not in use (LOCKED=false{present})"
+    if not path.is_file():
+        return f"lock: LOCKED=true but {LOCK_FILE} is missing: run `inv lock`"
+    text = path.read_text()
+    return (f"lock: locked build, {LOCK_FILE} {lock_digest(text)} "
+            f"({', '.join(sorted(json.loads(text).get('targets') or {}))})")
+
+
+def host_entry(settings: Settings) -> Dict[str, Any]:
+    """This machine's lock entry (target host): the repository imported and resolved afresh in a
+    throw-away workspace (clone, then the collect phases), then what apt would install for it."""
+    from docker_ros.in_image.steps import run_step
+
+    unlocked = replace(settings, locked=False)  # resolve afresh, whatever the lock says
+    with tempfile.TemporaryDirectory(prefix="docker-ros-lock-") as tmp:
+        ws = Workspace(tmp)
+        ws.src.mkdir()
+        ws.target.symlink_to(Path(settings.build_context).resolve(), target_is_directory=True)
+        run_step("clone", ws, unlocked, phase="all", dry_run=False)
+        for step in ("rosdep", "debs", "pip"):
+            run_step(step, ws, unlocked, phase="collect", dry_run=False)
+        return _entry(settings, ws)
+
+
+def _entry(settings: Settings, ws: Workspace) -> Dict[str, Any]:
+    inputs = recorded_inputs(ws, Path(settings.build_context) / settings.rosdep_rules_file)
+    apt = sorted({*inputs["debs"], *inputs.get("rosdep_apt_all", [])})
+    pip = [*inputs["pip"], *inputs.get("rosdep_pip_all", [])]
+    entry: Dict[str, Any] = {"inputs": inputs, "repos": repository_commits(ws.upstream),
+                             "apt": apt_closure(apt),
+                             "pip": pip_report(pip, pip_plan_constraints(ws))}
+    if settings.base_image and engine.inspect_image(settings.base_image) is not None:
+        entry["base_image"] = base_image(settings.base_image)
+    return entry
+
+
+def pip_plan_constraints(ws: Workspace) -> List[str]:
+    """The constraint lines (nested -c files) the pip step's collect phase read."""
+    plan = ws.read_state("pip.json")
+    return list(plan.get("constraints") or []) if isinstance(plan, dict) else []
+
+
+def image_entries(settings: Settings, platform: str, out: Any) -> Dict[str, Dict[str, Any]]:
+    """The dev and run entries of one platform, resolved in the image's lock stages (their
+    lock-results exported to a folder here: no image is built or tagged), with the base
+    image's digest added."""
+    from docker_ros.host.build import build_images, platform_base
+
+    unlocked = replace(settings, locked=False)  # resolve afresh, whatever the lock says
+    with tempfile.TemporaryDirectory(prefix="docker-ros-lock-") as tmp:
+        build_images(unlocked, targets={"lock-results": "docker-ros-lock:unused"},
+                     platform=platform, out=out, output=f"type=local,dest={tmp}",
+                     extra_build_args={"DOCKER_ROS_LOCK_RUN": uuid.uuid4().hex}, bake=False)
+        entries = {target_key(t, platform): json.loads((Path(tmp) / f"{t}.json").read_text())
+                   for t in IMAGE_TARGETS}
+    # the digest of the image this platform builds from (BASE_IMAGE or its -<arch> image)
+    built_from, _ = platform_base(settings, platform)
+    record = base_image_record(settings.base_image or "", engine.inspect_image(built_from))
+    return {key: {**entry, "base_image": record} for key, entry in entries.items()}
+
+
+def entry_changes(key: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> List[str]:
+    """What differs between two entries of one key, one line each (inputs, commits, the apt
+    and pip versions, the base image)."""
+    changes = [f"{key}: {line}" for line in stale_inputs(old.get("inputs") or {},
+                                                       new.get("inputs") or {})]
+    for kind in ("repos", "apt", "pip"):
+        before, after = old.get(kind) or {}, new.get(kind) or {}
+        changes += [f"{key}: {kind} {name} {before.get(name)} -> {after.get(name)}"
+                    for name in sorted({*before, *after}) if before.get(name) != after.get(name)]
+    if old.get("base_image") != new.get("base_image"):
+        changes.append(f"{key}: base_image {(old.get('base_image') or {}).get('digest')} -> "
+                       f"{(new.get('base_image') or {}).get('digest')}")
+    return changes
+
+
+def lock(settings: Settings, *, check: bool, host: bool, out: Any) -> List[str]:
+    """Write (or with `check`, compare) docker-ros.lock's entries: dev and run of every
+    PLATFORM (images), or with `host` this machine's host entry; the differences from the
+    file's entries, one line each."""
+    path = lock_path(settings)
+    current: Dict[str, Any] = (
+        load_lock(path) if path.is_file() else {"format": FORMAT, "targets": {}}
+    )
+    targets: Dict[str, Any] = dict(current.get("targets") or {})
+    if host:
+        new = {target_key(HOST_TARGET, host_platform()): host_entry(settings)}
+    else:
+        new = {}
+        for platform in settings.platform:
+            new.update(image_entries(settings, platform, out))
+    changes = [line for key, entry in sorted(new.items())
+               for line in entry_changes(key, targets.get(key) or {}, entry)]
+    if not check:
+        targets.update(new)
+        path.write_text(dump_lock({**current, "targets": targets}))
+    return changes

@@ -1,0 +1,95 @@
+"""Registry login for one CI job: `docker login` before the build (a private BASE_IMAGE,
+CACHE_FROM and BUILD_STATE_FROM need it, as in docker-ros), into a job-private DOCKER_CONFIG that
+is removed when the job's task ends, so no credential stays on a shared or self-hosted runner."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Any, Dict, Iterator, List, Mapping, MutableMapping, Optional
+
+from docker_ros.host.engine import docker_config_dir
+from docker_ros.in_image.settings import Settings
+
+
+class LoginError(Exception):
+    """`docker login` refused the credentials or could not reach the registry."""
+
+
+def plan_login(settings: Settings) -> Optional[List[str]]:
+    """`docker login` argv (the password goes to standard input); None without credentials."""
+    if not (settings.registry_user and settings.registry_password):
+        return None
+    argv = ["docker", "login", "--username", settings.registry_user, "--password-stdin"]
+    return argv + [settings.registry] if settings.registry else argv
+
+
+def private_config(config: Mapping[str, Any], registry: str) -> Dict[str, Any]:
+    """The user's config.json for the job: their logins and settings, but no credential store
+    for the registry (`docker login` would put the password there, outside the job's folder)."""
+    copy = {key: value for key, value in config.items() if key != "credsStore"}
+    helpers = {k: v for k, v in (config.get("credHelpers") or {}).items() if k != registry}
+    if "credHelpers" in config:
+        copy["credHelpers"] = helpers
+    return copy
+
+
+def mirror_docker_config(source: Path, target: Path, registry: str) -> None:
+    """A copy of the user's config.json (their other logins, current context) and links to the
+    rest (cli-plugins such as buildx, buildx's current builder, contexts): login writes to the
+    copy only."""
+    target.mkdir(parents=True, exist_ok=True)
+    if not source.is_dir():
+        return
+    for entry in source.iterdir():
+        if entry.name == "config.json":
+            try:
+                config = json.loads(entry.read_text())
+            except (OSError, ValueError):
+                config = {}  # docker's own login would fail on it alike; start afresh
+            config = config if isinstance(config, dict) else {}
+            (target / entry.name).write_text(json.dumps(private_config(config, registry)))
+        else:
+            (target / entry.name).symlink_to(entry)
+
+
+def docker_login(argv: List[str], password: str, registry: str) -> None:
+    proc = subprocess.run(argv, input=password, capture_output=True, text=True)
+    if proc.returncode != 0:
+        reason = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no reason given"
+        # docker echoes no password; the reason is the registry's or the daemon's
+        raise LoginError(f"docker login to {registry or 'Docker Hub'} as {argv[3]} failed: "
+                         f"{reason}; check REGISTRY, REGISTRY_USER and REGISTRY_PASSWORD")
+
+
+@contextlib.contextmanager
+def job_login(
+    settings: Settings, environ: MutableMapping[str, str], *, label: str
+) -> Iterator[None]:
+    """Log in for the duration of a CI job's task: DOCKER_CONFIG in environ (which the task's
+    docker commands and subprocesses inherit) names a private folder, removed afterwards."""
+    argv = plan_login(settings)
+    if argv is None:
+        yield
+        return
+    folder = Path(tempfile.mkdtemp(prefix="docker-ros-login-"))
+    previous = environ.get("DOCKER_CONFIG")
+    try:
+        mirror_docker_config(docker_config_dir(environ), folder / "config",
+                             settings.registry or "https://index.docker.io/v1/")
+        environ["DOCKER_CONFIG"] = str(folder / "config")
+        docker_login(argv, settings.registry_password or "", settings.registry or "")
+        print(f"{label}: logged in to {settings.registry or 'Docker Hub'} as "
+              f"{settings.registry_user} (job-private DOCKER_CONFIG, removed at the end)",
+              flush=True)
+        yield
+    finally:
+        if previous is None:
+            environ.pop("DOCKER_CONFIG", None)
+        else:
+            environ["DOCKER_CONFIG"] = previous
+        shutil.rmtree(folder, ignore_errors=True)

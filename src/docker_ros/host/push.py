@@ -1,0 +1,199 @@
+"""Pushing built images with docker-ros's tag rules: plan (pure, written as the equivalent
+docker commands that --dry-run prints) and run."""
+
+from __future__ import annotations
+
+import subprocess
+from typing import Dict, List, Mapping, Optional, Sequence
+
+from docker_ros.host import engine
+from docker_ros.host.build import BuildError, image_ref, platform_ref, slim_platforms, target_ref
+from docker_ros.host.login import LoginError, docker_login, plan_login
+from docker_ros.in_image.runtime.workspace import format_argv
+from docker_ros.in_image.settings import Settings, host_platform, made_images
+
+
+def also_ref(ref: str, tag: str, target: str) -> str:
+    """The name pushed for an extra tag (`latest`, a git tag): `<tag>` for run, `<tag>-dev`,
+    `<tag>-slim` (docker-ros's ENABLE_PUSH_AS_LATEST and tag-pipeline names)."""
+    name = ref.rsplit(":", 1)[0] if ":" in ref.rsplit("/", 1)[-1] else ref
+    return f"{name}:{tag}-{target}" if target in ("dev", "slim") else f"{name}:{tag}"
+
+
+def latest_ref(ref: str, target: str) -> str:
+    """ENABLE_PUSH_AS_LATEST: `latest` for run, `latest-dev` for dev, `latest-slim` for slim."""
+    return also_ref(ref, "latest", target)
+
+
+def push_targets(settings: Settings) -> List[str]:
+    """TARGET's images (made_images: slim after run when ENABLE_SLIM, as docker-ros's CI
+    pushes it), the build state after run with BUILD_STATE_FROM."""
+    targets = made_images(settings)
+    if "run" in targets and settings.build_state_from:
+        targets.insert(targets.index("run") + 1, "build-state")
+    return targets
+
+
+def pushed_names(settings: Settings, target: str) -> List[str]:
+    """The configured name of a target and its extra tags (Settings.push_also_as)."""
+    ref = image_ref(settings, target)
+    names = [ref] + [also_ref(ref, tag, target) for tag in settings.push_also_as]
+    return list(dict.fromkeys(names))  # IMAGE_TAG latest and ENABLE_PUSH_AS_LATEST: once
+
+
+def manifest_commands(names: Sequence[str], arch_refs: Sequence[str]) -> List[List[str]]:
+    """One manifest list per name over the per-architecture images (already in the registry).
+
+    `docker buildx imagetools create` works in the registry only: it keeps no local store whose
+    stale lists could stand for what the registry holds now (`docker manifest` does), it takes
+    per-architecture refs that are themselves image indexes (attestations, the containerd
+    image store) and lists their platform images, where `docker manifest create` refuses them,
+    and it talks plain http to a loopback registry without flags."""
+    return [["docker", "buildx", "imagetools", "create", "--tag", name, *arch_refs]
+            for name in names]
+
+
+def plan_push(settings: Settings, targets: Sequence[str], *, host: str = "") -> List[List[str]]:
+    """docker commands that push the built TARGET images for every PLATFORM (slim: those of
+    slim_platforms on host, default this machine)."""
+    platforms = settings.platform
+    commands: List[List[str]] = []
+    for target in targets:
+        ref = image_ref(settings, target)
+        names = pushed_names(settings, target)
+        if target == "build-state":
+            # one per architecture, under the name the next job pulls (BUILD_STATE_FROM)
+            commands += [["docker", "push", target_ref(settings, target, p)] for p in platforms]
+            continue
+        mine = slim_platforms(platforms, host or host_platform()) if target == "slim" else ()
+        if len(platforms) == 1 or len(mine) == 1:
+            # (slim of several platforms: the runner's image under the slim names, docker-ros's)
+            platform = mine[0] if mine else platforms[0]
+            local = platform_ref(ref, platform, platforms)
+            if settings.enable_singlearch_push:
+                # Only `<name>-<arch>`, as docker-ros: the runner of one architecture must not
+                # overwrite the multi-arch name; `docker-ros manifest` writes that later.
+                names = [f"{name}-{platform}" for name in names]
+            for name in names:
+                if name != local:
+                    commands.append(["docker", "tag", local, name])
+                commands.append(["docker", "push", name])
+            continue
+        # Several platforms: the per-arch images (`-amd64`, `-arm64`) go to the registry, as the
+        # manifest list refers to them; then one manifest list per name.
+        arch_refs = [platform_ref(ref, p, platforms) for p in platforms]
+        commands += [["docker", "push", arch] for arch in arch_refs]
+        commands += manifest_commands(names, arch_refs)
+    return commands
+
+
+def plan_manifest(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
+    """Manifest lists over the `<name>-<arch>` images that per-architecture jobs pushed with
+    ENABLE_SINGLEARCH_PUSH (one job per PLATFORM entry)."""
+    commands: List[List[str]] = []
+    for target in targets:
+        ref = image_ref(settings, target)
+        arch_refs = [f"{ref}-{platform}" for platform in settings.platform]
+        commands += manifest_commands(pushed_names(settings, target), arch_refs)
+    return commands
+
+
+def plan_outputs(
+    settings: Settings, targets: Sequence[str], pushed: Sequence[str]
+) -> Dict[str, str]:
+    """CI outputs naming the pushed images: `images` (all, comma-separated) and per target
+    `image`/`dev-image`/`slim-image` (its configured name, or `<name>-<arch>` if only that)."""
+    states = [f"{image_ref(settings, 'build-state')}-{p}" for p in settings.platform]
+    outputs = {"images": ",".join(n for n in pushed if n not in states)}
+    for target in targets:
+        ref = image_ref(settings, target)
+        mine = [n for n in [ref] + [f"{ref}-{p}" for p in settings.platform] if n in pushed]
+        if mine:
+            outputs["image" if target == "run" else f"{target}-image"] = mine[0]
+    return outputs
+
+
+def write_outputs(outputs: Mapping[str, str], environ: Mapping[str, str]) -> None:
+    """As GitHub step outputs (the action's outputs), when GITHUB_OUTPUT names the file."""
+    path = environ.get("GITHUB_OUTPUT")
+    if not path:
+        return
+    with open(path, "a", encoding="utf-8") as out:
+        for key, value in outputs.items():
+            out.write(f"{key}={value}\n")
+
+
+def auth_config(settings: Settings) -> Optional[Dict[str, str]]:
+    """REGISTRY_USER/REGISTRY_PASSWORD for the Engine API (in memory, per request)."""
+    if not (settings.registry_user and settings.registry_password):
+        return None
+    auth = {"username": settings.registry_user, "password": settings.registry_password}
+    return {**auth, "serveraddress": settings.registry} if settings.registry else auth
+
+
+def login(settings: Settings) -> None:
+    """`docker login` with the password on standard input (never a command line or log), for
+    `docker buildx imagetools`, which reads the CLI's credentials: only when writing manifests."""
+    argv = plan_login(settings)
+    if argv is None:
+        return
+    try:
+        docker_login(argv, settings.registry_password or "", settings.registry or "")
+    except LoginError as exc:
+        raise BuildError(str(exc)) from None
+
+
+def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
+    """Push; return the pushed names. Fails with the command and docker's reason."""
+    return run_commands(settings, plan_push(settings, targets), dry_run=dry_run, label="push")
+
+
+def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
+    """Write the manifest lists (plan_manifest); return their names."""
+    commands = plan_manifest(settings, targets)
+    return run_commands(settings, commands, dry_run=dry_run, label="manifest")
+
+
+def execute(argv: List[str], auth: Optional[Dict[str, str]]) -> None:
+    """One planned command: tag and push through the Engine API (credentials in the request),
+    manifest lists through buildx (the API has none)."""
+    try:
+        if argv[:2] == ["docker", "tag"]:
+            engine.tag(argv[2], argv[3])
+            return
+        if argv[:2] == ["docker", "push"]:
+            engine.push(argv[2], auth)
+            return
+    except engine.EngineError as exc:
+        raise BuildError(str(exc)) from None
+    proc = subprocess.run(argv, capture_output=True, text=True)
+    if proc.returncode != 0:
+        reason = (proc.stderr.strip() or proc.stdout.strip()).splitlines()
+        raise BuildError(f"{format_argv(argv)} failed with exit code {proc.returncode}: "
+                         f"{reason[-1] if reason else 'no reason given'}")
+
+
+def is_manifest(argv: Sequence[str]) -> bool:
+    return list(argv[:4]) == ["docker", "buildx", "imagetools", "create"]
+
+
+def run_commands(
+    settings: Settings, commands: Sequence[List[str]], *, dry_run: bool, label: str
+) -> List[str]:
+    """Run the docker commands in order; return the names pushed to the registry."""
+    if dry_run:
+        for argv in commands:
+            print(f"[dry-run] {label}:", format_argv(argv))
+        return []
+    if any(is_manifest(argv) for argv in commands):
+        login(settings)
+    auth = auth_config(settings)
+    pushed = []
+    for argv in commands:
+        print(f"{label}:", format_argv(argv), flush=True)
+        execute(argv, auth)
+        if argv[1] == "push":
+            pushed.append(argv[-1])
+        elif is_manifest(argv):
+            pushed.append(argv[argv.index("--tag") + 1])
+    return pushed

@@ -1,0 +1,669 @@
+"""Slim images: trace the run image's COMMAND, keep what it uses, prove the result still works.
+
+No external binary: a stdlib tracer (docker_ros/in_image/slimtrace.py, fanotify) runs inside a
+container of the run image and computes the keep set there; the run image's filesystem is exported,
+filtered by that set and imported with the run image's config; then the slim image is run with
+the same probe as the traced run, and only if it behaves the same is it tagged.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import os
+import re
+import shlex
+import tarfile
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, Callable, Dict, Iterator, List, Mapping, Optional, Sequence, Set, Tuple
+
+from docker.errors import DockerException
+from docker.models.containers import Container
+
+from docker_ros.host.build import PACKAGE_DIR, image_ref, image_size, platform_ref
+from docker_ros.host.engine import client, inspect_image, tag
+from docker_ros.in_image.settings import Settings, host_platform
+
+TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
+EXCHANGE = "/docker-ros-slim"  # the tracer and its results inside the trace container
+LABEL_SOURCE = "io.docker-ros.slim.source"
+LABEL_FINGERPRINT = "io.docker-ros.slim.fingerprint"
+EXITED = re.compile(r"docker-ros slimtrace: command exited with status (-?\d+)")
+SETTLED = re.compile(r"docker-ros slimtrace: traced files settled after ([\d.]+) s")
+SETTLE_SECONDS = 3.0  # --settle's default
+TRACER_LINE = re.compile(r"^docker-ros slimtrace: .*\n?", re.MULTILINE)
+# A DOCKER_UID/GID probe of the docker-ros entrypoint (as docker-ros's own SLIM_BUILD_ARGS do).
+PROBE_UID = "23456"
+PROBE_USER = "dockerslimprobe"
+
+# What every image keeps whatever the trace saw: user databases and what maps users, the
+# dynamic linker's configuration, CA certificates, the shells and the entrypoint.
+ESSENTIAL_PATHS = (
+    "/etc/passwd", "/etc/group", "/etc/shadow", "/etc/gshadow", "/etc/subuid", "/etc/subgid",
+    "/etc/nsswitch.conf", "/etc/login.defs", "/etc/default/useradd", "/etc/skel",
+    "/etc/pam.d", "/etc/security", "/etc/ld.so.conf", "/etc/ld.so.conf.d", "/etc/ld.so.cache",
+    "/etc/ssl/certs", "/etc/ca-certificates.conf", "/usr/share/ca-certificates",
+    "/usr/local/share/ca-certificates", "/etc/os-release", "/usr/lib/os-release",
+    "/etc/hosts", "/etc/hostname", "/etc/resolv.conf", "/etc/localtime", "/etc/environment",
+    "/etc/profile", "/etc/bash.bashrc", "/root/.bashrc", "/root/.profile", "/.dockerenv",
+    "/docker-ros/entrypoint.sh",
+    # Python finds its prefix by the landmark os.py, which it never opens (frozen since 3.11)
+    "/usr/lib/python3*/os.py", "/usr/local/lib/python3*/os.py",
+)
+ESSENTIAL_EXECUTABLES = (
+    "sh", "bash", "env", "tini", "setpriv", "useradd", "groupadd", "getent", "chpasswd", "id",
+    "cut",
+)
+INITS = ("tini", "tini-static", "docker-init", "dumb-init")
+# Output lines that mean something went wrong; those in the slim run but not the run image's
+# (digits, hex and UUIDs normalized) fail the check: a node may die while roslaunch runs on.
+TROUBLE = re.compile(
+    r"error|traceback|exception|not found|no such file|cannot |can't|could not|has died|"
+    r"segmentation fault|core dumped|permission denied|fatal",
+    re.IGNORECASE,
+)
+
+# docker-slim options: ours (value kind) and those that do not apply here.
+OPTIONS = {
+    "--include-path": "path", "--preserve-path": "path", "--exclude-pattern": "path",
+    "--include-bin": "path", "--include-exe": "path", "--continue-after": "seconds",
+    "--settle": "seconds", "--env": "env", "--exec": "text", "--expect": "text",
+}
+IGNORED_WITH_VALUE = frozenset({
+    "--sensor-ipc-mode", "--sensor-ipc-endpoint", "--http-probe-cmd", "--http-probe-cmd-file",
+    "--http-probe-ports", "--http-probe-retry-count", "--http-probe-retry-wait",
+    "--http-probe-start-wait", "--http-probe-concurrency", "--http-probe-apispec",
+    "--http-probe-apispec-file", "--http-probe-exec", "--http-probe-exec-file",
+    "--publish-port", "--image-build-engine", "--image-build-arch", "--report",
+    "--copy-meta-artifacts", "--state-path", "--new-label",
+})
+IGNORED_FLAGS = frozenset({
+    "--show-clogs", "--show-blogs", "--http-probe", "--http-probe-off", "--http-probe-full",
+    "--include-shell", "--include-cert-all", "--include-cert-bundles-only", "--keep-perms",
+    "--include-new", "--remove-file-artifacts", "--keep-tmp-artifacts", "--obfuscate-metadata",
+    "--include-oslibs-net", "--publish-exposed-ports", "--continue-after-signal",
+})
+
+
+class SlimError(Exception):
+    """Slimming failed: what, which image or option, what to do."""
+
+
+@dataclass(frozen=True)
+class SlimOptions:
+    include: Tuple[str, ...] = ()
+    exclude: Tuple[str, ...] = ()
+    executables: Tuple[str, ...] = ()
+    continue_after: float = 10.0  # the longest window
+    settle: float = SETTLE_SECONDS  # the window ends this long after the last new file
+    env: Tuple[str, ...] = ()
+    execs: Tuple[str, ...] = ()
+    expect: Tuple[str, ...] = ()
+    ignored: Tuple[str, ...] = ()
+
+
+def parse_slim_args(text: str) -> SlimOptions:
+    """SLIM_BUILD_ARGS + ADDITIONAL_SLIM_BUILD_ARGS (docker-slim syntax) -> options."""
+    try:
+        tokens = shlex.split(text)
+    except ValueError as exc:
+        raise SlimError(f"SLIM_BUILD_ARGS/ADDITIONAL_SLIM_BUILD_ARGS: {exc}") from None
+    values: Dict[str, List[str]] = {name: [] for name in OPTIONS}
+    ignored: List[str] = []
+    unknown: List[str] = []
+    index = 0
+    while index < len(tokens):
+        token = tokens[index]
+        index += 1
+        name, equals, value = token.partition("=")
+        if name in OPTIONS or name in IGNORED_WITH_VALUE:
+            if not equals:
+                if index >= len(tokens):
+                    raise SlimError(f"SLIM_BUILD_ARGS: {name} needs a value")
+                value = tokens[index]
+                index += 1
+            if name in OPTIONS:
+                values[name].append(value)
+            elif name not in ignored:
+                ignored.append(name)
+        elif name in IGNORED_FLAGS:
+            if name not in ignored:
+                ignored.append(name)
+        elif name in ("--target", "--tag"):
+            raise SlimError(f"SLIM_BUILD_ARGS: {name} is set by docker-ros (IMAGE_NAME/IMAGE_TAG,"
+                            " SLIM_IMAGE_NAME/SLIM_IMAGE_TAG); remove it")
+        else:
+            unknown.append(token)
+    if unknown:
+        raise SlimError(
+            "SLIM_BUILD_ARGS/ADDITIONAL_SLIM_BUILD_ARGS: unknown option(s) " + ", ".join(unknown)
+            + "; supported: " + ", ".join(OPTIONS) + " (see the README's Slim images section)")
+    continue_after = seconds_option("--continue-after", values["--continue-after"], 10.0)
+    settle = seconds_option("--settle", values["--settle"], SETTLE_SECONDS)
+    for pair in values["--env"]:
+        if "=" not in pair:
+            raise SlimError(f"SLIM_BUILD_ARGS: --env {pair!r}: use NAME=VALUE")
+    return SlimOptions(
+        include=tuple(values["--include-path"] + values["--preserve-path"]
+                      + values["--include-bin"]),
+        exclude=tuple(values["--exclude-pattern"]),
+        executables=tuple(values["--include-exe"]),
+        continue_after=continue_after,
+        settle=settle,
+        env=tuple(values["--env"]),
+        execs=tuple(values["--exec"]),
+        expect=tuple(values["--expect"]),
+        ignored=tuple(ignored),
+    )
+
+
+def seconds_option(name: str, given: Sequence[str], default: float) -> float:
+    """The last value of a seconds option (docker-slim: the last one wins)."""
+    seconds = default
+    for raw in given:
+        try:
+            seconds = float(raw)
+        except ValueError:
+            raise SlimError(f"SLIM_BUILD_ARGS: {name}={raw!r}: give a number of seconds"
+                            " (docker-slim's enter/signal/probe modes do not apply)") from None
+    return seconds
+
+
+def slim_args(settings: Settings) -> str:
+    return f"{settings.slim_build_args} {settings.additional_slim_build_args}".strip()
+
+
+# ------------------------------------------------------------------------------ pure plans
+def exec_prefix(entrypoint: Sequence[str]) -> List[str]:
+    """The entrypoint without its init (a `docker exec` process is not PID 1)."""
+    items = list(entrypoint)
+    if items and os.path.basename(items[0]) in INITS:
+        items = items[items.index("--") + 1:] if "--" in items else items[1:]
+    return items
+
+
+def maps_users(entrypoint: Sequence[str]) -> bool:
+    return any(item.endswith("docker-ros/entrypoint.sh") for item in entrypoint)
+
+
+def plan_trace_container(run_id: str, config: Mapping, options: SlimOptions,
+                         name: str) -> Dict[str, object]:
+    """The trace container (arguments of the SDK's containers.create): the tracer (PID 1,
+    root, CAP_SYS_ADMIN for fanotify) starts the image's entrypoint and command."""
+    command = list(config.get("Entrypoint") or []) + list(config.get("Cmd") or [])
+    if not command:
+        raise SlimError("the run image has neither ENTRYPOINT nor CMD: nothing to trace")
+    return {"image": run_id, "name": name, "cap_add": ["SYS_ADMIN"], "user": "0:0",
+            "environment": list(options.env), "entrypoint": ["python3"],
+            "command": [f"{EXCHANGE}/slimtrace.py", "--out", EXCHANGE, "--", *command]}
+
+
+def tracer_spec(config: Mapping, options: SlimOptions) -> Dict[str, object]:
+    path = next((e.split("=", 1)[1] for e in config.get("Env") or [] if e.startswith("PATH=")),
+                "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin")
+    return {
+        "include": list(ESSENTIAL_PATHS) + list(options.include),
+        "exclude": list(options.exclude),
+        "executables": list(ESSENTIAL_EXECUTABLES) + list(options.executables),
+        "path": path,
+        # the host stops the trace; this only bounds a trace whose host went away
+        "max_seconds": options.continue_after + 900,
+        "settle_seconds": options.settle,
+    }
+
+
+def dockerfile_quote(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"').replace("$", "\\$") + '"'
+
+
+def plan_changes(config: Mapping, labels: Mapping[str, str]) -> List[str]:
+    """The import's change instructions (`docker import --change`) that give the slim image
+    the run image's config."""
+    changes = []
+    for entry in config.get("Env") or []:
+        name, _, value = entry.partition("=")
+        if "\n" in value:
+            raise SlimError(f"ENV {name} of the run image holds a newline, which `docker import` "
+                            "cannot carry; keep COMMAND and ENV values on one line")
+        changes.append(f"ENV {name}={dockerfile_quote(value)}")
+    for key in ("Entrypoint", "Cmd"):
+        if config.get(key):
+            changes.append(f"{key.upper()} {json.dumps(config[key])}")
+    if config.get("WorkingDir"):
+        changes.append(f"WORKDIR {config['WorkingDir']}")
+    if config.get("User"):
+        changes.append(f"USER {config['User']}")
+    for port in sorted(config.get("ExposedPorts") or {}):
+        changes.append(f"EXPOSE {port}")
+    if config.get("Volumes"):
+        changes.append(f"VOLUME {json.dumps(sorted(config['Volumes']))}")
+    for key, value in sorted({**(config.get("Labels") or {}), **labels}.items()):
+        changes.append(f"LABEL {dockerfile_quote(key)}={dockerfile_quote(value)}")
+    return changes
+
+
+def fingerprint(run_id: str, options: SlimOptions) -> str:
+    """Same run image, same options, same tracer: the existing slim image is still right."""
+    key = json.dumps([run_id, repr(options), TRACER.read_bytes().decode()])
+    return hashlib.sha256(key.encode()).hexdigest()[:24]
+
+
+def member_path(name: str) -> str:
+    """A tar member name of `docker export` as an absolute path."""
+    name = name[2:] if name.startswith("./") else name.lstrip("/")
+    return "/" + name.rstrip("/")
+
+
+# ------------------------------------------------------------------------------ the check
+@dataclass
+class Probe:
+    """How an image behaved: COMMAND's exit status (None: still running at the end of the
+    window), the execs' exit status and output, the DOCKER_UID probe's, and the output; how
+    long the window lasted and why it ended ("exited", "settled" or "window")."""
+
+    exit_code: Optional[int] = None
+    execs: List[Tuple[str, int, str]] = field(default_factory=list)
+    user: Optional[Tuple[int, str]] = None
+    output: str = ""
+    watched: float = 0.0
+    ended: str = "window"
+
+    def all_output(self) -> str:
+        return self.output + "".join(out for _, _, out in self.execs)
+
+
+def trouble_lines(output: str) -> Set[str]:
+    lines = set()
+    for line in output.splitlines():
+        if TROUBLE.search(line):
+            line = re.sub(r"[0-9a-f]{8}(-[0-9a-f]{4}){3}-[0-9a-f]{12}", "<uuid>", line.strip())
+            lines.add(re.sub(r"0x[0-9a-fA-F]+|\d+", "N", line))
+    return lines
+
+
+def describe_exit(code: Optional[int], seconds: float) -> str:
+    return f"still running after {seconds:g} s" if code is None else f"exited with {code}"
+
+
+def compare_probes(reference: Probe, slim: Probe, options: SlimOptions) -> List[str]:
+    """What the slim image did differently from the run image (empty: it passed)."""
+    diffs = []
+    if reference.exit_code != slim.exit_code:
+        diffs.append(f"COMMAND {describe_exit(reference.exit_code, reference.watched)} in the "
+                     f"run image but {describe_exit(slim.exit_code, slim.watched)} in the slim "
+                     "image")
+    for (command, code, _), (_, slim_code, slim_out) in zip(reference.execs, slim.execs):
+        if code != slim_code:
+            last = slim_out.strip().splitlines()[-1:] or ["no output"]
+            diffs.append(f"--exec {command!r} exited with {code} in the run image but "
+                         f"{slim_code} in the slim image ({last[0]})")
+    if reference.user != slim.user and slim.user is not None:
+        diffs.append(f"DOCKER_UID={PROBE_UID} user mapping: run image gave {reference.user}, "
+                     f"slim image {slim.user}")
+    for text in options.expect:
+        if text not in reference.all_output():
+            diffs.append(f"--expect {text!r} is not in the run image's output either: "
+                         "check the expectation or --continue-after")
+        elif text not in slim.all_output():
+            diffs.append(f"--expect {text!r} is in the run image's output, not the slim one's")
+    new = sorted(trouble_lines(slim.all_output()) - trouble_lines(reference.all_output()))
+    if new:
+        diffs.append("the slim image printed errors the run image did not: "
+                     + " | ".join(new[:5]))
+    return diffs
+
+
+# ------------------------------------------------------------------------------ docker
+# Containers and images through the Engine API (docker SDK), as engine.py does.
+@contextlib.contextmanager
+def engine_errors(doing: str) -> Iterator[None]:
+    """An Engine API error while `doing` something becomes a SlimError saying what and why."""
+    try:
+        yield
+    except DockerException as exc:
+        raise SlimError(f"{doing} failed: {getattr(exc, 'explanation', None) or exc}") from None
+
+
+def container(name: str) -> Container:
+    with engine_errors(f"inspecting container {name}"):
+        return client().containers.get(name)
+
+
+def remove_container(name: str) -> None:
+    with contextlib.suppress(DockerException):
+        client().containers.get(name).remove(force=True)
+
+
+def remove_image(ref: str, *, force: bool = True) -> None:
+    with contextlib.suppress(DockerException):
+        client().images.remove(ref, force=force)
+
+
+def container_state(name: str) -> Tuple[bool, int]:
+    state = container(name).attrs["State"]
+    return bool(state["Running"]), int(state["ExitCode"])
+
+
+def logs(name: str) -> str:
+    with engine_errors(f"reading the logs of {name}"):
+        return bytes(container(name).logs(stdout=True, stderr=True)).decode(errors="replace")
+
+
+def run_once(image: str, argv: Sequence[str], env: Sequence[str]) -> Tuple[int, str]:
+    """`docker run --rm`: a container of image running argv; (exit status, its output)."""
+    with engine_errors(f"running {shlex.join(argv)[:100]} in {image}"):
+        once = client().containers.create(image, list(argv), environment=list(env))
+        try:
+            once.start()
+            code = int(once.wait(timeout=300)["StatusCode"])
+            return code, bytes(once.logs(stdout=True, stderr=True)).decode(errors="replace")
+        finally:
+            once.remove(force=True)
+
+
+Ending = Optional[Tuple[str, Optional[int]]]  # why a window ends, COMMAND's exit status
+
+
+def expected_seen(expect: Sequence[str], output: str) -> bool:
+    return all(text in output for text in expect)
+
+
+def trace_ending(log: str, running: bool, code: int, expect: Sequence[str]) -> Ending:
+    """Why the trace window ends now (None: it goes on): COMMAND exited, or the traced files
+    settled (the tracer's SETTLED line) with every --expect text printed."""
+    found = EXITED.search(log)
+    if found:
+        return ("exited", int(found.group(1)))
+    if not running:
+        raise SlimError(f"the tracer stopped early (exit code {code}): " + log.strip()[-500:])
+    if SETTLED.search(log) and expected_seen(expect, log):
+        return ("settled", None)
+    return None
+
+
+def check_ending(elapsed: float, running: bool, code: int, reference: Probe,
+                 output: Callable[[], str], expect: Sequence[str]) -> Ending:
+    """Why the check window ends now: COMMAND exited, or the slim image ran as long as the
+    run image was watched (and printed every --expect text)."""
+    if not running:
+        return ("exited", code)
+    if reference.ended != "exited" and elapsed >= reference.watched and (
+            not expect or expected_seen(expect, output())):
+        return (reference.ended, None)
+    return None
+
+
+def watch(poll: Callable[[float], Ending], limit: float) -> Tuple[str, Optional[int], float]:
+    """Poll with the seconds since the start until it says why the window ends, at most limit
+    seconds: (why, COMMAND's exit status or None, seconds watched)."""
+    began = time.monotonic()
+    while True:
+        elapsed = time.monotonic() - began
+        ended = poll(elapsed)
+        if ended is not None:
+            return ended[0], ended[1], elapsed
+        if elapsed >= limit:
+            return "window", None, elapsed
+        time.sleep(0.3)
+
+
+def run_probes(name: str, image: str, config: Mapping, options: SlimOptions,
+               poll: Callable[[float], Ending], limit: float, alive: Callable[[], bool]) -> Probe:
+    """Watch a started container for the window, then run the execs and the user probe:
+    in it while it runs, else in a fresh container of the image."""
+    probe = Probe()
+    probe.ended, probe.exit_code, probe.watched = watch(poll, limit)
+    prefix = exec_prefix(config.get("Entrypoint") or [])
+
+    def in_image(env: Sequence[str], argv: Sequence[str]) -> Tuple[int, str]:
+        if not alive():
+            return run_once(image, argv, env)
+        with engine_errors(f"running {shlex.join(argv)[:100]} in {name}"):
+            code, out = container(name).exec_run([*prefix, *argv], environment=list(env))
+        return int(code), bytes(out).decode(errors="replace")
+
+    for command in options.execs:
+        code, out = in_image(options.env, ["bash", "-c", command])
+        probe.execs.append((command, code, out))
+    if maps_users(config.get("Entrypoint") or []):
+        user_env = [f"DOCKER_UID={PROBE_UID}", f"DOCKER_GID={PROBE_UID}",
+                    f"DOCKER_USER={PROBE_USER}"]
+        code, out = in_image(user_env, ["id", "-u"])
+        probe.user = (code, out.strip().splitlines()[-1] if out.strip() else "")
+    probe.output = TRACER_LINE.sub("", logs(name))
+    return probe
+
+
+def trace(run_id: str, config: Mapping, options: SlimOptions, workdir: Path) -> Tuple[
+        Probe, Set[str], dict]:
+    """Trace the run image: its probe (the reference), the keep set, the tracer's figures."""
+    name = f"docker-ros-slim-trace-{os.getpid()}-{int(time.time() * 1000)}"
+    with engine_errors("creating the trace container"):
+        traced = client().containers.create(**plan_trace_container(run_id, config, options,
+                                                                   name))
+    try:
+        exchange = io.BytesIO()
+        with tarfile.open(fileobj=exchange, mode="w") as tar:
+            tar.add(str(TRACER), arcname=f"{EXCHANGE[1:]}/slimtrace.py")
+            spec = json.dumps(tracer_spec(config, options)).encode()
+            info = tarfile.TarInfo(f"{EXCHANGE[1:]}/spec.json")
+            info.size = len(spec)
+            tar.addfile(info, io.BytesIO(spec))
+        with engine_errors("starting the trace container"):
+            traced.put_archive("/", exchange.getvalue())
+            traced.start()
+
+        def poll(elapsed: float) -> Ending:
+            log = logs(name)
+            return trace_ending(log, *container_state(name), options.expect)
+
+        probe = run_probes(name, run_id, config, options, poll, options.continue_after,
+                           lambda: container_state(name)[0])
+        with engine_errors("stopping the trace container"):
+            traced.kill(signal="SIGTERM")
+            traced.wait(timeout=300)
+            stream, _ = traced.get_archive(EXCHANGE)
+            result = b"".join(stream)
+        with tarfile.open(fileobj=io.BytesIO(result)) as tar:
+            tar.extractall(workdir)
+    finally:
+        remove_container(name)
+    folder = workdir / EXCHANGE.lstrip("/")
+    if (folder / "error").is_file() or not (folder / "done").is_file():
+        reason = (folder / "error").read_text().strip() if (folder / "error").is_file() \
+            else "no result"
+        raise SlimError(f"tracing the run image failed: {reason}")
+    keep = set((folder / "keep.txt").read_text().splitlines())
+    return probe, keep, json.loads((folder / "done").read_text())
+
+
+def filter_tar(source: IO[bytes], destination: IO[bytes], keep: Set[str]) -> Tuple[int, int]:
+    """Copy the members of a `docker export` stream that are in keep; (kept, total)."""
+    kept = total = 0
+    written: Set[str] = set()
+    with tarfile.open(fileobj=source, mode="r|") as src, \
+            tarfile.open(fileobj=destination, mode="w|", format=tarfile.PAX_FORMAT) as dst:
+        for member in src:
+            total += 1
+            path = member_path(member.name)
+            if path not in keep:
+                continue
+            if member.islnk() and member_path(member.linkname) not in written:
+                continue  # its first name was dropped: nothing to link to
+            dst.addfile(member, src.extractfile(member) if member.isfile() else None)
+            written.add(path)
+            kept += 1
+    return kept, total
+
+
+class ChunkReader(io.RawIOBase):
+    """A readable stream over an iterator of byte chunks (the SDK's container export)."""
+
+    def __init__(self, chunks: Iterator[bytes]) -> None:
+        self.chunks, self.rest = chunks, b""
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        while not self.rest:
+            self.rest = next(self.chunks, b"")
+            if not self.rest:
+                return 0
+        size = min(len(buffer), len(self.rest))
+        buffer[:size], self.rest = self.rest[:size], self.rest[size:]
+        return size
+
+
+def imported_id(output: str) -> str:
+    """The image ID in the Engine API's answer to an import (JSON lines, the last one's
+    status)."""
+    for line in reversed(output.strip().splitlines()):
+        status = str(json.loads(line).get("status", ""))
+        if status.startswith("sha256:"):
+            return status
+    raise SlimError(f"importing the slim image gave no image ID: {output.strip()[-300:]}")
+
+
+def export_filtered(run_id: str, keep: Set[str], changes: Sequence[str]) -> Tuple[str, int, int]:
+    """The export of a container of the run image, keep-filtered into a file, imported as an
+    image with the run image's config (`changes`)."""
+    with engine_errors("exporting the run image's files"), \
+            tempfile.NamedTemporaryFile(prefix="docker-ros-slim-", suffix=".tar") as filtered:
+        created = client().containers.create(run_id)
+        try:
+            kept, total = filter_tar(io.BufferedReader(ChunkReader(created.export())),
+                                     filtered, keep)
+        finally:
+            created.remove(force=True)
+        filtered.flush()
+        answer = client().api.import_image(src=filtered.name, changes=list(changes))
+    return imported_id(str(answer)), kept, total
+
+
+def check(slim_id: str, config: Mapping, options: SlimOptions, reference: Probe) -> Probe:
+    """Run the slim image as the run image was run (same command, env and window)."""
+    name = f"docker-ros-slim-check-{os.getpid()}-{int(time.time() * 1000)}"
+    with engine_errors("starting the slim image"):
+        client().containers.run(slim_id, detach=True, name=name, environment=list(options.env))
+    try:
+        def poll(elapsed: float) -> Ending:
+            return check_ending(elapsed, *container_state(name), reference,
+                                lambda: logs(name), options.expect)
+
+        return run_probes(name, slim_id, config, options, poll,
+                          max(options.continue_after, reference.watched),
+                          lambda: container_state(name)[0])
+    finally:
+        remove_container(name)
+
+
+@dataclass(frozen=True)
+class SlimResult:
+    ref: str
+    platform: str
+    seconds: float
+    reused: bool
+
+
+def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> SlimResult:
+    """Slim IMAGE_NAME:IMAGE_TAG (of one platform) into SLIM_IMAGE_NAME:SLIM_IMAGE_TAG."""
+    began = time.monotonic()
+    run_ref = platform_ref(image_ref(settings, "run"), platform, settings.platform)
+    slim_ref = platform_ref(image_ref(settings, "slim"), platform, settings.platform)
+    options = parse_slim_args(slim_args(settings))
+    if options.ignored:
+        print("docker-ros slim: ignoring options that do not apply here: "
+              + ", ".join(options.ignored), flush=True)
+    if dry_run:
+        print(f"[dry-run] slim: trace {run_ref} for at most {options.continue_after:g} s (until "
+              f"no new file for {options.settle:g} s), keep what it uses, check and tag "
+              f"{slim_ref}")
+        return SlimResult(slim_ref, platform, 0.0, False)
+    if platform != host_platform():
+        raise SlimError(f"slimming a {platform} image on this {host_platform()} machine is not "
+                        f"supported: run `docker-ros slim` on a {platform} runner")
+    run = inspect_image(run_ref)
+    if run is None:
+        raise SlimError(f"run image {run_ref} not found: build it first (`docker-ros build`)")
+    config = run["Config"]
+    stamp = fingerprint(run["Id"], options)
+    existing = inspect_image(slim_ref)
+    if existing and (existing["Config"].get("Labels") or {}).get(LABEL_FINGERPRINT) == stamp:
+        print(f"slim: {slim_ref} is up to date (made from {run_ref}, {run['Id'][7:19]})")
+        return SlimResult(slim_ref, platform, time.monotonic() - began, True)
+    print(f"==> docker-ros slim {run_ref} -> {slim_ref}", flush=True)
+    with tempfile.TemporaryDirectory(prefix="docker-ros-slim-") as tmp:
+        traced_at = time.monotonic()
+        reference, keep, figures = trace(run["Id"], config, options, Path(tmp))
+        trace_seconds = time.monotonic() - traced_at
+    print(trace_report(trace_seconds, reference, figures, options), flush=True)
+    if figures.get("overflow"):
+        print("docker-ros slim: warning: the trace lost events (queue overflow); the check "
+              "below decides", flush=True)
+    labels = {LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp}
+    made_at = time.monotonic()
+    slim_id, kept, total = export_filtered(run["Id"], keep, plan_changes(config, labels))
+    made_seconds = time.monotonic() - made_at
+    checked_at = time.monotonic()
+    try:
+        diffs = compare_probes(reference, check(slim_id, config, options, reference), options)
+    except BaseException:
+        remove_image(slim_id)
+        raise
+    check_seconds = time.monotonic() - checked_at
+    if diffs:
+        remove_image(slim_id)
+        stale = " (removed the stale " + slim_ref + ")" if existing else ""
+        if existing:
+            remove_image(slim_ref, force=False)
+        raise SlimError(f"the slim image of {run_ref} does not behave like it, not tagged"
+                        f"{stale}: " + "; ".join(diffs)
+                        + ". Keep what is missing with --include-path in "
+                        "ADDITIONAL_SLIM_BUILD_ARGS, or set ENABLE_SLIM=false")
+    print(check_report(check_seconds, reference, options), flush=True)
+    tag(slim_id, slim_ref)
+    print(size_report(run_ref, slim_ref, kept, total, made_seconds), flush=True)
+    return SlimResult(slim_ref, platform, time.monotonic() - began, False)
+
+
+def window_words(probe: Probe, options: SlimOptions) -> str:
+    """How long COMMAND was watched, and why not longer."""
+    if probe.ended == "exited":
+        return f"COMMAND exited with {probe.exit_code} after {probe.watched:.1f} s"
+    if probe.ended == "settled":
+        expected = " and every --expect text was printed" if options.expect else ""
+        return (f"COMMAND watched {probe.watched:.1f} s, until no new file was opened for "
+                f"{options.settle:g} s{expected}")
+    return f"COMMAND watched {probe.watched:.1f} s (--continue-after)"
+
+
+def trace_report(seconds: float, reference: Probe, figures: Mapping, options: SlimOptions
+                 ) -> str:
+    """The trace in one line: its time, the window, what the tracer saw."""
+    return (f"slim: trace {seconds:.1f} s: {window_words(reference, options)}; "
+            f"{figures.get('traced', 0)} files opened, {figures.get('kept', 0)} kept "
+            f"(keep set {figures.get('keep_seconds', 0):.1f} s)")
+
+
+def check_report(seconds: float, reference: Probe, options: SlimOptions) -> str:
+    """The functional check in one line."""
+    behaviour = describe_exit(reference.exit_code, round(reference.watched, 1))
+    return (f"slim: functional check {seconds:.1f} s passed (COMMAND {behaviour} in both; "
+            f"{len(options.execs)} exec(s), {len(options.expect)} expectation(s))")
+
+
+def size_report(run_ref: str, slim_ref: str, kept: int, total: int, seconds: float) -> str:
+    run_size = image_size(run_ref)
+    slim_size = image_size(slim_ref)
+    ratio = run_size / slim_size if slim_size else 0.0
+    return (
+        f"slim: {run_ref} {run_size / 1e6:.0f} MB -> {slim_ref} {slim_size / 1e6:.0f} MB "
+        f"(ratio {ratio:.1f}x, {100 * (1 - slim_size / run_size) if run_size else 0:.0f} % "
+        f"smaller); {kept} of {total} files kept (image made in {seconds:.1f} s)"
+    )

@@ -1,0 +1,206 @@
+"""prepare (image only, before the ten steps): tini, git, vcstool, rosdep, colcon and ROS itself
+when the base image lacks them; a docker-ros workspace in the base moves to /opt/ws_base_image."""
+
+import glob
+import os
+import shutil
+from pathlib import Path
+from typing import Dict, List, Mapping, Optional, Sequence
+
+from docker_ros.in_image.runtime.apt import apt_env, install_options
+from docker_ros.in_image.runtime.process import run
+from docker_ros.in_image.runtime.rosenv import BASE_IMAGE_WS, ROS1_DISTROS
+from docker_ros.in_image.runtime.workspace import LOG, StepError, Workspace, step_log
+from docker_ros.in_image.settings import Settings
+
+# prepare runs in image builds only
+IMAGE_INSTALL = install_options("image")
+
+ROS_APT_SOURCE_URL = (
+    "https://github.com/ros-infrastructure/ros-apt-source/releases/download/"
+    "{version}/{package}_{version}.{codename}_all.deb"
+)
+BASE_WS = BASE_IMAGE_WS
+
+# tool (command) -> apt package candidates, in order of preference (ROS apt repo, then Debian).
+TOOLS: Dict[str, Sequence[str]] = {
+    "tini": ("tini",),
+    "git": ("git",),
+    "vcs": ("python3-vcstool", "vcstool"),
+    "rosdep": ("python3-rosdep", "python3-rosdep2"),
+    "colcon": ("python3-colcon-common-extensions", "colcon"),
+    "pip3": ("python3-pip",),
+}
+# The toolchain of dev images (run images never get it): prepare with dependency types "all".
+DEV_TOOLS = ("build-essential", "cmake", "python3-pip")
+# Extra Debian packages that make the plain `colcon` package useful for ROS workspaces.
+DEBIAN_COLCON_EXTRAS = ("python3-colcon-ros", "python3-colcon-cmake", "python3-colcon-bash",
+                        "python3-colcon-package-selection", "python3-colcon-test-result",
+                        "python3-colcon-output", "python3-colcon-library-path")
+
+
+def is_ros1(distro: str) -> bool:
+    return distro in ROS1_DISTROS
+
+
+def ros_present(root: Path = Path("/"), distro: Optional[str] = None) -> bool:
+    """ROS in /opt/ros (ROS apt packages) or in /usr (Debian's own ROS packages)."""
+    if distro and (root / "opt/ros" / distro / "setup.bash").exists():
+        return True
+    if glob.glob(str(root / "opt/ros/*/setup.bash")):
+        return True
+    return any((root / p).exists() for p in ("usr/bin/roscore", "usr/share/ament_cmake_core"))
+
+
+def ros_package_names(distro: str, rmw_implementation: str) -> List[str]:
+    """apt packages of a ROS installation: ros-core, and the RMW implementation on ROS 2."""
+    packages = [f"ros-{distro}-ros-core"]
+    if not is_ros1(distro) and rmw_implementation:
+        packages.append(f"ros-{distro}-{rmw_implementation.replace('_', '-')}")
+    return packages
+
+
+def plan_ros_installation(
+    *,
+    ros_installed: bool,
+    disabled: bool,
+    distro: Optional[str],
+    rmw_implementation: str,
+    apt_source_version: str,
+    os_codename: str,
+) -> List[List[str]]:
+    """Commands that install ROS from the ROS apt source (pinned version), or none."""
+    if ros_installed or disabled:
+        return []
+    if not distro:
+        raise StepError(
+            "prepare",
+            "the base image has no ROS installation: set ROS_DISTRO (e.g. jazzy) to install it, "
+            "or DISABLE_ROS_INSTALLATION=true",
+        )
+    package = "ros-apt-source" if is_ros1(distro) else "ros2-apt-source"
+    url = ROS_APT_SOURCE_URL.format(
+        version=apt_source_version, package=package, codename=os_codename
+    )
+    deb = f"/tmp/{package}.deb"
+    return [
+        ["apt-get", "update"],
+        ["apt-get", "install", *IMAGE_INSTALL, "ca-certificates", "curl"],
+        ["curl", "-fsSL", "-o", deb, url],
+        ["apt-get", "install", "-y", deb],
+        ["rm", "-f", deb],
+        ["apt-get", "update"],
+        ["apt-get", "install", *IMAGE_INSTALL,
+         *ros_package_names(distro, rmw_implementation)],
+    ]
+
+
+def plan_tool_packages(missing: Sequence[str], available: Sequence[str]) -> List[str]:
+    """apt packages providing the missing tools, first candidate the apt sources know."""
+    packages: List[str] = []
+    for tool in missing:
+        candidates = [p for p in TOOLS[tool] if p in available]
+        if not candidates:
+            raise StepError("prepare", f"no apt package provides '{tool}' (tried "
+                            f"{', '.join(TOOLS[tool])}); install it in the base image")
+        packages.append(candidates[0])
+        if candidates[0] == "colcon":
+            packages.extend(p for p in DEBIAN_COLCON_EXTRAS if p in available)
+    return packages
+
+
+def os_release(root: Path = Path("/")) -> Dict[str, str]:
+    out: Dict[str, str] = {}
+    path = root / "etc/os-release"
+    if path.exists():
+        for line in path.read_text().splitlines():
+            key, _, value = line.partition("=")
+            out[key] = value.strip().strip('"')
+    return out
+
+
+def apt_available(packages: Sequence[str]) -> List[str]:
+    """Which of the packages the configured apt sources offer (needs fresh lists)."""
+    out = run(["apt-cache", "policy", *packages], step="prepare", capture=True)
+    available, current = [], None
+    for line in out.splitlines():
+        if not line.startswith(" "):
+            current = line.rstrip(":")
+        elif current and "Candidate:" in line and "(none)" not in line:
+            available.append(current)
+    return available
+
+
+APT_KEEP_CACHE = Path("/etc/apt/apt.conf.d/docker-ros-keep-cache")
+DOCKER_CLEAN = Path("/etc/apt/apt.conf.d/docker-clean")
+
+
+def keep_apt_downloads(*, dry_run: bool) -> None:
+    """Official Debian/Ubuntu images delete downloaded .debs (docker-clean); the build keeps
+    them in a cache mount instead, so a rebuild downloads nothing twice."""
+    if dry_run:
+        print(f"[dry-run] prepare: remove {DOCKER_CLEAN}, write {APT_KEEP_CACHE}")
+        return
+    if DOCKER_CLEAN.exists():
+        DOCKER_CLEAN.unlink()
+    if APT_KEEP_CACHE.parent.is_dir():
+        APT_KEEP_CACHE.write_text('Binary::apt::APT::Keep-Downloaded-Packages "true";\n')
+
+
+def move_base_workspace(ws: Workspace, *, dry_run: bool) -> None:
+    """A base image built by docker-ros has its install at /docker-ros/ws/install: underlay it."""
+    if not ws.install.is_dir():
+        return
+    LOG.info("prepare: base image holds a docker-ros workspace; moving it to %s", BASE_WS)
+    if dry_run:
+        print(f"[dry-run] prepare: move {ws.install} -> {BASE_WS / 'install'}")
+        return
+    if (BASE_WS / "install").exists():
+        shutil.rmtree(str(BASE_WS / "install"))
+    BASE_WS.mkdir(parents=True, exist_ok=True)
+    shutil.move(str(ws.install), str(BASE_WS / "install"))
+    for leftover in ("src", "build", "log", ".docker-ros"):
+        shutil.rmtree(str(ws.root / leftover), ignore_errors=True)
+
+
+def main(
+    ws: Workspace,
+    settings: Settings,
+    *,
+    phase: str = "all",
+    dry_run: bool = False,
+    environ: Optional[Mapping[str, str]] = None,
+    **options: str,
+) -> None:
+    environ = os.environ if environ is None else environ
+    with step_log("prepare"):
+        move_base_workspace(ws, dry_run=dry_run)
+        keep_apt_downloads(dry_run=dry_run)
+        distro = settings.ros_distro or environ.get("ROS_DISTRO")
+        commands = plan_ros_installation(
+            ros_installed=ros_present(distro=distro),
+            disabled=settings.disable_ros_installation,
+            distro=distro,
+            rmw_implementation=settings.rmw_implementation,
+            apt_source_version=settings.ros_apt_source_version,
+            os_codename=os_release().get("VERSION_CODENAME", ""),
+        )
+        for argv in commands:
+            run(argv, step="prepare", dry_run=dry_run, env=apt_env())
+        if options.get("dependency_types") == "all":
+            # dependencies-dev stage: the base is prepared already; add the build toolchain.
+            if shutil.which("g++") is None:
+                LOG.info("prepare: installing the build toolchain of the dev image")
+                run(["apt-get", "update"], step="prepare", dry_run=dry_run, env=apt_env())
+                run(["apt-get", "install", *IMAGE_INSTALL, *DEV_TOOLS],
+                    step="prepare", dry_run=dry_run, env=apt_env())
+            return
+        missing = [tool for tool in TOOLS if shutil.which(tool) is None]
+        if missing:
+            LOG.info("prepare: installing missing tools: %s", ", ".join(missing))
+            run(["apt-get", "update"], step="prepare", dry_run=dry_run, env=apt_env())
+            candidates = [p for tool in missing for p in TOOLS[tool]]
+            available = apt_available([*candidates, *DEBIAN_COLCON_EXTRAS])
+            packages = plan_tool_packages(missing, available)
+            run(["apt-get", "install", *IMAGE_INSTALL, *packages],
+                step="prepare", dry_run=dry_run, env=apt_env())

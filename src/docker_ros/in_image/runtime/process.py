@@ -1,0 +1,184 @@
+"""Running commands and hook scripts: argv lists only, one clear error per failure.
+Standard library only, Python 3.8+ (runs inside images)."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any, Callable, List, Mapping, Optional, Sequence, Tuple
+
+from docker_ros.in_image.runtime.workspace import LOG, StepError, dry, format_argv
+
+
+def run(
+    argv: Sequence[str],
+    *,
+    step: str,
+    dry_run: bool = False,
+    cwd: Optional[Path] = None,
+    env: Optional[Mapping[str, str]] = None,
+    capture: bool = False,
+    what: str = "",
+) -> str:
+    """Run one argv (never a shell string). Raises StepError naming the command and exit code.
+
+    `what` names the file or item at fault in the error (e.g. a script path).
+    Returns captured stdout when capture=True.
+    """
+    shown = format_argv(argv)
+    if dry_run:
+        dry(step, shown + (f"  (in {cwd})" if cwd else ""))
+        return ""
+    LOG.info("%s: %s", step, shown)
+    full_env = None if env is None else dict(env)
+    sys.stdout.flush()
+    try:
+        proc = subprocess.run(
+            executable_argv(argv),
+            cwd=str(cwd) if cwd else None,
+            env=full_env,
+            stdout=subprocess.PIPE if capture else None,
+            stderr=subprocess.PIPE if capture else None,
+            text=True,
+        )
+    except FileNotFoundError:
+        raise StepError(step, f"command not found: {argv[0]} (needed for: {shown})"
+                        f"{host_tool_hint(argv[0])}", 127) from None
+    if proc.returncode != 0:
+        detail = ""
+        if capture and proc.stderr and proc.stderr.strip():
+            detail = ": " + proc.stderr.strip().splitlines()[-1]
+        subject = f"{what} " if what else ""
+        raise StepError(
+            step,
+            f"{subject}failed with exit code {proc.returncode}: {shown}{detail}",
+            proc.returncode,
+        )
+    return proc.stdout if capture else ""
+
+
+def probe(
+    argv: Sequence[str],
+    *,
+    step: str,
+    env: Optional[Mapping[str, str]] = None,
+    hint: str = "",
+    text: bool = True,
+) -> "subprocess.CompletedProcess[Any]":
+    """Run a command whose exit code and output the caller judges (a look-up, never raises for
+    a non-zero exit); a missing program is a StepError with exit code 127 and the hint."""
+    try:
+        return subprocess.run(executable_argv(argv), env=None if env is None else dict(env),
+                              capture_output=True, text=text)
+    except FileNotFoundError:
+        raise StepError(step, f"command not found: {argv[0]}" + (f" ({hint})" if hint else "")
+                        + host_tool_hint(argv[0]), 127) from None
+
+
+# The tools of the host-mode steps: the `host` extra of docker-ros (images get them in prepare).
+HOST_TOOLS = ("vcs", "rosdep", "colcon")
+HOST_EXTRA = "pip install 'docker-ros[host]'"
+
+
+def tool_path(program: str, executable: Optional[str] = None) -> str:
+    """Where a host-mode tool is: on the host beside our interpreter first (docker-ros
+    installed in a venv that is not activated, or with pipx, has its vcs, rosdep and colcon
+    there, not on PATH), else `program` itself (found on PATH, as always in images)."""
+    executable = sys.executable if executable is None else executable
+    if program in HOST_TOOLS and executable and hook_context() == "host":
+        beside = os.path.join(os.path.dirname(executable), program)
+        if os.path.isfile(beside) and os.access(beside, os.X_OK):
+            return beside
+    return program
+
+
+def executable_argv(argv: Sequence[str]) -> List[str]:
+    """argv as run: a host-mode tool by its tool_path (logs and errors keep the short name)."""
+    return [tool_path(argv[0]), *argv[1:]] if argv else []
+
+
+def host_tool_hint(program: str) -> str:
+    """What to do when one of the host-mode steps' tools is missing on the host ('' otherwise)."""
+    if program in HOST_TOOLS and hook_context() == "host":
+        return (f"; on the host the steps need vcstool, rosdep and colcon (looked for beside "
+                f"{sys.executable} and on PATH): {HOST_EXTRA}")
+    return ""
+
+
+def hook_context(environ: Optional[Mapping[str, str]] = None) -> str:
+    """Where hooks run: `image` (an image build, whose images set DOCKER_ROS=1) or `host`."""
+    env = os.environ if environ is None else environ
+    return "image" if env.get("DOCKER_ROS") == "1" else "host"
+
+
+def script_hint(content: bytes) -> str:
+    """What to do about a failed hook script whose content we recognise as the cause."""
+    if b"\r\n" in content:
+        return ("; the script has Windows (CRLF) line endings, which bash cannot run: convert it"
+                " (`dos2unix FILE`, or `git config core.autocrlf input` and check it out again)")
+    return ""
+
+
+def run_script(
+    argv: Sequence[str], script: Path, *, step: str, dry_run: bool, cwd: Path, what: str
+) -> None:
+    """Run a user hook (argv ends with the script) with DOCKER_ROS_CONTEXT=image|host set;
+    a failure we recognise says what to do."""
+    env = {**os.environ, "DOCKER_ROS_CONTEXT": hook_context()}
+    try:
+        run(argv, step=step, dry_run=dry_run, cwd=cwd, what=what, env=env)
+    except StepError as exc:
+        hint = script_hint(script.read_bytes()) if script.is_file() else ""
+        if not hint:
+            raise
+        raise StepError(step, exc.message + hint, exc.returncode) from None
+
+
+def run_tee(
+    argv: Sequence[str],
+    *,
+    step: str,
+    cwd: Optional[Path] = None,
+    env: Optional[Mapping[str, str]] = None,
+    on_line: Optional[Callable[[str], bool]] = None,
+) -> Tuple[int, List[str]]:
+    """Run argv with stdout+stderr streamed line by line to our stdout (the user sees the tool's
+    output as it comes) and also returned, for parsing. Returns (exit code, lines).
+    `on_line` returning True stops the command (a failure already known, no use waiting)."""
+    LOG.info("%s: %s", step, format_argv(argv))
+    sys.stdout.flush()
+    lines: List[str] = []
+    try:
+        proc = subprocess.Popen(
+            executable_argv(argv),
+            cwd=str(cwd) if cwd else None,
+            env=None if env is None else dict(env),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            universal_newlines=True,
+            errors="replace",
+        )
+    except FileNotFoundError:
+        raise StepError(
+            step, f"command not found: {argv[0]} (needed for: {format_argv(argv)})"
+            f"{host_tool_hint(argv[0])}", 127) from None
+    assert proc.stdout is not None
+    with proc.stdout:
+        for line in proc.stdout:
+            sys.stdout.write(line)
+            sys.stdout.flush()
+            line = line.rstrip("\n")
+            lines.append(line)
+            if on_line and on_line(line):
+                proc.terminate()
+                break
+    return proc.wait(), lines
+
+
+def is_root() -> bool:
+    return hasattr(os, "geteuid") and os.geteuid() == 0
+
+
+def privileged(argv: Sequence[str]) -> List[str]:
+    """Prefix with sudo when not root (host mode for a normal user)."""
+    return list(argv) if is_root() else ["sudo", *argv]

@@ -1,0 +1,108 @@
+""".repos files read the way `vcs import` reads them: by vcstool's own reader (YAML; the vcstool
+format, `repositories: {name: {type, url, version}}`, and the rosinstall format, a list of
+`- git: {local-name, uri, version}`). vcstool, and PyYAML with it, is present wherever the clone
+step runs (the image's prepare step installs it before); it is imported when a file is read,
+so that importing this module needs the standard library only (Python 3.8+, runs in images)."""
+
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any, Dict, List, Mapping, Optional
+
+from docker_ros.in_image.runtime.process import tool_path
+from docker_ros.in_image.runtime.workspace import StepError
+
+Repos = Dict[str, Dict[str, str]]
+KEYS = ("type", "url", "version")
+
+# Run by an interpreter that has vcstool when ours has not (e.g. vcs installed with pipx).
+READER = """
+import json, sys
+from vcstool.commands.import_ import get_repositories
+try:
+    with open(sys.argv[1]) as handle:
+        print(json.dumps({"repositories": get_repositories(handle)}, default=str))
+except RuntimeError as exc:
+    print(json.dumps({"error": str(exc)}))
+"""
+
+
+def is_empty(text: str) -> bool:
+    """Nothing but comments, blank lines and document markers: an empty .repos file, which the
+    clone step skips (vcstool would reject it as 'not valid format')."""
+    return all(
+        not line.strip() or line.lstrip().startswith("#") or line.strip() in ("---", "...")
+        for line in text.splitlines()
+    )
+
+
+def normalise(repos: Mapping[str, Any]) -> Repos:
+    """name -> {type, url, version} as strings (YAML may give `version: 1.0` as a number)."""
+    return {
+        str(name): {key: str(spec[key]) for key in KEYS if spec.get(key) is not None}
+        for name, spec in repos.items()
+        if isinstance(spec, Mapping)
+    }
+
+
+def read_repos(path: Path, *, step: str) -> Repos:
+    """The repositories `vcs import --input path` would import: name -> {type, url, version}.
+    A file vcstool cannot read is a StepError naming the file and vcstool's reason."""
+    text = Path(path).read_text()
+    if is_empty(text):
+        return {}
+    try:
+        from vcstool.commands.import_ import get_repositories
+    except ImportError:
+        return _read_elsewhere(Path(path), step=step)
+    try:
+        with open(str(path)) as handle:
+            return normalise(get_repositories(handle))
+    except RuntimeError as exc:
+        raise StepError(step, unreadable(path, str(exc))) from None
+
+
+def unreadable(path: Path, reason: str) -> str:
+    """One line: vcstool's reason (a YAML error spans lines), and the expected form when the
+    file is YAML but not a list of repositories."""
+    text = " ".join(reason.split())
+    if "yaml" not in text:
+        text += (" (expected `repositories:` with `name: {type, url, version}` entries, or a "
+                 "rosinstall list of `- git: {local-name, uri, version}`)")
+    return f"{path} is not a .repos file vcstool can read: {text}"
+
+
+def interpreters(vcs: Optional[str]) -> List[List[str]]:
+    """Interpreters that may have vcstool: the one of the `vcs` script (its #! line), then
+    python3 from PATH."""
+    found: List[List[str]] = []
+    if vcs:
+        try:
+            with open(vcs, "rb") as handle:
+                first = handle.readline().decode(errors="replace")
+        except OSError:
+            first = ""
+        if first.startswith("#!") and re.search(r"python[\d.]*\b", first):
+            found.append(first[2:].split())
+    return found + [["python3"]]
+
+
+def _read_elsewhere(path: Path, *, step: str) -> Repos:
+    for interpreter in interpreters(shutil.which(tool_path("vcs"))):
+        try:
+            proc = subprocess.run([*interpreter, "-c", READER, str(path)],
+                                  capture_output=True, text=True)
+        except OSError:
+            continue
+        lines = proc.stdout.strip().splitlines()
+        if proc.returncode != 0 or not lines:
+            continue
+        answer = json.loads(lines[-1])
+        if "error" in answer:
+            raise StepError(step, unreadable(path, answer["error"]))
+        return normalise(answer["repositories"])
+    raise StepError(step, f"cannot read {path}: no Python here has vcstool (which the clone "
+                          "step needs anyway): install vcstool (pip install vcstool, or apt "
+                          "python3-vcstool)")

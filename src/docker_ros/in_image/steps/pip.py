@@ -1,0 +1,199 @@
+"""pip: install the extra pip requirements listed in ADDITIONAL_PIP_FILE(s).
+
+collect reads the files by pip's rules (runtime.requirements: continuations, comments, nested
+-r/-c files relative to the naming file) into pip.json; apply writes those lines into a
+requirement file of its own and lets pip read it (`pip install -r`), so requirement syntax,
+options, hashes and `${VARIABLES}` mean what they mean to pip. No shell ever sees them."""
+
+import json
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+
+from docker_ros.in_image.runtime.files import find_special_files, unique
+from docker_ros.in_image.runtime.lock import locked_arguments
+from docker_ros.in_image.runtime.process import is_root, probe, run, run_tee
+from docker_ros.in_image.runtime.requirements import read_requirement_file
+from docker_ros.in_image.runtime.workspace import (
+    LOG,
+    StepError,
+    Workspace,
+    format_argv,
+    phases,
+    step_log,
+)
+from docker_ros.in_image.settings import Settings
+
+STEP = "pip"
+STATE_FILE = "pip.json"
+PYTHON_ENV = "DOCKER_ROS_PYTHON"
+# pip learnt --break-system-packages (PEP 668) in 23.0.1.
+BREAK_SYSTEM_PACKAGES_SINCE = (23, 0, 1)
+
+# Runs in the target interpreter (any Python 3): what decides pip's flags.
+PROBE = """
+import json, os, sys, sysconfig
+venv = sys.prefix != getattr(sys, "base_prefix", sys.prefix)
+marker = os.path.join(sysconfig.get_path("stdlib"), "EXTERNALLY-MANAGED")
+try:
+    import pip
+    version = pip.__version__
+except Exception:
+    version = None
+print(json.dumps({"externally_managed": os.path.isfile(marker) and not venv,
+                  "in_venv": venv, "pip": version}))
+"""
+
+
+def python_command(environ: Optional[Mapping[str, str]] = None) -> str:
+    """The ROS environment's python3 from PATH (DOCKER_ROS_PYTHON overrides, for tests)."""
+    env = os.environ if environ is None else environ
+    return env.get(PYTHON_ENV) or "python3"
+
+
+def collect_requirements(ws: Workspace, settings: Settings) -> Dict[str, List[str]]:
+    """The plan: the requirement and constraint lines of every ADDITIONAL_PIP_FILE."""
+    requirements: List[str] = []
+    constraints: List[str] = []
+    files = find_special_files(ws, settings, "additional_pip_file", step=STEP)
+    if not files:
+        LOG.info("%s: no %s found, nothing to do", STEP, settings.additional_pip_file)
+    for path in files:
+        read = read_requirement_file(path, step=STEP)
+        nested = [ws.relative(p) for p in read.files[1:]]
+        LOG.info("%s: %d entries in %s%s", STEP, len(read.requirements), path,
+                 f" (with {', '.join(nested)})" if nested else "")
+        requirements += read.requirements
+        constraints += read.constraints
+    plan = {"requirements": unique(requirements)}
+    return {**plan, "constraints": unique(constraints)} if constraints else plan
+
+
+def requirement_files(
+    directory: Path, requirements: Sequence[str], constraints: Sequence[str]
+) -> Path:
+    """requirements.txt in `directory` with the lines (and -c constraints.txt when any)."""
+    lines = list(requirements)
+    if constraints:
+        (directory / "constraints.txt").write_text("\n".join(constraints) + "\n")
+        lines.insert(0, "-c constraints.txt")  # (read relative to requirements.txt)
+    path = directory / "requirements.txt"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def install_requirements(
+    requirements: Sequence[str], constraints: Sequence[str], *, dry_run: bool, what: str
+) -> None:
+    """pip install -r a requirement file holding the collected lines."""
+    if not requirements:
+        LOG.info("%s: no pip requirements to install", STEP)
+        return
+    for line in requirements:
+        LOG.info("%s: requirement %s", STEP, line)
+    for line in constraints:
+        LOG.info("%s: constraint %s", STEP, line)
+    with tempfile.TemporaryDirectory(prefix="docker-ros-pip-") as tmp:
+        path = requirement_files(Path(tmp), requirements, constraints)
+        pip_install(["-r", str(path)], step=STEP, dry_run=dry_run, what=what)
+
+
+def version_tuple(version: Optional[str]) -> Tuple[int, ...]:
+    parts = []
+    for part in (version or "").split("."):
+        match = re.match(r"\d+", part)
+        if not match:
+            break
+        parts.append(int(match.group()))
+    return tuple(parts)
+
+
+def install_flags(probe: Mapping[str, Any], *, root: bool) -> List[str]:
+    """pip install flags for the target interpreter: PEP 668 and where to install."""
+    flags: List[str] = []
+    # An older pip predates PEP 668 and installs without asking.
+    supported = version_tuple(probe.get("pip")) >= BREAK_SYSTEM_PACKAGES_SINCE
+    if probe.get("externally_managed") and supported:
+        flags.append("--break-system-packages")
+    if not root and not probe.get("in_venv"):
+        flags.append("--user")
+    return flags
+
+
+def pip_install_argv(python: str, arguments: Sequence[str], flags: Sequence[str]) -> List[str]:
+    return [python, "-m", "pip", "install", *flags, *arguments]
+
+
+def probe_python(python: str, *, step: str) -> Dict[str, Any]:
+    """Ask the interpreter about PEP 668, virtualenv and its pip (read-only; also in dry runs)."""
+    proc = probe([python, "-c", PROBE], step=step, hint=f"set {PYTHON_ENV} or PATH")
+    try:
+        data = json.loads(proc.stdout.strip().splitlines()[-1])
+    except (ValueError, IndexError):
+        raise StepError(
+            step, f"cannot probe {python} (exit code {proc.returncode}): {proc.stderr.strip()}"
+        ) from None
+    if not data.get("pip"):
+        raise StepError(
+            step, f"{python} has no pip module: install python3-pip (e.g. in ADDITIONAL_DEBS_FILE)"
+        )
+    return dict(data)
+
+
+def pip_install(arguments: Sequence[str], *, step: str, dry_run: bool, what: str = "") -> None:
+    """Install requirements (argv items) with the ROS environment's python3 -m pip."""
+    if not arguments:
+        LOG.info("%s: no pip requirements to install", step)
+        return
+    python = python_command()
+    flags = install_flags(probe_python(python, step=step), root=is_root())
+    argv = pip_install_argv(python, arguments, flags)
+    if dry_run:
+        run(argv, step=step, dry_run=True)
+        return
+    returncode, lines = run_tee(argv, step=step, on_line=lambda line: bool(tls_failure(line)))
+    if returncode != 0:
+        tls = [tls_failure(line) for line in lines if tls_failure(line)]
+        cause = tls[0] if tls else (lines[-1].strip() if lines else "no output")
+        raise StepError(step, f"{what + ' ' if what else ''}failed with exit code {returncode}: "
+                        f"{format_argv(argv)}: {cause}", returncode or 1)
+
+
+def tls_failure(line: str) -> str:
+    """The cause and what to do, when a pip output line says TLS verification failed (pip would
+    retry for minutes; a proxy that re-signs HTTPS does not go away by retrying)."""
+    if "CERTIFICATE_VERIFY_FAILED" not in line:
+        return ""
+    host = re.search(r"host='([^']+)'", line)
+    return ("TLS certificate verification failed (CERTIFICATE_VERIFY_FAILED"
+            + (f", {host.group(1)}" if host else "") + "): if HTTPS goes through a proxy that "
+            "re-signs it, set EXTRA_CA_CERTS to the proxy's CA certificate (PEM file or folder)")
+
+
+def main(
+    ws: Workspace,
+    settings: Settings,
+    *,
+    phase: str = "all",
+    dry_run: bool = False,
+    **options: str,
+) -> None:
+    """collect: read the requirement file(s) into pip.json; apply: pip install them."""
+    do_collect, do_apply = phases(STEP, phase)
+    with step_log(STEP):
+        plan: Dict[str, Any] = {}
+        if do_collect:
+            plan = collect_requirements(ws, settings)
+            ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
+        if do_apply:
+            if not do_collect:
+                plan = ws.load_plan(STEP, STATE_FILE)
+            requirements = list(plan.get("requirements") or [])
+            what = "installing ADDITIONAL_PIP_FILE requirements"
+            # LOCKED: the lines checked against the lock, installed under its versions
+            locked = locked_arguments(ws, settings, step=STEP, kind="pip", inputs=requirements,
+                                      dry_run=dry_run) or []
+            install_requirements(requirements, [*(plan.get("constraints") or []), *locked],
+                                 dry_run=dry_run, what=what)

@@ -1,0 +1,194 @@
+"""Tests of the workspace (`inv test`, ENABLE_INDUSTRIAL_CI): colcon build, colcon test and
+colcon test-result in the image's `test` stage; JUnit XML, logs and exit codes come out.
+
+Standard library only, Python 3.8: `python3 -m docker_ros.in_image.testing DESTINATION` runs
+inside the image. It records the outcome in files instead of failing the RUN, so that the
+results can be exported (`--output type=local`) whatever happened; the host reads them with
+the same code.
+"""
+
+import argparse
+import json
+import logging
+import os
+import shutil
+import sys
+import xml.etree.ElementTree as ElementTree
+from pathlib import Path
+from typing import Dict, Iterator, List, NamedTuple, Optional, Sequence
+
+LOG = logging.getLogger(__name__)
+STEP = "test"
+MARKER = ".docker-ros-test-results"  # a results folder we made (and may replace)
+OUTCOME = "outcome.json"
+JUNIT = "junit"
+TEST_RESULT_LOG = "test-result.txt"
+
+
+class Counts(NamedTuple):
+    passed: int = 0
+    failed: int = 0
+    skipped: int = 0
+
+    def plus(self, other: "Counts") -> "Counts":
+        return Counts(*(a + b for a, b in zip(self, other)))
+
+
+def parse_junit(text: str) -> Optional[Counts]:
+    """Count the test cases of a JUnit/xUnit XML document (failure or error: failed); None
+    when the XML is not a JUnit report (e.g. CTest's own Test.xml, a package.xml)."""
+    try:
+        root = ElementTree.fromstring(text)
+    except ElementTree.ParseError:
+        return None
+    if root.tag not in ("testsuites", "testsuite"):
+        return None
+    passed = failed = skipped = 0
+    for case in root.iter("testcase"):
+        children = {child.tag for child in case}
+        if children & {"failure", "error"}:
+            failed += 1
+        elif "skipped" in children or case.get("status") in ("notrun", "disabled"):
+            skipped += 1
+        else:
+            passed += 1
+    return Counts(passed, failed, skipped)
+
+
+def junit_files(root: Path) -> Iterator[Path]:
+    """The JUnit reports below root (colcon test-result's search, minus the non-reports)."""
+    for dirpath, dirnames, filenames in os.walk(str(root)):
+        dirnames.sort()
+        for name in sorted(filenames):
+            path = Path(dirpath, name)
+            if name.endswith(".xml") and parse_junit(path.read_text(errors="replace")) is not None:
+                yield path
+
+
+def summarize(root: Path) -> Counts:
+    total = Counts()
+    for path in junit_files(root):
+        total = total.plus(parse_junit(path.read_text(errors="replace")) or Counts())
+    return total
+
+
+def format_summary(counts: Counts) -> str:
+    return f"{counts.passed} passed, {counts.failed} failed, {counts.skipped} skipped"
+
+
+def verdict(outcome: Dict[str, int], counts: Counts) -> Optional[str]:
+    """None when everything passed, else what failed (one line)."""
+    if outcome.get("colcon_build", 0) != 0:
+        return f"colcon build failed (exit code {outcome['colcon_build']}): no tests ran"
+    if counts.failed:
+        return f"{counts.failed} test(s) failed"
+    if outcome.get("colcon_test", 0) != 0:
+        return f"colcon test failed (exit code {outcome['colcon_test']})"
+    if outcome.get("colcon_test_result", 0) != 0:
+        return f"colcon test-result reported failures (exit code {outcome['colcon_test_result']})"
+    return None
+
+
+def colcon_test_argv(ignore: Sequence[str]) -> List[str]:
+    argv = ["colcon", "test", "--base-paths", "src", "--event-handlers", "console_cohesion+"]
+    return argv + (["--packages-ignore", *ignore] if ignore else [])
+
+
+TEST_RESULT_ARGV = ["colcon", "test-result", "--test-result-base", "build", "--verbose"]
+# Results of an earlier run in the build/ cache mount would be counted again.
+DELETE_RESULTS_ARGV = ["colcon", "test-result", "--test-result-base", "build", "--delete-yes"]
+
+
+def copy_results(ws_root: Path, destination: Path) -> None:
+    """JUnit reports from build/ (keeping their paths) and the build and test logs."""
+    for path in junit_files(ws_root / "build"):
+        target = destination / JUNIT / path.relative_to(ws_root / "build")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(str(path), str(target))
+    for name in ("latest_build", "latest_test"):
+        log = ws_root / "log" / name
+        if log.exists():
+            shutil.copytree(str(log.resolve()), str(destination / "log" / name[len("latest_"):]))
+
+
+def run_in_image(ws_root: Path, destination: Path, environ: Dict[str, str]) -> Dict[str, int]:
+    """colcon build (as the build stage: same arguments, same build/ cache), colcon test,
+    colcon test-result; returns and records the exit codes, never raises for a failed test."""
+    from docker_ros.in_image.runtime.process import run_tee
+    from docker_ros.in_image.runtime.rosenv import ros_setup_files, sourced_env
+    from docker_ros.in_image.runtime.workspace import StepError, Workspace
+    from docker_ros.in_image.settings import load_settings
+    from docker_ros.in_image.steps import colcon
+    from docker_ros.in_image.steps.blacklist import blacklisted_packages
+
+    ws = Workspace(ws_root)
+    settings = load_settings(environ=environ, project_dir=Path(ws.target))
+    destination.mkdir(parents=True, exist_ok=True)
+    (destination / MARKER).write_text("made by docker-ros test; replaced by the next run\n")
+    outcome = {"colcon_build": 0, "colcon_test": 0, "colcon_test_result": 0}
+    try:
+        colcon.main(ws, settings, stamp_changed="true")
+    except StepError as exc:
+        LOG.error("docker-ros %s: %s", STEP, exc.message)
+        outcome["colcon_build"] = exc.returncode or 1
+    if outcome["colcon_build"] == 0:
+        env = sourced_env(ros_setup_files(settings), step=STEP)
+        run_tee(DELETE_RESULTS_ARGV, step=STEP, cwd=ws.root, env=env)
+        outcome["colcon_test"], _ = run_tee(
+            colcon_test_argv(blacklisted_packages(ws, settings)), step=STEP, cwd=ws.root, env=env
+        )
+        outcome["colcon_test_result"], lines = run_tee(
+            TEST_RESULT_ARGV, step=STEP, cwd=ws.root, env=env
+        )
+        (destination / TEST_RESULT_LOG).write_text("".join(lines))
+    copy_results(ws.root, destination)
+    (destination / OUTCOME).write_text(json.dumps(outcome, sort_keys=True) + "\n")
+    counts = summarize(destination / JUNIT)
+    LOG.info("%s: %s", STEP, format_summary(counts))
+    return outcome
+
+
+def read_outcome(results: Path) -> Dict[str, int]:
+    path = results / OUTCOME
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: the test stage did not record its outcome")
+    data = json.loads(path.read_text())
+    return {str(k): int(v) for k, v in data.items()}
+
+
+def check_results_dir(path: Path) -> Optional[str]:
+    """Why path cannot take the results (None: it can). Only an empty folder or one an earlier
+    run made is replaced: nothing of the user's is ever deleted."""
+    if path.is_file():
+        return f"{path} is a file; give a folder"
+    if path.is_dir() and any(path.iterdir()) and not (path / MARKER).is_file():
+        return f"{path} is not empty and was not made by docker-ros test; give another folder"
+    return None
+
+
+def install_results(exported: Path, results: Path) -> None:
+    """Move the exported results to results (replacing an earlier run's)."""
+    if results.is_dir():
+        shutil.rmtree(str(results))
+    results.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copytree(str(exported), str(results))
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python3 -m docker_ros.in_image.testing",
+        description="colcon build, test and test-result in the workspace; exit codes, JUnit "
+        "XML and logs go to DESTINATION (settings from the environment).",
+    )
+    parser.add_argument("destination", help="folder for the results")
+    parser.add_argument("--workspace", default="/docker-ros/ws", help="colcon workspace")
+    args = parser.parse_args(argv)
+    from docker_ros.in_image.runtime.workspace import setup_logging
+
+    setup_logging()
+    run_in_image(Path(args.workspace), Path(args.destination), dict(os.environ))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
