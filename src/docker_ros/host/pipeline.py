@@ -1,0 +1,357 @@
+"""The host side of the tasks: the build, test, slim and push flows, the host steps, the
+steps in a container and the CI job. Plain functions with explicit parameters; the
+command line (docker_ros.tasks) declares the tasks and calls them."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable, Collection, Dict, Iterator, List, Sequence
+
+from docker_ros.host import build
+from docker_ros.host.build import BuiltImage
+from docker_ros.host.config import input_problems
+from docker_ros.host.lock import lock_status
+from docker_ros.in_image.runtime.workspace import Workspace, format_argv
+from docker_ros.in_image.settings import (
+    FIELDS,
+    Settings,
+    SettingsError,
+    display_value,
+    env_name,
+    host_platform,
+    require,
+    required_for_build,
+)
+from docker_ros.in_image.steps import BY_NAME, STEPS
+
+DEV_STEPS = tuple(s for s in STEPS if BY_NAME[s].stage in ("source", "dependencies-dev"))
+
+
+class TaskError(Exception):
+    """An expected failure outside the steps (bad repository layout, failed build...)."""
+
+
+def link_repository(ws: Workspace, repository: Path) -> None:
+    """src/target -> the repository (linked, never copied, moved or modified)."""
+    if ws.target.is_symlink() or ws.target.exists():
+        if ws.target.resolve() != repository:
+            raise TaskError(
+                f"workspace {ws.root}: src/target points to {ws.target.resolve()}, not to "
+                f"{repository}; set WORKSPACE to another folder"
+            )
+        return
+    ws.src.mkdir(parents=True, exist_ok=True)
+    ws.target.symlink_to(repository, target_is_directory=True)
+
+
+@contextlib.contextmanager
+def host_workspace(settings: Settings, *, dry_run: bool) -> Iterator[Workspace]:
+    """The host workspace. A dry run before the first real run uses a throw-away workspace,
+    so that it can show what would happen without creating WORKSPACE."""
+    assert settings.workspace
+    ws = Workspace(Path(settings.workspace).expanduser())
+    repository = Path(settings.build_context).resolve()
+    if dry_run and not ws.target.is_symlink():
+        with tempfile.TemporaryDirectory(prefix="docker-ros-dry-run-") as tmp:
+            print(f"[dry-run] would create {ws.root} with src/target -> {repository}"
+                  f" (showing the steps in a temporary workspace: {tmp})")
+            temporary = Workspace(tmp)
+            link_repository(temporary, repository)
+            yield temporary
+        return
+    link_repository(ws, repository)
+    yield ws
+
+
+def host_options(step: str, ws: Workspace) -> Dict[str, str]:
+    return {"destination": str(ws.root / "additional-files")} if step == "files" else {}
+
+
+def check_inputs(settings: Settings, targets: Sequence[str] = ()) -> None:
+    """Bad paths and image names, all at once, before anything runs."""
+    problems = input_problems(settings, targets, images=bool(targets))
+    if problems:
+        raise SettingsError("invalid configuration:\n  " + "\n  ".join(problems.values()))
+
+
+def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -> None:
+    from docker_ros.in_image.steps import run_step
+
+    check_inputs(settings)
+    with host_workspace(settings, dry_run=dry_run) as ws:
+        for step in steps:
+            run_step(step, ws, settings, phase="all", dry_run=dry_run, **host_options(step, ws))
+
+
+def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
+                     shell_on_failure: bool) -> str:
+    """Build the plan's start stage, run its commands in one container, tag the result."""
+    from docker_ros.host import container
+
+    runs_command = plan.start == "run" or ("command",) in plan.commands
+    require(settings, ["base_image"] + (["command"] if runs_command else []))
+    check_inputs(settings, ("run",) if runs_command else ("dev",))
+    mount = f" -v {Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
+    mount = mount if plan.sources else ""
+    if dry_run:
+        argv = build.plan_shown(settings, target=plan.start, platform=settings.platform[0],
+                                tag=container.tag_of(settings, "stage", plan.start))
+        print("[dry-run] build:", format_argv(argv))
+        print(f"[dry-run] in one container of it{f' ({mount.strip()})' if mount else ''}:")
+        for command in plan.commands:
+            print("[dry-run]   " + container.shown(command))
+        print(f"[dry-run] commit and tag {plan.tag}")
+        return plan.tag
+    try:
+        build.check_engine(settings)
+        tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
+    print(f"tagged {tag}\n  enter it: docker run --rm -it{mount} {tag} bash")
+    return tag
+
+
+def composite_flow(settings: Settings, name: str, *, host: bool, dry_run: bool, in_container: bool,
+               shell_on_failure: bool) -> None:
+    if host and in_container:
+        raise TaskError("--host and --in-container: choose one")
+    if name == "run" and (host or in_container) and not settings.command:
+        raise SettingsError("missing required configuration: COMMAND")
+    if in_container:
+        from docker_ros.host import container
+
+        run_in_container(settings, container.plan_composite(settings, name), dry_run=dry_run,
+                         shell_on_failure=shell_on_failure)
+    elif host:
+        if shell_on_failure:
+            raise TaskError("--shell-on-failure needs --in-container or an image build")
+        run_host_steps(settings, DEV_STEPS if name == "dev" else STEPS, dry_run=dry_run)
+    else:
+        build_targets(settings, (name,), dry_run=dry_run, shell_on_failure=shell_on_failure)
+
+
+def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
+           shell_on_failure: bool = False, slim: bool = False) -> List[BuiltImage]:
+    """Build the targets for every platform (and with slim, the slim image after run); print
+    the summary table."""
+    settings = dataclasses.replace(settings, target=tuple(targets))
+    require(settings, required_for_build(settings))
+    check_inputs(settings, targets)
+    if slim and "run" in targets:
+        check_slim_options(settings)
+    assert settings.base_image
+    if not dry_run:
+        try:
+            build.check_engine(settings)
+        except build.BuildError as exc:
+            raise TaskError(str(exc)) from None
+    if not dry_run:
+        try:  # every platform's base before the first build (build_images says which)
+            for platform in settings.platform:
+                build.platform_base(settings, platform)
+        except build.BuildError as exc:
+            raise TaskError(str(exc)) from None
+    built: List[BuiltImage] = []
+    for platform in settings.platform:
+        # BUILD_STATE_FROM: the run image's build state too, for the next job's `push`
+        kinds = ("dev", "run") + (("build-state",) if settings.build_state_from else ())
+        tags = {t: build.target_ref(settings, t, platform)
+                for t in kinds if t in targets or (t == "build-state" and "run" in targets)}
+        if dry_run and build.can_bake(settings):
+            specs = {t: build.shown_definition(settings, target=t, platform=platform, tag=tag)
+                     for t, tag in tags.items()}
+            print("[dry-run] build:",
+                  format_argv(build.plan_bake(specs, "<temporary>/docker-ros.bake.json")))
+            print(f"[dry-run] with <temporary>/docker-ros.bake.json:\n{build.bake_file(specs)}",
+                  end="")
+        elif dry_run:
+            for target, tag in tags.items():
+                argv = build.plan_shown(settings, target=target, platform=platform, tag=tag)
+                print("[dry-run] build:", format_argv(argv))
+        else:
+            try:
+                built += build.build_images(settings, targets=tags, platform=platform)
+            except build.BuildError as exc:
+                if shell_on_failure:
+                    reproduce_failure(settings, exc)
+                raise TaskError(str(exc)) from None
+        if slim and "run" in targets and slimmed_here(settings, platform):
+            slimmed = slim_one(settings, platform, dry_run=dry_run)
+            built += [] if dry_run else [slimmed]
+    if built:
+        print(build.summary_table(built))
+        print(lock_status(settings))
+    return built
+
+
+def check_slim_options(settings: Settings) -> None:
+    """SLIM_BUILD_ARGS and ADDITIONAL_SLIM_BUILD_ARGS checked before anything is built."""
+    from docker_ros.host import slim
+
+    try:
+        slim.parse_slim_args(slim.slim_args(settings))
+    except slim.SlimError as exc:
+        raise TaskError(str(exc)) from None
+
+
+def slimmed_here(settings: Settings, platform: str) -> bool:
+    """Whether platform's run image is slimmed here (build.slim_platforms); says when not."""
+    if platform in build.slim_platforms(settings.platform, host_platform()):
+        return True
+    print(f"slim: {platform}: not slimmed on this {host_platform()} runner (slimming runs the "
+          f"image; as docker-ros, a multi-arch job slims the runner's architecture only)",
+          flush=True)
+    return False
+
+
+def slim_one(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
+    from docker_ros.host import slim
+
+    try:
+        result = slim.slim_image(settings, platform, dry_run=dry_run)
+    except slim.SlimError as exc:
+        raise TaskError(str(exc)) from None
+    return BuiltImage("slim", result.ref, platform, result.seconds)
+
+
+def default_results_dir(settings: Settings) -> Path:
+    """Outside the repository (never written into the user's sources unasked)."""
+    assert settings.workspace
+    return Path(settings.workspace).expanduser() / "test-results"
+
+
+def test_targets(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
+    """Build the test stage per platform, export its results; fail when a test failed."""
+    from docker_ros.in_image import testing
+
+    require(settings, required_for_build(settings))
+    root = Path(results_dir).resolve() if results_dir else default_results_dir(settings)
+    failures = []
+    for platform in settings.platform:
+        dest = root if len(settings.platform) == 1 else root / platform
+        problem = testing.check_results_dir(dest)
+        if problem:
+            raise TaskError(f"--results-dir: {problem}")
+        tag = build.platform_ref(build.image_ref(settings, "dev") + "-test", platform,
+                                 settings.platform)
+        run = {"DOCKER_ROS_TEST_RUN": str(time.time_ns())}
+        with tempfile.TemporaryDirectory(prefix="docker-ros-test-") as tmp:
+            output = f"type=local,dest={tmp}"
+            if dry_run:
+                argv = build.plan_shown(settings, target="test-results", platform=platform,
+                                        tag=tag, output=output, extra_build_args=run)
+                print("[dry-run] test:", format_argv(argv))
+                print(f"[dry-run] test: would copy the results to {dest}")
+                continue
+            try:
+                build.check_engine(settings)
+                build.build_image(settings, target="test-results", platform=platform, tag=tag,
+                                  output=output, extra_build_args=run)
+                outcome = testing.read_outcome(Path(tmp))
+            except (build.BuildError, FileNotFoundError) as exc:
+                raise TaskError(str(exc)) from None
+            counts = testing.summarize(Path(tmp) / testing.JUNIT)
+            testing.install_results(Path(tmp), dest)
+        print(f"docker-ros test ({platform}): {testing.format_summary(counts)} "
+              f"(JUnit XML and logs in {dest})")
+        failed = testing.verdict(outcome, counts)
+        if failed:
+            failures.append(f"{failed} ({platform})")
+    if failures:
+        raise TaskError("; ".join(failures) + "; see the output above")
+
+
+def reproduce_failure(settings: Settings, error: build.BuildError) -> None:
+    """--shell-on-failure of an image build: the failed step again, in a container of the state
+    before it, with the shell where it fails."""
+    from docker_ros.host import container
+
+    if error.stage not in container.STAGES:
+        print(f"docker-ros build: --shell-on-failure: the failure is not in one of the ten "
+              f"steps (stage {error.stage or 'unknown'}); no shell to open")
+        return
+    try:
+        container.reproduce(settings, error, out=sys.stdout)
+    except build.BuildError as exc:
+        print(f"docker-ros build: --shell-on-failure: {exc}")
+
+
+def build_until(settings: Settings, step: str, *, dry_run: bool,
+                 shell_on_failure: bool) -> None:
+    from docker_ros.host import container
+
+    if step not in STEPS:
+        raise TaskError(f"--until {step!r}: use one of {', '.join(STEPS)}")
+    plan = container.plan_until(settings, step)
+    tag = run_in_container(settings, plan, dry_run=dry_run, shell_on_failure=shell_on_failure)
+    following = container.next_command(step)
+    if following and not dry_run:
+        print(f"  next step: docker run --rm {tag} {container.shown(following)}")
+
+
+def push_and_report(
+    settings: Settings, targets: Sequence[str], action: Callable[..., List[str]], *, dry_run: bool
+) -> None:
+    """Run push or manifest; print the pushed names and hand them to the CI as outputs."""
+    from docker_ros.host.push import plan_outputs, write_outputs
+
+    try:
+        pushed = action(settings, targets, dry_run=dry_run)
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
+    for name in pushed:
+        print(f"pushed {name}")
+    if pushed:
+        write_outputs(plan_outputs(settings, targets, pushed), os.environ)
+
+
+@contextlib.contextmanager
+def logged_in_job(settings: Settings, label: str, *, dry_run: bool) -> Iterator[None]:
+    """REGISTRY_USER/REGISTRY_PASSWORD logged in before anything else of the job (a private
+    BASE_IMAGE or CACHE_FROM), into a DOCKER_CONFIG of the job's own, removed at its end."""
+    from docker_ros.host.login import LoginError, job_login, plan_login
+
+    argv = plan_login(settings)
+    if dry_run:
+        if argv:
+            print(f"[dry-run] {label}: {format_argv(argv)} (password on standard input, "
+                  "job-private DOCKER_CONFIG)")
+        yield
+        return
+    try:
+        with job_login(settings, os.environ, label=label):
+            yield
+    except LoginError as exc:
+        raise TaskError(str(exc)) from None
+
+
+def require_tasks(plan: Sequence[Sequence[str]], task_names: Collection[str]) -> None:
+    """The tasks a CI plan runs exist here (task_names: the invoke collection's)."""
+    from docker_ros.in_image.ci import missing_tasks
+
+    problems = missing_tasks(plan, task_names)
+    if problems:
+        raise TaskError("; ".join(problems))
+
+
+def run_ci_plan(settings: Settings, plan: Sequence[Sequence[str]], *, dry_run: bool) -> None:
+    """A CI job's tasks, each a `docker-ros` process, in order; the first failure stops it. The
+    tasks re-read .env, invoke.yaml and the environment; flags given to `ci` go along."""
+    given = [arg for n in FIELDS if settings.source_of(n) == "flag"
+             for arg in ("--set", f"{env_name(n)}={display_value(settings, n)}")]
+    for argv in plan:
+        command = [sys.executable, "-m", "docker_ros", *argv, *given]
+        print(f"docker-ros ci: docker-ros {format_argv([*argv, *given])}", flush=True)
+        if dry_run:
+            continue
+        code = subprocess.call(command)
+        if code != 0:
+            raise TaskError(f"`docker-ros {argv[0]}` failed with exit code {code}; "
+                            "nothing after it ran")
