@@ -1,7 +1,8 @@
 """Invoke tasks: one per pipeline step, the composites, and the image commands.
 
-Tasks are thin: they read the settings (every setting is also a flag of every task) and call
-the step modules or the image build. Errors users can fix end as one line and a non-zero exit.
+Tasks are thin: they read the settings (every setting is also a flag of every task) and hand
+over to docker_ros.host.pipeline (the build, test, slim, push and CI flows) or the step modules.
+Errors users can fix end as one line and a non-zero exit.
 """
 
 from __future__ import annotations
@@ -36,9 +37,9 @@ from docker_ros.host.pipeline import (
     run_ci_plan,
     run_host_steps,
     run_in_container,
+    run_test_stage,
     slim_one,
     slimmed_here,
-    test_targets,
 )
 from docker_ros.in_image.runtime.lock import LockError
 from docker_ros.in_image.runtime.workspace import StepError, format_argv, setup_logging
@@ -315,7 +316,7 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failur
     build_targets(settings, settings.target, dry_run=dry_run, shell_on_failure=shell_on_failure,
            slim=settings.enable_slim)
     if settings.enable_industrial_ci:
-        test_targets(settings, results_dir="", dry_run=dry_run)
+        run_test_stage(settings, results_dir="", dry_run=dry_run)
 
 
 @settings_task(
@@ -352,7 +353,7 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     uses=IMAGE_SETTINGS + ("workspace",),
 )
 def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str) -> None:
-    test_targets(settings, results_dir=results_dir, dry_run=dry_run)
+    run_test_stage(settings, results_dir=results_dir, dry_run=dry_run)
 
 
 @settings_task(

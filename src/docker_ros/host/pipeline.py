@@ -227,7 +227,7 @@ def default_results_dir(settings: Settings) -> Path:
     return Path(settings.workspace).expanduser() / "test-results"
 
 
-def test_targets(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
+def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
     """Build the test stage per platform, export its results; fail when a test failed."""
     from docker_ros.in_image import testing
 
