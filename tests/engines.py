@@ -31,9 +31,22 @@ def answers(host: str) -> bool:
                           timeout=60).returncode == 0
 
 
+def image_content(host: Optional[str], ref: str) -> str:
+    """What makes ref the image it is on the engine at host (None: the shared engine): its
+    creation time and layers, the same on either image store ("" when there is no such image).
+    The image id is no measure: the containerd store's is a manifest digest."""
+    shown = subprocess.run(["docker", "image", "inspect", "--format",
+                            "{{.Created}} {{.RootFS.Layers}}", ref],
+                           env=env_for(host) if host else None, capture_output=True, text=True)
+    return shown.stdout.strip() if shown.returncode == 0 else ""
+
+
 def has_image(host: str, ref: str) -> bool:
-    return subprocess.run(["docker", "image", "inspect", ref], env=env_for(host),
-                          capture_output=True).returncode == 0
+    """Whether the engine at host holds the shared engine's image ref, not merely an image of
+    that name: a base image bootstrapped again (its recipe changed) must be copied again, or
+    the engine's builds start from the old one (measured: a stale copy on Engine 26 made every
+    registry cache lookup of another engine's job miss)."""
+    return image_content(host, ref) == image_content(None, ref) != ""
 
 
 def copy_image(ref: str, host: str) -> None:

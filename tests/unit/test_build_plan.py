@@ -1,7 +1,9 @@
 """Pure planning of image builds: argv, tags, build args, secrets, log folding."""
 
 import io
+import os
 import re
+import tarfile
 from pathlib import Path
 
 import pytest
@@ -303,3 +305,33 @@ def test_a_base_is_in_a_registry_only_under_a_name_it_was_pulled_or_pushed_as():
     assert build.from_registry("127.0.0.1:5000/other:tag", digests)
     assert not build.from_registry("docker-ros/ros1:bookworm", digests)
     assert not build.from_registry("127.0.0.1:5000/ros:noetic", digests)
+
+
+def layer_bytes(folder: Path) -> bytes:
+    """folder as an image layer holds it: a tar with each entry's time and mode."""
+    data = io.BytesIO()
+    with tarfile.open(fileobj=data, mode="w") as tar:
+        tar.add(str(folder), arcname="docker-ros")
+    return data.getvalue()
+
+
+def test_the_tools_tree_makes_the_same_layer_whenever_and_however_it_was_installed(tmp_path):
+    """Two CI runners install docker-ros at other times (pip gives files the install's time)
+    and perhaps with another umask: the tools image's layer must not differ, or no step that
+    mounts it comes from a registry cache on an empty runner."""
+    trees = []
+    for name, umask in (("one", 0o022), ("two", 0o002)):
+        old = os.umask(umask)
+        try:
+            build.tools_tree(tmp_path / name)
+        finally:
+            os.umask(old)
+        folder = tmp_path / name / "docker-ros"
+        os.utime(next(folder.rglob("*.py")), (len(trees) * 1000, len(trees) * 1000))
+        trees.append(folder)
+    assert layer_bytes(trees[0]) != layer_bytes(trees[1])  # the copies differ as installed
+    for folder in trees:
+        build.reproducible(folder)
+    assert layer_bytes(trees[0]) == layer_bytes(trees[1])
+    scripts = list(trees[0].rglob("*.sh"))
+    assert scripts and all(p.stat().st_mode & 0o777 == 0o755 for p in scripts)

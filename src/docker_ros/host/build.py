@@ -575,6 +575,24 @@ def ensure_tools_image(platform: str, buildx: Sequence[str] = BUILDX) -> str:
                              platform, buildx=buildx)
 
 
+# The time every file of a scratch image has (SOURCE_DATE_EPOCH's usual value)
+SCRATCH_MTIME = 0
+
+
+def reproducible(folder: Path) -> None:
+    """Give every file and folder under folder (itself too) the same time, and modes as git
+    keeps them (755 for folders and executables, else 644), so that the same content makes
+    the same image layer on any machine. A pip install or a temporary copy gives files the
+    time they were written, so each CI runner made a tools image of other layers (measured:
+    two installs of one wheel, two layer digests), and BuildKit's key for a FROM of it (the
+    layers' chain) could then match no registry cache record of another runner's build."""
+    for path in sorted(folder.rglob("*"), reverse=True) + [folder]:
+        if not path.is_symlink():
+            executable = path.is_dir() or path.stat().st_mode & 0o100
+            path.chmod(0o755 if executable else 0o644)
+        os.utime(path, (SCRATCH_MTIME, SCRATCH_MTIME), follow_symlinks=False)
+
+
 def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str = "",
                   buildx: Sequence[str] = BUILDX) -> str:
     """ref: FROM scratch with context/folder at /folder (or its contents at into), built
@@ -582,6 +600,7 @@ def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str
     if image_exists(ref):
         return ref
     (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} {into or '/' + folder}\n")
+    reproducible(context / folder)
     argv = [*buildx, "build", "--quiet", "--load", "--platform", f"linux/{platform}",
             "--tag", ref, str(context)]
     proc = subprocess.run(argv, capture_output=True, text=True)
