@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 import docker_ros
-from docker_ros.host import builder, engine
+from docker_ros.host import builder, buildstate, engine
 from docker_ros.host.baseimage import arch_ref
 from docker_ros.host.engine import image_exists, image_size
 from docker_ros.host.lock import lock_labels, locked_build_args, tag_local_base
@@ -176,19 +176,42 @@ def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:
     return choose_base(base, platform, local)
 
 
-def build_state_seed(settings: Settings, platform: str, out: IO[str]) -> Dict[str, str]:
-    """The build argument that seeds an empty build cache with the first pullable
-    BUILD_STATE_FROM image of this platform; none when none can be pulled (colcon then builds
-    everything and says why)."""
-    for candidate in settings.build_state_from:
-        ref = f"{candidate}-{platform}"
-        start = time.monotonic()
-        if engine.pull(ref):
-            print(f"build state: {ref} pulled in {time.monotonic() - start:.1f} s"
-                  f" ({image_size(ref) / 1e6:.0f} MB)", file=out)
-            return {"DOCKER_ROS_BUILD_STATE": ref}
-        print(f"build state: {ref} could not be pulled (none pushed yet?)", file=out)
-    return {}
+def seed_builds(settings: Settings, specs: Dict[str, Dict[str, Any]], platform: str,
+                dockerfile: Path, base: str, registry_cache: bool, out: IO[str]) -> str:
+    """Seed the builds of specs from BUILD_STATE_FROM (see buildstate): the run image's by the
+    inputs' fingerprint (a build-state target records it and the seed as labels), the test
+    stage's by the pulled state. Returns the pulled state that stands as this build's build
+    state ("" none)."""
+    if not settings.build_state_from:
+        return ""
+    if "run" in specs:
+        base_id = (engine.inspect_image(base) or {}).get("Id", "")
+        parts = {**specs["run"]["args"], "platform": platform, "base": base_id,
+                 "dockerfile": hashlib.sha256(dockerfile.read_bytes()).hexdigest()}
+        fingerprint = buildstate.inputs_fingerprint(Path(settings.build_context), parts,
+                                                    left_out)
+        seed = buildstate.run_seed(settings, platform, fingerprint, registry_cache, out)
+        if "build-state" in specs:
+            specs["build-state"]["labels"] = {**specs["build-state"].get("labels", {}),
+                                              buildstate.SEED_LABEL: seed.recorded,
+                                              buildstate.INPUTS_LABEL: fingerprint}
+    elif "test-results" in specs:
+        seed = buildstate.test_seed(settings, platform, out)
+    else:
+        return ""
+    for spec in specs.values():
+        spec["args"].update(seed.build_args())
+    return seed.reuse
+
+
+def build_order(targets: Sequence[str], registry_cache: bool) -> List[str]:
+    """The order of targets built one after the other: as given (dev first), but with a
+    registry cache of every stage the run image and its build state first. Built after dev,
+    the run build found the dev stage in the engine's own cache, and BuildKit then missed the
+    colcon RUN's record in the imported registry cache (measured on an empty Engine 26: dev
+    first, the colcon RUN ran; run first, every step of run, then of dev, came from the cache)."""
+    first = [t for t in ("run", "build-state") if t in targets and registry_cache]
+    return first + [t for t in targets if t not in first]
 
 
 def build_args(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
@@ -774,7 +797,6 @@ def build_images(
             bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
-        seed = build_state_seed(settings, platform, out) if "run" in targets else {}
         base, why = platform_base(settings, platform)
         if why:
             print(why, file=out)
@@ -782,17 +804,27 @@ def build_images(
                                     tools_image=tools, tag=tag,
                                     secrets=plan_secrets(settings, bundle), push=push,
                                     dockerfile=dockerfile, output=output,
-                                    extra_build_args={**extra_build_args, **seed},
+                                    extra_build_args=extra_build_args,
                                     imports_image=imports, base_image=base,
                                     cache_export=export)
                  for target, tag in targets.items()}
+        built: List[BuiltImage] = []
+        reused = seed_builds(settings, specs, platform, dockerfile, base,
+                             export == "registry", out)
+        if reused and "build-state" in specs:
+            try:
+                engine.tag(reused, targets["build-state"])
+            except engine.EngineError as exc:
+                raise BuildError(str(exc)) from None
+            del specs["build-state"]
+            built.append(BuiltImage("build-state", targets["build-state"], platform, 0.0))
         if bake and can_bake(settings):
             definition_file = Path(tmp) / "docker-ros.bake.json"
             definition_file.write_text(bake_file(specs))
-            runs = [(tuple(targets), plan_bake(specs, str(definition_file), buildx))]
+            runs = [(tuple(specs), plan_bake(specs, str(definition_file), buildx))]
         else:
-            runs = [((t,), build_argv(spec, buildx)) for t, spec in specs.items()]
-        built = []
+            runs = [((t,), build_argv(specs[t], buildx))
+                    for t in build_order(list(specs), export == "registry")]
         for names, argv in runs:
             seconds = run_buildx(argv, names, platform, env=child_env, out=out, environ=environ,
                                  header=", ".join(f"{t} -> {targets[t]}" for t in names))
