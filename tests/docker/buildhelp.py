@@ -113,7 +113,10 @@ def run_until(ref: str, needle: str, seconds: float, *docker_args: str) -> str:
 
 def cached_vertices(log: str) -> Dict[str, bool]:
     """BuildKit plain log -> {vertex name: came from cache?}, e.g. '[run 2/3] RUN ...'
-    (the bake target before the stage dropped: `[dev base 2/4]` is `[base 2/4]`)."""
+    (the bake target before the stage dropped: `[dev base 2/4]` is `[base 2/4]`). CANCELED
+    counts as from the cache: in a build that succeeds, BuildKit cancels a step's loading from
+    the cache when a later step's result is found first (measured on Engine 26: the engine's
+    debug log shows the step's `load cache`, and no process was created in the whole build)."""
     names: Dict[str, str] = {}
     cached: Dict[str, bool] = {}
     for line in log.splitlines():
@@ -123,7 +126,7 @@ def cached_vertices(log: str) -> Dict[str, bool]:
             names[match.group(1)] = name
             cached.setdefault(name, False)
             continue
-        match = re.match(r"#(\d+) CACHED", line)
+        match = re.match(r"#(\d+) (CACHED|CANCELED)", line)
         if match and match.group(1) in names:
             cached[names[match.group(1)]] = True
     return cached

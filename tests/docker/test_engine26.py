@@ -1,7 +1,8 @@
 """The modern engine generation (issue 21): Engine 26 on the containerd image store, the daemon
 scripts/setup.sh starts beside the shared Engine 20.10. Its GitLab CI pipeline builds, tests,
 slims and pushes the example with a registry cache of every stage (CACHE_TO, mode=max); the same
-pipeline on an empty Engine 26 takes every stage of dev and run from that cache; Engine 26
+pipeline on an empty Engine 26 takes every stage of dev and run from that cache, and after a
+one-file edit compiles that file only, then caches every stage again; Engine 26
 reached through a docker context (BUILDER) is a build server whose images land in a registry
 and run on the shared engine."""
 
@@ -18,11 +19,18 @@ from typing import Dict, Iterator
 import pytest
 
 from docker_ros.host import engine
-from tests.ci.cihelp import REPO, assert_pulled_image_runs, example_repository, git, registry_tags
+from tests.ci.cihelp import (
+    REPO,
+    assert_pulled_image_runs,
+    example_repository,
+    git,
+    registry_get,
+    registry_tags,
+)
 from tests.ci.test_gitlab_template import gitlab_ci_local
 from tests.docker.buildhelp import docker_ros, not_from_cache, write_env
 from tests.docker.test_fast_rebuilds import compiled_objects
-from tests.engines import ENGINE26_HOST
+from tests.engines import ENGINE26_HOST, private_engine
 
 pytestmark = pytest.mark.docker
 
@@ -62,7 +70,7 @@ def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
                       ENABLE_INDUSTRIAL_CI="true", GIT_HTTPS_PASSWORD=secret)
     yield {"repo": repo, "registry": local_registry, "result": result,
            "build": build_log(repo), "secret": secret, "host": engine26,
-           "wheel": docker_ros_wheel}
+           "wheel": docker_ros_wheel, "base": ros1_base_image}
     env = {**os.environ, "DOCKER_HOST": engine26}
     listed = subprocess.run(["docker", "images", "--format", "{{.Repository}}:{{.Tag}}"],
                             env=env, capture_output=True, text=True)
@@ -113,25 +121,77 @@ def sections(log: str) -> Dict[str, str]:
     return dict(zip(parts[1::2], parts[2::2]))
 
 
+STATE_TAG = "latest-build-state-amd64"
+MANIFESTS = ", ".join(["application/vnd.oci.image.index.v1+json",
+                       "application/vnd.oci.image.manifest.v1+json",
+                       "application/vnd.docker.distribution.manifest.v2+json"])
+
+
+def pushed_state(registry: str) -> object:
+    """The build state's manifest as the registry holds it now."""
+    return registry_get(registry, f"{IMAGE}/manifests/{STATE_TAG}", accept=MANIFESTS)
+
+
+def assert_every_step_cached(log: str) -> None:
+    """Every stage step of dev and run from the registry cache, the colcon step never started,
+    and the pulled build state kept as this job's (not built again)."""
+    assert REGISTRY_CACHE in log
+    assert "build state: built from these same inputs: seeding as that build was" in log
+    built = sections(log)
+    assert {"dev", "run"} <= set(built) and "build-state" not in built, log[-3000:]
+    assert not_from_cache(built["dev"]) == [], built["dev"][-3000:]
+    assert not_from_cache(built["run"]) == [], built["run"][-3000:]
+    assert "Starting >>> colcon" not in built["run"]
+
+
 def test_empty_engine26_takes_every_stage_from_the_registry_cache(
     first_pipeline: dict, empty_engine26: str
 ) -> None:
     """Nothing changed, a fresh runner: every stage of dev and run comes from the registry
-    cache but the colcon RUN, whose input, the build state now pulled, is new (the first job
-    had none): it compiles nothing."""
+    cache, the colcon RUN too. The pulled build state was built from these same inputs: the
+    build is seeded as that build was (empty), so the RUN's cache key is the first job's, and
+    the state pushed again is the same image."""
     assert first_pipeline["result"].returncode == 0
-    repo: Path = first_pipeline["repo"]  # type: ignore[assignment]
-    result = pipeline(repo, first_pipeline["registry"], empty_engine26,  # type: ignore[arg-type]
-                      first_pipeline["wheel"], ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
+    repo: Path = first_pipeline["repo"]
+    registry: str = first_pipeline["registry"]
+    before = pushed_state(registry)
+    result = pipeline(repo, registry, empty_engine26, first_pipeline["wheel"],
+                      ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
     assert result.returncode == 0, result.stdout[-6000:]
     log = build_log(repo)
-    assert REGISTRY_CACHE in log
-    built = sections(log)
-    assert {"dev", "run"} <= set(built), log[-3000:]
-    assert not_from_cache(built["dev"]) == [], built["dev"][-3000:]
-    ran = not_from_cache(built["run"])
-    assert len(ran) <= 1 and all(name.startswith("[build 1/1] RUN") for name in ran), ran
-    assert "colcon: no package changed" in built["run"] and not compiled_objects(built["run"])
+    assert "seeding as that build was (empty)" in log
+    assert_every_step_cached(log)
+    assert pushed_state(registry) == before
+
+
+def test_after_a_one_file_edit_engine26_compiles_it_then_caches_every_stage(
+    first_pipeline: dict, empty_engine26: str
+) -> None:
+    """One .cpp edited, a fresh runner: the job builds over the pulled state and compiles that
+    file only. The next job with nothing changed, on another fresh runner, is seeded as the
+    edit's job was (the state before it, by digest) and takes every stage from the cache."""
+    assert first_pipeline["result"].returncode == 0
+    repo: Path = first_pipeline["repo"]
+    registry: str = first_pipeline["registry"]
+    source = repo / "docker_ros_example" / "src" / "talker.cpp"
+    source.write_text(source.read_text() + "// edited by the Engine 26 test\n")
+    git(repo, "commit", "-qam", "edit talker.cpp")
+    result = pipeline(repo, registry, empty_engine26, first_pipeline["wheel"],
+                      ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
+    assert result.returncode == 0, result.stdout[-6000:]
+    log = build_log(repo)
+    assert "build state: its inputs differ from this build's: building over it" in log
+    run = sections(log)["run"]
+    assert "starting from the pulled build state" in run
+    assert "colcon: 1 of " in run and "docker_ros_example changed" in run
+    assert [len(o) for o in compiled_objects(run).values()] == [1], compiled_objects(run)
+    with private_engine([first_pipeline["base"]], modern=True) as host:
+        again = pipeline(repo, registry, host, first_pipeline["wheel"],
+                         ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
+    assert again.returncode == 0, again.stdout[-6000:]
+    log = build_log(repo)
+    assert f"seeding as that build was ({registry}/{IMAGE}@sha256:" in log
+    assert_every_step_cached(log)
 
 
 @pytest.fixture
