@@ -196,7 +196,7 @@ def seed_builds(settings: Settings, specs: Dict[str, Dict[str, Any]], platform: 
                                               buildstate.SEED_LABEL: seed.recorded,
                                               buildstate.INPUTS_LABEL: fingerprint}
     elif "test-results" in specs:
-        seed = buildstate.test_seed(settings, platform, out)
+        seed = buildstate.seed_for_test(settings, platform, out)
     else:
         return ""
     for spec in specs.values():

@@ -166,7 +166,7 @@ def run_seed(settings: Settings, platform: str, fingerprint: str, registry_cache
     return seed
 
 
-def test_seed(settings: Settings, platform: str, out: IO[str]) -> Seed:
+def seed_for_test(settings: Settings, platform: str, out: IO[str]) -> Seed:
     """The seed of the test stage's build: the pulled state itself (the test RUN runs every
     time; over a state of the same sources its colcon build compiles nothing)."""
     pulled = pull_state(settings, platform, out)
