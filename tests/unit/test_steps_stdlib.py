@@ -131,3 +131,36 @@ def test_runs_on_python_38(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "apt-get install -y --no-install-recommends jq" in proc.stdout
     assert not (ws / ".docker-ros").exists()
+
+
+# Every module under in_image/ that runs as a program, found by its `__main__` guard (a
+# package's __main__.py runs as the package). slimtrace is the one exception: it runs as a lone
+# file in the run image, where no docker_ros package is (see its docstring).
+ENTRY_POINTS = sorted(
+    ".".join(path.relative_to(SRC).with_suffix("").parts).removesuffix(".__main__")
+    for path in CHECKED
+    if (path.name == "__main__.py" or 'if __name__ == "__main__":' in path.read_text())
+    and path.name != "slimtrace.py"
+)
+
+
+def test_the_in_image_entry_points_are_found():
+    assert {"docker_ros.in_image.steps", "docker_ros.in_image.testing",
+            "docker_ros.in_image.runtime.lock"} <= set(ENTRY_POINTS)
+
+
+@pytest.mark.parametrize("module", ENTRY_POINTS)
+def test_every_in_image_entry_point_parses_its_arguments_with_one_parser(module, tmp_path):
+    """Each answers --help with the shared parser's usage (its name, --workspace, -v) and a
+    wrong call with exit code 2 and that usage, standard library only."""
+    code = f"import sys, runpy; sys.path.insert(0, {str(SRC)!r}); " \
+           f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"
+    shown = subprocess.run([sys.executable, "-I", "-S", "-c", code, "--help"],
+                           capture_output=True, text=True, cwd=tmp_path)
+    assert shown.returncode == 0, shown.stderr
+    usage = shown.stdout.split("\n\n")[0]
+    assert usage.startswith(f"usage: python3 -m {module}"), usage
+    assert "--workspace WORKSPACE" in usage and "[-v]" in usage, usage
+    wrong = subprocess.run([sys.executable, "-I", "-S", "-c", code, "--no-such-option"],
+                           capture_output=True, text=True, cwd=tmp_path)
+    assert wrong.returncode == 2 and f"usage: python3 -m {module}" in wrong.stderr

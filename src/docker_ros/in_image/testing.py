@@ -7,7 +7,6 @@ results can be exported (`--output type=local`) whatever happened; the host read
 the same code.
 """
 
-import argparse
 import json
 import logging
 import os
@@ -175,19 +174,14 @@ def install_results(exported: Path, results: Path) -> None:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python3 -m docker_ros.in_image.testing",
-        description="colcon build, test and test-result in the workspace; exit codes, JUnit "
-        "XML and logs go to DESTINATION (settings from the environment).",
-    )
-    parser.add_argument("destination", help="folder for the results")
-    parser.add_argument("--workspace", default="/docker-ros/ws", help="colcon workspace")
-    args = parser.parse_args(argv)
-    from docker_ros.in_image.runtime.workspace import setup_logging
+    from docker_ros.in_image.runtime.workspace import image_main
 
-    setup_logging()
-    run_in_image(Path(args.workspace), Path(args.destination), dict(os.environ))
-    return 0
+    return image_main(sys.argv[1:] if argv is None else argv, module="testing", step=STEP,
+                      description="colcon build, test and test-result in the workspace; exit "
+                      "codes, JUnit XML and logs go to DESTINATION (settings from the "
+                      "environment).", arguments=["DESTINATION"], settings=False,
+                      action=lambda ws, _, args: run_in_image(ws.root, Path(args[0]),
+                                                              dict(os.environ)))
 
 
 if __name__ == "__main__":

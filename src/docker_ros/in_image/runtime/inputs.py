@@ -59,7 +59,9 @@ def copy_inputs(ws: Workspace, paths: List[Path], destination: Path) -> None:
 
 
 def main(argv: List[str]) -> int:
-    return image_main(argv, module="inputs", step="resolve", arguments=["DESTINATION"],
+    return image_main(argv, module="runtime.inputs", step="resolve",
+                      description="Copy the files resolving reads to DESTINATION (the "
+                      "resolve-inputs stage).", arguments=["DESTINATION"],
                       action=lambda ws, settings, args: copy_inputs(
                           ws, resolve_inputs(ws, settings), Path(args[0])))
 

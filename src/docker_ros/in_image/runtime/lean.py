@@ -266,7 +266,10 @@ def lean_resolution(ws: Workspace, settings: object, resolved: Path,
 
 
 def main(argv: List[str]) -> int:
-    return image_main(argv, module="lean", step=STEP, arguments=["RESOLVED", "DESTINATION"],
+    return image_main(argv, module="runtime.lean", step=STEP,
+                      description="ENABLE_LEAN_RUN_IMAGE: the run image's dependencies found "
+                      "from what the built install space needs, RESOLVED's resolution narrowed "
+                      "to them in DESTINATION.", arguments=["RESOLVED", "DESTINATION"],
                       action=lambda ws, settings, args: lean_resolution(
                           ws, settings, Path(args[0]), Path(args[1])))
 

@@ -571,12 +571,21 @@ def check_resolution(ws: Workspace, settings: Any) -> None:
 
 
 def main(argv: List[str]) -> int:
-    """`python3 -m docker_ros.in_image.runtime.lock check` (resolve stage) or `... resolve OUT TYPES
-    UPSTREAM` (the lock stages: OUT/<target>.json)."""
-    from docker_ros.in_image.runtime.workspace import image_main
+    """`python3 -m docker_ros.in_image.runtime.lock check` (resolve stage) or `... resolve OUT
+    TYPES UPSTREAM` (the lock stages: OUT/<target>.json)."""
+    from docker_ros.in_image.runtime.workspace import entry_parser, image_main
 
+    if argv[:1] not in (["check"], ["resolve"]):  # --help, or no command: say which there are
+        parser = entry_parser("runtime.lock", "LOCKED builds: check a resolution against "
+                              "docker-ros.lock, or write an image's lock entry.")
+        parser.add_argument("command", choices=["check", "resolve"],
+                            help="check | resolve OUT DEPENDENCY_TYPES UPSTREAM")
+        parser.parse_args(argv)
+        parser.error("the command comes first: check ... or resolve ...")
     if argv[:1] == ["check"]:
-        return image_main(argv[1:], module="lock check", step="lock", arguments=[],
+        return image_main(argv[1:], module="runtime.lock check", step="lock",
+                          description="LOCKED: stop when the resolution differs from "
+                          "docker-ros.lock.", arguments=[],
                           action=lambda ws, settings, _: check_resolution(ws, settings))
 
     def write(ws: Workspace, settings: Any, args: List[str]) -> None:
@@ -585,7 +594,9 @@ def main(argv: List[str]) -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(dump_lock(entry))
 
-    return image_main(argv[1:], module="lock resolve", step="lock",
+    return image_main(argv[1:], module="runtime.lock resolve", step="lock",
+                      description="Write the lock entry of one image (apt and pip closure, "
+                      "imported commits) to OUT.",
                       arguments=["OUT", "DEPENDENCY_TYPES", "UPSTREAM"], action=write)
 
 

@@ -9,26 +9,23 @@ import sys
 from pathlib import Path
 from typing import List, Optional
 
-from docker_ros.in_image.runtime.workspace import PHASES, StepError, Workspace, setup_logging
+from docker_ros.in_image.runtime.workspace import (
+    PHASES,
+    StepError,
+    Workspace,
+    entry_parser,
+    setup_logging,
+)
 from docker_ros.in_image.settings import SettingsError, load_settings
 from docker_ros.in_image.steps import IMAGE_STEPS, OPTIONS, STEPS, run_step, step_options
 
-DEFAULT_WORKSPACE = "/docker-ros/ws"
-
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python3 -m docker_ros.in_image.steps",
-        description="Run docker-ros pipeline steps, one after the other (the first failure "
-        "stops the rest); settings come from the environment (docker-ros variable names).",
-    )
+    p = entry_parser("steps", "Run docker-ros pipeline steps, one after the other (the first "
+                     "failure stops the rest); settings come from the environment (docker-ros "
+                     "variable names).")
     p.add_argument("steps", nargs="+", metavar="step", choices=STEPS + IMAGE_STEPS,
                    help="the step(s) to run: " + ", ".join(STEPS + IMAGE_STEPS))
-    p.add_argument(
-        "--workspace",
-        default=DEFAULT_WORKSPACE,
-        help=f"colcon workspace (repository in src/target; default {DEFAULT_WORKSPACE})",
-    )
     p.add_argument(
         "--phase",
         choices=PHASES,
@@ -45,7 +42,6 @@ def parser() -> argparse.ArgumentParser:
             p.add_argument(flag, choices=option.choices or None, default=None, help=option.help)
         else:
             p.add_argument(flag, action="store_true", help=option.help)
-    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return p
 
 
