@@ -145,6 +145,22 @@ def step_log(step: str) -> Iterator[None]:
     LOG.info("Finished <<< %s [%.1fs]", step, time.monotonic() - start)
 
 
+def planned_step(ws: "Workspace", step: str, state_file: str, *, phase: str, dry_run: bool,
+                 collect: "Callable[[], Dict[str, Any]]",
+                 apply: "Callable[[Dict[str, Any]], None]") -> None:
+    """The two phases of a step that collects a plan: collect writes what collect() returns to
+    state_file, apply hands apply() the plan just collected or, alone, the one collect wrote
+    earlier; between the Starting/Finished lines."""
+    do_collect, do_apply = phases(step, phase)
+    with step_log(step):
+        plan: Dict[str, Any] = {}
+        if do_collect:
+            plan = collect()
+            ws.save_plan(step, state_file, plan, dry_run=dry_run)
+        if do_apply:
+            apply(plan if do_collect else ws.load_plan(step, state_file))
+
+
 def format_argv(argv: Sequence[str]) -> str:
     return " ".join(shlex.quote(a) for a in argv)
 

@@ -5,7 +5,7 @@ from typing import Any, Dict, List, Sequence
 from docker_ros.in_image.runtime.apt import apt_install
 from docker_ros.in_image.runtime.files import collect_list_entries
 from docker_ros.in_image.runtime.lock import locked_arguments
-from docker_ros.in_image.runtime.workspace import Workspace, phases, step_log
+from docker_ros.in_image.runtime.workspace import Workspace, planned_step
 from docker_ros.in_image.settings import Settings
 
 STEP = "debs"
@@ -27,22 +27,14 @@ def main(
     **options: str,
 ) -> None:
     """collect: read the list file(s) into debs.json; apply: apt-get install them."""
-    do_collect, do_apply = phases(STEP, phase)
-    with step_log(STEP):
-        plan: Dict[str, Any] = {}
-        if do_collect:
-            entries, _ = collect_list_entries(ws, STEP, settings, "additional_debs_file")
-            plan = plan_debs(entries)
-            ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
-        if do_apply:
-            if not do_collect:
-                plan = ws.load_plan(STEP, STATE_FILE)
-            packages: List[str] = list(plan.get("packages") or [])
-            packages = locked_arguments(ws, settings, step=STEP, kind="apt",
-                                        inputs=packages, dry_run=dry_run) or packages
-            apt_install(
-                packages,
-                step=STEP,
-                dry_run=dry_run,
-                what="installing ADDITIONAL_DEBS_FILE packages",
-            )
+
+    def install(plan: Dict[str, Any]) -> None:
+        packages: List[str] = list(plan.get("packages") or [])
+        packages = locked_arguments(ws, settings, step=STEP, kind="apt",
+                                    inputs=packages, dry_run=dry_run) or packages
+        apt_install(packages, step=STEP, dry_run=dry_run,
+                    what="installing ADDITIONAL_DEBS_FILE packages")
+
+    planned_step(ws, STEP, STATE_FILE, phase=phase, dry_run=dry_run, apply=install,
+                 collect=lambda: plan_debs(collect_list_entries(
+                     ws, STEP, settings, "additional_debs_file")[0]))

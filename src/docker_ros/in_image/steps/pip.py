@@ -21,8 +21,7 @@ from docker_ros.in_image.runtime.workspace import (
     StepError,
     Workspace,
     format_argv,
-    phases,
-    step_log,
+    planned_step,
 )
 from docker_ros.in_image.settings import Settings
 
@@ -181,19 +180,14 @@ def main(
     **options: str,
 ) -> None:
     """collect: read the requirement file(s) into pip.json; apply: pip install them."""
-    do_collect, do_apply = phases(STEP, phase)
-    with step_log(STEP):
-        plan: Dict[str, Any] = {}
-        if do_collect:
-            plan = collect_requirements(ws, settings)
-            ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
-        if do_apply:
-            if not do_collect:
-                plan = ws.load_plan(STEP, STATE_FILE)
-            requirements = list(plan.get("requirements") or [])
-            what = "installing ADDITIONAL_PIP_FILE requirements"
-            # LOCKED: the lines checked against the lock, installed under its versions
-            locked = locked_arguments(ws, settings, step=STEP, kind="pip", inputs=requirements,
-                                      dry_run=dry_run) or []
-            install_requirements(requirements, [*(plan.get("constraints") or []), *locked],
-                                 dry_run=dry_run, what=what)
+
+    def install(plan: Dict[str, Any]) -> None:
+        requirements = list(plan.get("requirements") or [])
+        # LOCKED: the lines checked against the lock, installed under its versions
+        locked = locked_arguments(ws, settings, step=STEP, kind="pip", inputs=requirements,
+                                  dry_run=dry_run) or []
+        install_requirements(requirements, [*(plan.get("constraints") or []), *locked],
+                             dry_run=dry_run, what="installing ADDITIONAL_PIP_FILE requirements")
+
+    planned_step(ws, STEP, STATE_FILE, phase=phase, dry_run=dry_run, apply=install,
+                 collect=lambda: collect_requirements(ws, settings))
