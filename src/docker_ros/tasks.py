@@ -8,13 +8,10 @@ Errors users can fix end as one line and a non-zero exit.
 from __future__ import annotations
 
 import dataclasses
-import getpass
 import inspect
-import os
 import signal
 import subprocess
 import sys
-import tempfile
 import textwrap
 import time
 from pathlib import Path
@@ -22,9 +19,9 @@ from typing import Any, Callable, Dict, List, Mapping, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
 
-from docker_ros.host import build, engine
+from docker_ros.host import baseimage, build, container, devshell, engine
 from docker_ros.host.config import config_table, input_problems, read_settings
-from docker_ros.host.lock import lock_status
+from docker_ros.host.lock import lock, lock_status
 from docker_ros.host.pipeline import (
     TaskError,
     build_targets,
@@ -35,14 +32,17 @@ from docker_ros.host.pipeline import (
     push_and_report,
     require_tasks,
     run_ci_plan,
+    run_dev_shell,
     run_host_steps,
     run_in_container,
     run_test_stage,
     slim_one,
     slimmed_here,
 )
+from docker_ros.host.push import manifest, push, push_targets
+from docker_ros.in_image.ci import plan_ci_job
 from docker_ros.in_image.runtime.lock import LockError
-from docker_ros.in_image.runtime.workspace import StepError, format_argv, setup_logging
+from docker_ros.in_image.runtime.workspace import StepError, setup_logging
 from docker_ros.in_image.settings import (
     FIELDS,
     Settings,
@@ -220,7 +220,6 @@ def make_step_task(step: str) -> Task:
     def step_task(c: Context, settings: Settings, *, dry_run: bool, in_container: bool,
                   shell_on_failure: bool) -> None:
         if in_container:
-            from docker_ros.host import container
 
             run_in_container(settings, container.plan_step(settings, step), dry_run=dry_run,
                              shell_on_failure=shell_on_failure)
@@ -259,7 +258,6 @@ def config(c: Context, settings: Settings) -> None:
     + tuple(n for n in IMAGE_SETTINGS if n != "locked"),  # (it resolves afresh, unlocked)
 )
 def lock_task(c: Context, settings: Settings, *, check: bool, host: bool) -> None:
-    from docker_ros.host.lock import lock
 
     started = time.monotonic()
     if not host:
@@ -365,7 +363,6 @@ def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
-    from docker_ros.host.push import push, push_targets
 
     build_targets(settings, settings.target, dry_run=dry_run, slim=settings.enable_slim)
     push_and_report(settings, push_targets(settings), push, dry_run=dry_run)
@@ -380,7 +377,6 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     uses=("target", "image", "image_tag", "platform") + PUSH_SETTINGS,
 )
 def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
-    from docker_ros.host.push import manifest
 
     images = made_images(settings)
     if "slim" in images:
@@ -397,7 +393,6 @@ def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
 )
 def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
-    from docker_ros.in_image.ci import plan_ci_job
 
     plan = plan_ci_job(target=settings.target, enable_industrial_ci=settings.enable_industrial_ci,
                        enable_slim=settings.enable_slim)
@@ -435,32 +430,9 @@ def dev_shell(
     network: str, name: str, privileged: bool, device: List[str], x11: str, gpus: str,
     rebuild: bool, dry_run: bool,
 ) -> None:
-    from docker_ros.host import devshell
-
-    ref = build.image_ref(settings, "dev")
-    try:
-        devshell.check_volumes(volume)
-        display = os.environ.get("DISPLAY", "") if devshell.select_x11(
-            x11, os.environ.get("DISPLAY", "")) else ""
-        runtimes = devshell.docker_runtimes() if gpus == "auto" else []
-        gpu = devshell.select_gpus(gpus, runtimes)
-    except devshell.DevShellError as exc:
-        raise TaskError(str(exc)) from None
-    user = devshell.HostUser(os.getuid(), os.getgid(), getpass.getuser(),
-                             tty=sys.stdin.isatty() and sys.stdout.isatty())
-    with tempfile.TemporaryDirectory(prefix="docker-ros-dev-shell-") as tmp:
-        cookie = devshell.write_cookie(display, os.environ, Path(tmp) / "xauth") if display else ""
-        options = devshell.ShellOptions(
-            command=cmd, volumes=volume, env=env, network=network, name=name,
-            privileged=privileged, devices=device, gpus=gpu, x11_display=display,
-            xauthority=cookie)
-        argv = devshell.dev_shell_argv(settings, ref, options, user)
-        if dry_run:
-            print(format_argv(argv))
-            return
-        if rebuild or not build.image_exists(ref):
-            build_targets(settings, ("dev",), dry_run=False)
-        code = subprocess.call(argv)
+    code = run_dev_shell(settings, devshell.ShellOptions(
+        command=cmd, volumes=volume, env=env, network=network, name=name, privileged=privileged,
+        devices=device, gpus=gpus), x11=x11, rebuild=rebuild, dry_run=dry_run)
     if code:
         raise Exit(code=code)
 
@@ -481,7 +453,6 @@ def dev_shell(
 def bootstrap_base_image(
     c: Context, settings: Settings, *, flavor: str, tag: str, mirror: str, force: bool
 ) -> None:
-    from docker_ros.host import baseimage
 
     if flavor not in baseimage.FLAVORS:
         raise TaskError(f"--flavor {flavor!r}: use one of {', '.join(baseimage.FLAVORS)}")
@@ -496,7 +467,6 @@ def bootstrap_base_image(
     [("seconds", 20, "How long to let the example's run image run")],
 )
 def example(c: Context, settings: Settings, *, seconds: int) -> None:
-    from docker_ros.host import baseimage
 
     project = Path(__file__).resolve().parents[2] / "example"
     if not project.is_dir():

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import getpass
 import os
 import subprocess
 import sys
@@ -14,10 +15,14 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Collection, Dict, Iterator, List, Sequence
 
-from docker_ros.host import build
+from docker_ros.host import build, container, devshell, slim
 from docker_ros.host.build import BuiltImage
 from docker_ros.host.config import input_problems
 from docker_ros.host.lock import lock_status
+from docker_ros.host.login import LoginError, job_login, plan_login
+from docker_ros.host.push import plan_outputs, write_outputs
+from docker_ros.in_image import testing
+from docker_ros.in_image.ci import missing_tasks
 from docker_ros.in_image.runtime.workspace import Workspace, format_argv
 from docker_ros.in_image.settings import (
     FIELDS,
@@ -29,7 +34,7 @@ from docker_ros.in_image.settings import (
     require,
     required_for_build,
 )
-from docker_ros.in_image.steps import BY_NAME, STEPS
+from docker_ros.in_image.steps import BY_NAME, STEPS, run_step
 
 DEV_STEPS = tuple(s for s in STEPS if BY_NAME[s].stage in ("source", "dependencies-dev"))
 
@@ -82,7 +87,6 @@ def check_inputs(settings: Settings, targets: Sequence[str] = ()) -> None:
 
 
 def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -> None:
-    from docker_ros.in_image.steps import run_step
 
     check_inputs(settings)
     with host_workspace(settings, dry_run=dry_run) as ws:
@@ -93,7 +97,6 @@ def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -
 def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
                      shell_on_failure: bool) -> str:
     """Build the plan's start stage, run its commands in one container, tag the result."""
-    from docker_ros.host import container
 
     runs_command = plan.start == "run" or ("command",) in plan.commands
     require(settings, ["base_image"] + (["command"] if runs_command else []))
@@ -125,7 +128,6 @@ def composite_flow(settings: Settings, name: str, *, host: bool, dry_run: bool, 
     if name == "run" and (host or in_container) and not settings.command:
         raise SettingsError("missing required configuration: COMMAND")
     if in_container:
-        from docker_ros.host import container
 
         run_in_container(settings, container.plan_composite(settings, name), dry_run=dry_run,
                          shell_on_failure=shell_on_failure)
@@ -193,7 +195,6 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
 
 def check_slim_options(settings: Settings) -> None:
     """SLIM_BUILD_ARGS and ADDITIONAL_SLIM_BUILD_ARGS checked before anything is built."""
-    from docker_ros.host import slim
 
     try:
         slim.parse_slim_args(slim.slim_args(settings))
@@ -212,7 +213,6 @@ def slimmed_here(settings: Settings, platform: str) -> bool:
 
 
 def slim_one(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
-    from docker_ros.host import slim
 
     try:
         result = slim.slim_image(settings, platform, dry_run=dry_run)
@@ -229,7 +229,6 @@ def default_results_dir(settings: Settings) -> Path:
 
 def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
     """Build the test stage per platform, export its results; fail when a test failed."""
-    from docker_ros.in_image import testing
 
     require(settings, required_for_build(settings))
     root = Path(results_dir).resolve() if results_dir else default_results_dir(settings)
@@ -271,7 +270,6 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
 def reproduce_failure(settings: Settings, error: build.BuildError) -> None:
     """--shell-on-failure of an image build: the failed step again, in a container of the state
     before it, with the shell where it fails."""
-    from docker_ros.host import container
 
     if error.stage not in container.STAGES:
         print(f"docker-ros build: --shell-on-failure: the failure is not in one of the ten "
@@ -285,7 +283,6 @@ def reproduce_failure(settings: Settings, error: build.BuildError) -> None:
 
 def build_until(settings: Settings, step: str, *, dry_run: bool,
                  shell_on_failure: bool) -> None:
-    from docker_ros.host import container
 
     if step not in STEPS:
         raise TaskError(f"--until {step!r}: use one of {', '.join(STEPS)}")
@@ -300,7 +297,6 @@ def push_and_report(
     settings: Settings, targets: Sequence[str], action: Callable[..., List[str]], *, dry_run: bool
 ) -> None:
     """Run push or manifest; print the pushed names and hand them to the CI as outputs."""
-    from docker_ros.host.push import plan_outputs, write_outputs
 
     try:
         pushed = action(settings, targets, dry_run=dry_run)
@@ -316,7 +312,6 @@ def push_and_report(
 def logged_in_job(settings: Settings, label: str, *, dry_run: bool) -> Iterator[None]:
     """REGISTRY_USER/REGISTRY_PASSWORD logged in before anything else of the job (a private
     BASE_IMAGE or CACHE_FROM), into a DOCKER_CONFIG of the job's own, removed at its end."""
-    from docker_ros.host.login import LoginError, job_login, plan_login
 
     argv = plan_login(settings)
     if dry_run:
@@ -334,7 +329,6 @@ def logged_in_job(settings: Settings, label: str, *, dry_run: bool) -> Iterator[
 
 def require_tasks(plan: Sequence[Sequence[str]], task_names: Collection[str]) -> None:
     """The tasks a CI plan runs exist here (task_names: the invoke collection's)."""
-    from docker_ros.in_image.ci import missing_tasks
 
     problems = missing_tasks(plan, task_names)
     if problems:
@@ -355,3 +349,32 @@ def run_ci_plan(settings: Settings, plan: Sequence[Sequence[str]], *, dry_run: b
         if code != 0:
             raise TaskError(f"`docker-ros {argv[0]}` failed with exit code {code}; "
                             "nothing after it ran")
+
+
+def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: str,
+                  rebuild: bool, dry_run: bool) -> int:
+    """`inv dev-shell`: the dev image (built first when missing or rebuild) as a container for
+    the host user; options.gpus as asked (auto: the nvidia runtime's), X11 as x11 asks (auto:
+    a local DISPLAY whose socket exists). Returns the container's exit code (0 on a dry run,
+    which prints the docker run command)."""
+    ref = build.image_ref(settings, "dev")
+    try:
+        devshell.check_volumes(options.volumes)
+        display = os.environ.get("DISPLAY", "")
+        display = display if devshell.select_x11(x11, display) else ""
+        runtimes = devshell.docker_runtimes() if options.gpus == "auto" else []
+        gpus = devshell.select_gpus(options.gpus, runtimes)
+    except devshell.DevShellError as exc:
+        raise TaskError(str(exc)) from None
+    user = devshell.HostUser(os.getuid(), os.getgid(), getpass.getuser(),
+                             tty=sys.stdin.isatty() and sys.stdout.isatty())
+    with tempfile.TemporaryDirectory(prefix="docker-ros-dev-shell-") as tmp:
+        cookie = devshell.write_cookie(display, os.environ, Path(tmp) / "xauth") if display else ""
+        argv = devshell.dev_shell_argv(settings, ref, dataclasses.replace(
+            options, gpus=gpus, x11_display=display, xauthority=cookie), user)
+        if dry_run:
+            print(format_argv(argv))
+            return 0
+        if rebuild or not build.image_exists(ref):
+            build_targets(settings, ("dev",), dry_run=False)
+        return subprocess.call(argv)

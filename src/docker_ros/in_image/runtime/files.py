@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Callable, Iterator, List, Optional, Sequence, Tuple
 
 from docker_ros.in_image.runtime.workspace import LOG, SKIP_DIRS, StepError, Workspace, dry
+from docker_ros.in_image.settings import Settings
 
 
 def walk(
@@ -48,7 +49,7 @@ def path_problem(repository: Path, relative: str) -> Optional[str]:
     return None
 
 
-def repository_path(ws: Workspace, settings: object, name: str, *, step: str) -> Path:
+def repository_path(ws: Workspace, settings: Settings, name: str, *, step: str) -> Path:
     """The repository's file or folder that path setting `name` names; a StepError when the
     setting points outside the repository (the image would get the build machine's files)."""
     relative = str(getattr(settings, name))
@@ -61,7 +62,7 @@ def repository_path(ws: Workspace, settings: object, name: str, *, step: str) ->
 
 def find_special_files(
     ws: Workspace,
-    settings: object,
+    settings: Settings,
     name: str,
     *,
     pattern: Optional[str] = None,
@@ -89,7 +90,7 @@ def find_special_files(
                            else entry.name == file_name)
                 if matches and entry.is_file() and entry not in found:
                     found.append(entry)
-    if not found and required and explicitly_set(settings, name):  # type: ignore[arg-type]
+    if not found and required and explicitly_set(settings, name):
         where = f" (nor any {pattern or file_name!r} in {ws.src})" if recursive else ""
         raise StepError(step, f"{name.upper()} '{relative_path}' not found in the repository"
                         f"{where}, but set explicitly: fix the path or unset it")
@@ -108,7 +109,7 @@ def read_list_file(path: Path) -> List[str]:
 
 
 def collect_list_entries(
-    ws: Workspace, step: str, settings: object, name: str
+    ws: Workspace, step: str, settings: Settings, name: str
 ) -> Tuple[List[str], List[Path]]:
     """Entries of every list file of path setting `name` (in discovery order), and the files."""
     files = find_special_files(ws, settings, name, step=step)

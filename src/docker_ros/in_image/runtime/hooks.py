@@ -11,6 +11,7 @@ from docker_ros.in_image.runtime.apt import apt_env, apt_get, apt_lists_present
 from docker_ros.in_image.runtime.files import find_special_files, remove_tree
 from docker_ros.in_image.runtime.process import is_root, run, run_script
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, dry, phases, step_log
+from docker_ros.in_image.settings import Settings
 
 LOG = logging.getLogger(__name__)
 
@@ -30,7 +31,7 @@ def plan_hooks(ws: Workspace, step: str, sources: List[Path]) -> Dict[str, Any]:
     }
 
 
-def collect(ws: Workspace, step: str, settings: object, name: str, *, dry_run: bool
+def collect(ws: Workspace, step: str, settings: Settings, name: str, *, dry_run: bool
             ) -> Dict[str, Any]:
     sources = find_special_files(ws, settings, name, step=step)
     if not sources:
@@ -74,7 +75,7 @@ def apply(ws: Workspace, step: str, plan: Dict[str, Any], *, dry_run: bool) -> N
 def main(
     ws: Workspace,
     step: str,
-    settings: object,
+    settings: Settings,
     name: str,
     *,
     phase: str,

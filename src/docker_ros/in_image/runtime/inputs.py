@@ -14,6 +14,7 @@ from docker_ros.in_image.runtime.lock import LOCK_FILE, is_locked
 from docker_ros.in_image.runtime.packages import package_search_dirs
 from docker_ros.in_image.runtime.requirements import read_requirement_file
 from docker_ros.in_image.runtime.workspace import IGNORE_MARKERS, Workspace, image_main
+from docker_ros.in_image.settings import Settings
 
 # What the collect phases of scripts, rosdep, debs, pip, files and custom read: package
 # manifests and ignore markers anywhere, and the files and folder the path settings name.
@@ -26,7 +27,7 @@ LIST_SETTINGS = (
 STATE_FILES = ("blacklist.json",)
 
 
-def resolve_inputs(ws: Workspace, settings: object) -> List[Path]:
+def resolve_inputs(ws: Workspace, settings: Settings) -> List[Path]:
     """Every file below ws.root that resolving the dependencies may read."""
     found: List[Path] = []
     for directory in package_search_dirs(ws.src):  # (where catkin_pkg's discovery looks)

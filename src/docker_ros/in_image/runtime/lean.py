@@ -23,6 +23,7 @@ from typing import Dict, Iterable, List, Mapping, Sequence, Set, Tuple
 from docker_ros.in_image.runtime.process import probe
 from docker_ros.in_image.runtime.rosenv import sourced_env, workspace_setup_files
 from docker_ros.in_image.runtime.workspace import LOG, StepError, Workspace, image_main
+from docker_ros.in_image.settings import Settings
 
 STEP = "lean"
 DPKG_INFO = Path("/var/lib/dpkg/info")
@@ -143,7 +144,7 @@ def local_names(path: Path) -> Set[str]:
     return {p.stem if p.suffix == ".py" else p.name for p in path.parent.iterdir()}
 
 
-def runtime_env(ws: Workspace, settings: object) -> Dict[str, str]:
+def runtime_env(ws: Workspace, settings: Settings) -> Dict[str, str]:
     """The run image's environment (ROS, then install/), without our own PYTHONPATH entry."""
     base = dict(os.environ)
     base.pop("PYTHONPATH", None)
@@ -217,7 +218,7 @@ def providers(needs: Mapping[str, Set[str]], index: Mapping[str, Set[str]]
     return by_package, unowned
 
 
-def lean_resolution(ws: Workspace, settings: object, resolved: Path,
+def lean_resolution(ws: Workspace, settings: Settings, resolved: Path,
                     destination: Path) -> Dict[str, object]:
     """Copy the resolution with the lean exec apt set; returns the report (also written to
     DESTINATION.json)."""

@@ -23,7 +23,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.in_image.runtime.process import probe
 from docker_ros.in_image.runtime.workspace import StepError, Workspace
-from docker_ros.in_image.settings import host_platform
+from docker_ros.in_image.settings import Settings, host_platform
 
 LOCK_FILE = "docker-ros.lock"
 FORMAT = 1
@@ -230,7 +230,7 @@ def image_repository(ref: str) -> str:
     return name
 
 
-def is_locked(settings: Any, environ: Optional[Mapping[str, str]] = None) -> bool:
+def is_locked(settings: Settings, environ: Optional[Mapping[str, str]] = None) -> bool:
     """LOCKED on the host; DOCKER_ROS_LOCKED in an image build's stages."""
     env = os.environ if environ is None else environ
     return bool(getattr(settings, "locked", False)) or env.get(LOCKED_ENV) == "true"
@@ -251,7 +251,7 @@ def default_target(environ: Optional[Mapping[str, str]] = None) -> str:
     return env.get(TARGET_ENV) or ("dev" if env.get("DOCKER_ROS") else HOST_TARGET)
 
 
-def active_entry(ws: Workspace, settings: Any, step: str) -> Optional[Dict[str, Any]]:
+def active_entry(ws: Workspace, settings: Settings, step: str) -> Optional[Dict[str, Any]]:
     """The lock entry a step honours: None unless locked (is_locked); else the entry of
     default_target and this platform."""
     if not is_locked(settings):
@@ -263,8 +263,8 @@ def active_entry(ws: Workspace, settings: Any, step: str) -> Optional[Dict[str, 
 
 
 def locked_arguments(
-    ws: Workspace, settings: Any, *, step: str, kind: str, inputs: Sequence[str], key: str = "",
-    dry_run: bool = False,
+    ws: Workspace, settings: Settings, *, step: str, kind: str, inputs: Sequence[str],
+    key: str = "", dry_run: bool = False,
 ) -> Optional[List[str]]:
     """After checking `inputs` against the lock's: apt, what a locked step installs instead
     (`name=version` of the whole locked closure); pip, the constraint lines it installs its
@@ -311,7 +311,7 @@ def pinned_repos_file(
 
 
 def locked_rosdep_plan(
-    ws: Workspace, settings: Any, plan: Mapping[str, Any], dependency_types: str, step: str,
+    ws: Workspace, settings: Settings, plan: Mapping[str, Any], dependency_types: str, step: str,
     dry_run: bool = False,
 ) -> Mapping[str, Any]:
     """rosdep's plan with the chosen set's apt and pip packages replaced by the lock's pins
@@ -535,7 +535,7 @@ def _state(ws: Workspace, name: str) -> Dict[str, Any]:
     return dict(data) if isinstance(data, dict) else {}
 
 
-def resolved_entry(ws: Workspace, settings: Any, dependency_types: str, upstream: Path
+def resolved_entry(ws: Workspace, settings: Settings, dependency_types: str, upstream: Path
                    ) -> Dict[str, Any]:
     """One image target's lock entry, where its installs run (the resolved-dev or resolved-run
     state, resolution in .docker-ros): the collect phases' inputs, the imported commits (the
@@ -550,12 +550,12 @@ def resolved_entry(ws: Workspace, settings: Any, dependency_types: str, upstream
             "apt": apt_closure(apt, update=True), "pip": pip_report(pip, constraints)}
 
 
-def rules_path(ws: Workspace, settings: Any) -> Optional[Path]:
+def rules_path(ws: Workspace, settings: Settings) -> Optional[Path]:
     name = getattr(settings, "rosdep_rules_file", None)
     return ws.target / name if name else None
 
 
-def check_resolution(ws: Workspace, settings: Any) -> None:
+def check_resolution(ws: Workspace, settings: Settings) -> None:
     """In a locked build's resolve stage, after the collect phases: stop when what they
     resolved differs from the lock's inputs (before anything is installed, naming each
     change); then put the lock next to the resolution, where the install stages read it."""
@@ -588,7 +588,7 @@ def main(argv: List[str]) -> int:
                           "docker-ros.lock.", arguments=[],
                           action=lambda ws, settings, _: check_resolution(ws, settings))
 
-    def write(ws: Workspace, settings: Any, args: List[str]) -> None:
+    def write(ws: Workspace, settings: Settings, args: List[str]) -> None:
         out, types, upstream = Path(args[0]), args[1], Path(args[2])
         entry = resolved_entry(ws, settings, types, upstream)
         out.parent.mkdir(parents=True, exist_ok=True)

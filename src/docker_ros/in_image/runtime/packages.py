@@ -27,6 +27,7 @@ from docker_ros.in_image.runtime.files import walk
 from docker_ros.in_image.runtime.process import HOST_EXTRA
 from docker_ros.in_image.runtime.rosenv import BASE_IMAGE_WS, ros_distro, ros_version
 from docker_ros.in_image.runtime.workspace import IGNORE_MARKERS, StepError, Workspace
+from docker_ros.in_image.settings import Settings
 
 LOG = logging.getLogger(__name__)
 
@@ -138,7 +139,7 @@ def package_search_dirs(root: Path) -> Iterator[Path]:
 
 
 def find_packages(
-    ws: Workspace, settings: object, *, step: str, environ: Optional[Mapping[str, str]] = None
+    ws: Workspace, settings: Settings, *, step: str, environ: Optional[Mapping[str, str]] = None
 ) -> List[Package]:
     """Every ROS package of the workspace sources, conditions evaluated for ROS_DISTRO."""
     ws.require_sources(step)

@@ -8,6 +8,7 @@ from typing import Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.in_image.runtime.process import probe
 from docker_ros.in_image.runtime.workspace import LOG, StepError
+from docker_ros.in_image.settings import Settings
 
 SECRETS_DIR = Path("/run/secrets")
 
@@ -25,7 +26,7 @@ ROS1_DISTROS = (
 BASH_OWN_VARS = ("_", "SHLVL", "PWD", "OLDPWD")
 
 
-def read_secret(settings: object, name: str, secrets_dir: Path = SECRETS_DIR) -> Optional[str]:
+def read_secret(settings: Settings, name: str, secrets_dir: Path = SECRETS_DIR) -> Optional[str]:
     """A secret from the settings, or when unset there, from the BuildKit secret file
     `<secrets_dir>/<ENV_NAME>`. Never log the result."""
     field = name.lower()
@@ -42,7 +43,7 @@ def read_secret(settings: object, name: str, secrets_dir: Path = SECRETS_DIR) ->
     return text or None
 
 
-def ros_distro(settings: object, environ: Optional[Mapping[str, str]] = None) -> Optional[str]:
+def ros_distro(settings: Settings, environ: Optional[Mapping[str, str]] = None) -> Optional[str]:
     """ROS_DISTRO from the settings, else from the environment; None (Debian's ROS 1) if unset."""
     value = getattr(settings, "ros_distro", None)
     if value:
@@ -63,7 +64,7 @@ def ros_version(distro: Optional[str], environ: Optional[Mapping[str, str]] = No
 
 
 def ros_setup_files(
-    settings: object, *, environ: Optional[Mapping[str, str]] = None, root: Path = Path("/")
+    settings: Settings, *, environ: Optional[Mapping[str, str]] = None, root: Path = Path("/")
 ) -> List[Path]:
     """The ROS setup and the base image's workspace setup, each only when it exists."""
     files: List[Path] = []
@@ -83,7 +84,7 @@ def ros_setup_files(
     return files
 
 
-def workspace_setup_files(settings: object, install: Path, *, step: str) -> List[Path]:
+def workspace_setup_files(settings: Settings, install: Path, *, step: str) -> List[Path]:
     """The run-time environment's setup files: ROS, the base image's workspace, then the
     workspace's install space (each only when it exists)."""
     files = ros_setup_files(settings)
