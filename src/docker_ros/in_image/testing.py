@@ -126,7 +126,7 @@ def run_in_image(ws_root: Path, destination: Path, environ: Dict[str, str]) -> D
     (destination / MARKER).write_text("made by docker-ros test; replaced by the next run\n")
     outcome = {"colcon_build": 0, "colcon_test": 0, "colcon_test_result": 0}
     try:
-        colcon.main(ws, settings, stamp_changed="true")
+        colcon.main(ws, settings, stamp_changed=True)
     except StepError as exc:
         LOG.error("docker-ros %s: %s", STEP, exc.message)
         outcome["colcon_build"] = exc.returncode or 1

@@ -170,7 +170,7 @@ def main(
     phase: str = "all",
     dry_run: bool = False,
     environ: Optional[Mapping[str, str]] = None,
-    **options: str,
+    **options: object,
 ) -> None:
     environ = os.environ if environ is None else environ
     with step_log("prepare"):

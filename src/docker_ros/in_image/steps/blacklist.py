@@ -59,7 +59,7 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
-    **options: str,
+    **options: object,
 ) -> None:
     """Find the blacklisted packages and record them in blacklist.json (single phase)."""
     phases(STEP, phase)

@@ -297,7 +297,7 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
-    **options: str,
+    **options: object,
 ) -> None:
     """Single phase: the hook, then every .repos file, each imported once. Option
     imports_only (the image's upstream stage, which holds the .repos files alone): no hook, and

@@ -176,7 +176,7 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
-    **options: str,
+    **options: object,
 ) -> None:
     """Single phase: build with CMAKE_ARGS, blacklisted packages ignored."""
     phases(STEP, phase)

@@ -26,7 +26,7 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
-    **options: str,
+    **options: object,
 ) -> None:
     """collect: validate COMMAND; apply/all: run it with `bash -c` in the sourced environment.
     A failing command fails the step with the command's exit code."""

@@ -13,7 +13,7 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
-    **options: str,
+    **options: object,
 ) -> None:
     """collect: copy the AFTER_DEPENDENCY_INSTALLATION_SCRIPT(s) into the state; apply: run."""
     hooks.main(

@@ -24,7 +24,7 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
-    **options: str,
+    **options: object,
 ) -> None:
     """collect: read the list file(s) into debs.json; apply: apt-get install them."""
 

@@ -56,11 +56,11 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
-    **options: str,
+    **options: object,
 ) -> None:
     """collect: stage the folder in the state dir; apply: copy it to `destination`."""
     do_collect, do_apply = phases(STEP, phase)
-    destination = Path(options.get("destination") or DEFAULT_DESTINATION)
+    destination = Path(str(options.get("destination") or DEFAULT_DESTINATION))
     with step_log(STEP):
         if do_collect:
             collect(ws, settings, dry_run=dry_run)

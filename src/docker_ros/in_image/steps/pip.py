@@ -177,7 +177,7 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
-    **options: str,
+    **options: object,
 ) -> None:
     """collect: read the requirement file(s) into pip.json; apply: pip install them."""
 

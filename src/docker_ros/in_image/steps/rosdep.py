@@ -399,11 +399,11 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
-    **options: str,
+    **options: object,
 ) -> None:
     """collect: resolve keys into rosdep.json; apply: install the `dependency_types` set."""
     do_collect, do_apply = phases(STEP, phase)
-    dependency_types = options.get("dependency_types") or "all"
+    dependency_types = str(options.get("dependency_types") or "all")
     if dependency_types not in DEPENDENCY_SETS:
         raise StepError(STEP, f"unknown dependency types {dependency_types!r}; use all or exec")
     with step_log(STEP):
