@@ -57,7 +57,8 @@ def test_task_help_fits_80_columns_and_splits_no_word(task: str, tmp_path: Path)
 def test_list_numbers_the_steps_in_pipeline_order(tmp_path: Path) -> None:
     out = cli("--list", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
-    numbered = dict(re.findall(r"^  (\w+)\s+\[step (\d+)/10\]", out.stdout, flags=re.M))
+    numbered = dict(re.findall(rf"^  (\w+)\s+\[step (\d+)/{len(STEPS)}\]", out.stdout,
+                               flags=re.M))
     assert [name for name, _ in sorted(numbered.items(), key=lambda kv: int(kv[1]))] == list(STEPS)
 
 
