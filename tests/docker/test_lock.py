@@ -173,23 +173,29 @@ def install_space(ref: str) -> str:
 
 
 def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: Path) -> None:
-    """The module's locked build and another locked build of the run image in a copy that
-    reuses no layer of it (NO_CACHE; another folder and name: a colcon build cache of its own),
-    made after upstream and the wheel index moved on: the same Debian and pip packages at the
-    same versions, the same install-space file list."""
+    """The module's locked build and another locked build of the dev and run images in a copy
+    that reuses no layer of it (NO_CACHE; another folder and name: a colcon build cache of its
+    own), made after upstream and the wheel index moved on: in each image the same Debian and
+    pip packages at the same versions, the same imported commit, and in the run image the same
+    install-space file list."""
     assert project["build"].returncode == 0
     again = f"docker-ros-test/lock-ws-again-{uuid.uuid4().hex[:8]}:1"
     copy = own_copy(project["repo"], tmp_path / "repo", again)
     try:
-        built = docker_ros(copy, "build", "--target", "run", "--set", "LOCKED=true",
+        built = docker_ros(copy, "build", "--target", "dev,run", "--set", "LOCKED=true",
                            "--set", "NO_CACHE=true", env=project["env"])
         assert built.returncode == 0, built.stdout[-5000:]
         # the dependency steps ran again (no cached layer), installing the locked versions
         assert "rosdep: apt-get install -y --no-install-recommends" in built.stdout
-        for listing in (dpkg_versions, pip_versions, install_space):
-            assert listing(again) == listing(IMAGE), listing.__name__
+        for ours, theirs in ((again + "-dev", IMAGE + "-dev"), (again, IMAGE)):
+            for listing in (dpkg_versions, pip_versions):
+                assert listing(ours) == listing(theirs), (ours, listing.__name__)
+        assert install_space(again) == install_space(IMAGE)
+        upstream = "cat /docker-ros/ws/src/upstream/upstream_libs/VERSION"
+        assert sh(again + "-dev", upstream).stdout.strip() == "one"
     finally:
         remove_image(again)
+        remove_image(again + "-dev")
 
 
 def test_unlocked_build_takes_the_new_commit_and_wheel(project: dict) -> None:
