@@ -1,5 +1,5 @@
 """`python -m docker_ros` = the `docker-ros` console script."""
 
-from docker_ros.cli import main
+from docker_ros.cli.program import main
 
 main()

@@ -11,8 +11,8 @@ from typing import Set
 
 import pytest
 
+from docker_ros.cli.tasks import ns
 from docker_ros.in_image.steps import STEPS
-from docker_ros.tasks import ns
 
 pytestmark = pytest.mark.host
 

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from docker_ros.host import readme
+from docker_ros.cli import readme
 from docker_ros.in_image.settings import (
     FIELDS,
     SettingsError,
@@ -236,4 +236,4 @@ def test_readme_configuration_table_matches_declarations():
     begin, end = "<!-- settings-table:begin -->", "<!-- settings-table:end -->"
     assert begin in text and end in text, "README lacks the generated settings table"
     table = text.split(begin, 1)[1].split(end, 1)[0].strip()
-    assert table == readme.table(), "regenerate with: python -m docker_ros.host.readme"
+    assert table == readme.table(), "regenerate with: python -m docker_ros.cli.readme"

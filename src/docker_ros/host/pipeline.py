@@ -1,6 +1,6 @@
 """The host side of the tasks: the build, test, slim and push flows, the host steps, the
 steps in a container and the CI job. Plain functions with explicit parameters; the
-command line (docker_ros.tasks) declares the tasks and calls them."""
+command line (docker_ros.cli.tasks) declares the tasks and calls them."""
 
 from __future__ import annotations
 

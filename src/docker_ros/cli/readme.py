@@ -6,8 +6,8 @@ import sys
 from pathlib import Path
 from typing import Dict, List
 
+from docker_ros.cli.tasks import ns
 from docker_ros.in_image.settings import FIELDS, markdown_table
-from docker_ros.tasks import ns
 
 BEGIN, END = "<!-- settings-table:begin -->", "<!-- settings-table:end -->"
 

@@ -9,7 +9,7 @@ from typing import List, Optional
 from invoke import Program
 
 from docker_ros import __version__
-from docker_ros.tasks import ns
+from docker_ros.cli.tasks import ns
 
 
 class DockerRosProgram(Program):

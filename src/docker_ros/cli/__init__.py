@@ -1,0 +1,7 @@
+"""The command line: the invoke tasks (`tasks`, thin: they hand over to docker_ros.host.pipeline),
+the `docker-ros` program over them (`program`) and the README's settings table made from them
+(`readme`)."""
+
+from docker_ros.cli.program import main
+
+__all__ = ["main"]
