@@ -277,10 +277,16 @@ class Probe:
         return self.output + "".join(out for _, _, out in self.execs)
 
 
+# a line a program logged at level INFO or DEBUG is no error, whatever it says (roslaunch's
+# processes race to make ~/.ros/log/latest: "INFO: cannot create a symlink to latest log
+# directory: [Errno 17] File exists", in either image, by chance)
+INFORMATIONAL = re.compile(r"^\s*\[?\s*(INFO|DEBUG)\b")
+
+
 def trouble_lines(output: str) -> Set[str]:
     lines = set()
     for line in output.splitlines():
-        if TROUBLE.search(line):
+        if TROUBLE.search(line) and not INFORMATIONAL.match(line):
             line = re.sub(r"[0-9a-f]{8}(-[0-9a-f]{4}){3}-[0-9a-f]{12}", "<uuid>", line.strip())
             lines.add(re.sub(r"0x[0-9a-fA-F]+|\d+", "N", line))
     return lines
