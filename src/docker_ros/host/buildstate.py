@@ -153,12 +153,12 @@ def run_seed(settings: Settings, platform: str, fingerprint: str, registry_cache
     pulled = pull_state(settings, platform, out)
     if pulled is None:
         return Seed("", EMPTY)
-    seed = choose_seed(pulled, engine.inspect_image(pulled) or {}, platform, fingerprint,
-                       registry_cache)
+    attrs = engine.inspect_image(pulled) or {}
+    seed = choose_seed(pulled, attrs, platform, fingerprint, registry_cache)
     if seed.ref and seed.ref != pulled and not (
             engine.pull(seed.ref)
             and not foreign_architecture(engine.inspect_image(seed.ref) or {}, platform)):
-        seed = Seed(pulled, repo_digest(pulled, engine.inspect_image(pulled) or {}),
+        seed = Seed(pulled, repo_digest(pulled, attrs),
                     why=f"the seed it was built from, {seed.ref}, cannot be pulled for "
                         f"{platform}: building over it")
     if seed.why:
