@@ -3,6 +3,14 @@
 # old one (Ubuntu 18.04's 3.6) would fail later with a SyntaxError deep in a step. Runs first in
 # the base stage, before any Python of ours. BASE_IMAGE comes from the stage's ARG.
 set -e
+# LOCKED: the tool put the lock's pins for prepare into the build (runtime/prepare.py,
+# held_to_lock): python3 too comes at its locked version; prepare compares what it installed,
+# from this copy of dpkg's state on, with the lock and removes the pins again.
+if [ -f /docker-ros/lock-pins/base.pref ]; then
+    cp /var/lib/dpkg/status /run/docker-ros/dpkg-status.before
+    mkdir -p /etc/apt/preferences.d
+    cp /docker-ros/lock-pins/base.pref /etc/apt/preferences.d/docker-ros-lock
+fi
 MINIMUM_MAJOR=3
 MINIMUM_MINOR=8
 if ! command -v python3 >/dev/null 2>&1; then

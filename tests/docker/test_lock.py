@@ -3,7 +3,9 @@ local git server, real apt in the images, a local wheel index for pip. One modul
 sequence: `inv lock` (resolved in the image's lock stages), then a new upstream commit and a
 newer wheel: the locked build keeps the locked commit and versions (dpkg-query / pip in both
 images equal the lock's entries; both carry the lock's digest), an unlocked dev build takes the
-new ones; a new debs line or a version the archive no longer has stop a locked build, named."""
+new ones; a new debs line or a version the archive no longer has stop a locked build, named.
+The base image lacks tini, so prepare installs it (and the dev image's toolchain): the lock
+holds what prepare installed too."""
 
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ import pytest
 from docker_ros.host import engine
 from docker_ros.in_image.runtime.lock import (
     LOCK_FILE,
+    apt_preferences,
     dump_lock,
     host_platform,
     local_base_tag,
@@ -36,6 +39,7 @@ from tests.rosfixtures import (
 
 pytestmark = pytest.mark.docker
 IMAGE = "docker-ros-test/lock-ws:1"
+BASE = f"docker-ros-test/lock-base:{uuid.uuid4().hex[:8]}"
 USER, PASSWORD = "robot", "lock-test-secret"
 WHEEL = "docker-ros-lock-probe"
 MODULE = "docker_ros_lock_probe"
@@ -57,7 +61,18 @@ def pip_versions(ref: str) -> Dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def project(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
+def base_image(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """The ROS 1 test base without tini: the base stage's prepare installs it."""
+    context = tmp_path_factory.mktemp("lock-base")
+    (context / "Dockerfile").write_text(f"FROM {ros1_base_image}\nRUN dpkg --purge tini\n")
+    subprocess.run(["docker", "buildx", "build", "--load", "-q", "-t", BASE, str(context)],
+                   check=True, capture_output=True)
+    yield BASE
+    remove_image(BASE)
+
+
+@pytest.fixture(scope="module")
+def project(base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
     base = tmp_path_factory.mktemp("lock-ws")
     libs = base / "work" / "upstream_libs"
     make_package(libs / "up_a", "up_a")
@@ -86,7 +101,7 @@ def project(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> I
         f"{MODULE}\n")
     write_repos(repo / ".repos", {"upstream_libs": {"url": f"http://{host}/upstream_libs.git",
                                                     "version": "main"}})
-    write_env(repo, BASE_IMAGE=ros1_base_image, IMAGE=IMAGE, TARGET="dev,run",
+    write_env(repo, BASE_IMAGE=base_image, IMAGE=IMAGE, TARGET="dev,run",
               COMMAND="up_a_node", BUILD_NETWORK="host", GIT_HTTPS_SERVER=host,
               GIT_HTTPS_USER=USER)
     env = {"GIT_HTTPS_PASSWORD": PASSWORD}
@@ -110,7 +125,7 @@ def project(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> I
         for ref in (IMAGE, IMAGE + "-dev"):
             remove_image(ref)
         # the tag a locked build gave the local base image (an untag: the image stays)
-        remove_image(local_base_tag(ros1_base_image, engine.inspect_image(ros1_base_image)["Id"]))
+        remove_image(local_base_tag(base_image, engine.inspect_image(base_image)["Id"]))
 
 
 def entries(project: dict) -> Dict[str, dict]:
@@ -130,6 +145,10 @@ def test_inv_lock_resolves_each_target_in_the_images(project: dict) -> None:
         assert entry["inputs"]["debs"] == ["cmatrix"]
         assert entry["inputs"]["rosdep_rules"].startswith("sha256:")
         assert entry["base_image"]["digest"].startswith("sha256:")
+        assert "tini" in entry["prepare"]  # installed by prepare: not in the base image
+    dev, run = targets[f"dev/{arch}"], targets[f"run/{arch}"]
+    assert "g++" in dev["prepare"] and "g++" not in run["prepare"]  # the toolchain: dev only
+    assert run["prepare"].items() <= dev["prepare"].items()
 
 
 def test_lock_check_names_the_new_upstream_commit(project: dict) -> None:
@@ -157,7 +176,10 @@ def test_locked_build_installs_exactly_the_lock(project: dict) -> None:
                                               capture_output=True, text=True).stdout)
         assert inspected[0]["Config"]["Labels"][LABEL] == digest
         installed = dpkg_versions(ref)
-        assert {n: installed.get(n) for n in entry["apt"]} == entry["apt"], target
+        for kind in ("prepare", "apt"):
+            assert {n: installed.get(n) for n in entry[kind]} == entry[kind], (target, kind)
+        # the pins held apt while prepare ran, and went with it
+        assert sh(ref, "ls /etc/apt/preferences.d").stdout.split() == [], target
         pips = pip_versions(ref)
         assert {n: pips.get(n) for n in entry["pip"]} == {
             n: e["version"] for n, e in entry["pip"].items()}, target
@@ -217,6 +239,16 @@ def locked_build_with(project: dict, path: Path, text: str) -> subprocess.Comple
         path.write_text(before)
 
 
+def locked_build_with_versions(project: dict, kind: str, name: str, version: object
+                               ) -> subprocess.CompletedProcess:
+    """A locked build with the lock's `kind` record of `name` at `version` in every entry."""
+    path = project["repo"] / LOCK_FILE
+    data = json.loads(path.read_text())
+    for entry in data["targets"].values():
+        entry[kind][name] = version
+    return locked_build_with(project, path, dump_lock(data))
+
+
 def test_locked_build_stops_on_a_new_dependency_naming_it(project: dict) -> None:
     debs = project["repo"] / "docker" / "additional-debs.txt"
     failed = locked_build_with(project, debs, debs.read_text() + "figlet\n")
@@ -229,23 +261,53 @@ def test_locked_build_stops_on_a_new_dependency_naming_it(project: dict) -> None
 
 
 def test_locked_version_no_longer_available_is_named_with_its_source(project: dict) -> None:
-    path = project["repo"] / LOCK_FILE
-    data = json.loads(path.read_text())
-    for entry in data["targets"].values():
-        entry["apt"]["cmatrix"] = "0.0-gone1"
-    failed = locked_build_with(project, path, dump_lock(data))
+    failed = locked_build_with_versions(project, "apt", "cmatrix", "0.0-gone1")
     assert failed.returncode != 0
     assert "LOCKED: cmatrix=0.0-gone1 no longer available from apt's sources (" in failed.stdout, \
         failed.stdout[-3000:]
     assert "deb.debian.org" in failed.stdout.split("cmatrix=0.0-gone1 no longer available")[1]
 
 
+def test_locked_prepare_version_no_longer_available_stops_prepare_naming_it(
+        project: dict) -> None:
+    failed = locked_build_with_versions(project, "prepare", "tini", "0.0-gone1")
+    assert failed.returncode != 0
+    last = failed.stdout.strip().splitlines()[-1]
+    assert "failed in step prepare: LOCKED: prepare installed otherwise than docker-ros.lock: " \
+           "tini=0.0-gone1 (installed " in last, failed.stdout[-3000:]
+    assert "deb.debian.org" in last.split("no longer available from apt's sources")[1], last
+
+
+# two versions of a package in a flat apt repository of the container's own, then an install
+PROBE_REPOSITORY = r"""set -e
+mkdir -p /tmp/repo && cd /tmp/repo
+for v in 1.0 1.1; do
+  mkdir -p p$v/DEBIAN
+  printf 'Package: docker-ros-probe\nVersion: %s\nArchitecture: all\n' $v > p$v/DEBIAN/control
+  printf 'Maintainer: t <t@t.t>\nDescription: probe\n' >> p$v/DEBIAN/control
+  dpkg-deb -b p$v probe_$v.deb >/dev/null
+done
+dpkg-scanpackages -m . > Packages 2>/dev/null
+echo 'deb [trusted=yes] file:/tmp/repo ./' > /etc/apt/sources.list.d/probe.list
+apt-get update -o Dir::Etc::sourceparts=- \
+    -o Dir::Etc::sourcelist=/etc/apt/sources.list.d/probe.list >/dev/null
+printf '%s' "$PREFERENCES" > /etc/apt/preferences.d/docker-ros-lock
+apt-get install -y docker-ros-probe >/dev/null
+dpkg-query -W -f '${Version}' docker-ros-probe"""
+
+
+def test_apt_installs_the_pinned_version_where_a_newer_one_is_offered(project: dict) -> None:
+    """What held_to_lock writes (apt_preferences) in real apt: the locked 1.0, not 1.1."""
+    assert project["build"].returncode == 0
+    for pins, expected in (({"docker-ros-probe": "1.0"}, "1.0"), ({}, "1.1")):
+        installed = sh(IMAGE + "-dev", PROBE_REPOSITORY,
+                       "-e", f"PREFERENCES={apt_preferences(pins)}")
+        assert installed.returncode == 0, installed.stderr[-2000:]
+        assert installed.stdout.strip().splitlines()[-1] == expected, installed.stdout
+
+
 def test_locked_pip_version_no_longer_available_is_named_with_its_source(project: dict) -> None:
-    path = project["repo"] / LOCK_FILE
-    data = json.loads(path.read_text())
-    for entry in data["targets"].values():
-        entry["pip"][WHEEL]["version"] = "0.9"
-    failed = locked_build_with(project, path, dump_lock(data))
+    failed = locked_build_with_versions(project, "pip", WHEEL, {"version": "0.9"})
     assert failed.returncode != 0
     assert f"LOCKED: {WHEEL}==0.9 no longer available from pip's sources (http://127.0.0.1:" \
         in failed.stdout, failed.stdout[-3000:]

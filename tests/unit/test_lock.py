@@ -305,3 +305,68 @@ def test_a_locked_pip_version_pip_cannot_find_is_named_with_the_sources():
     assert lock.pip_sources(["six"], {}) == ["https://pypi.org/simple (pip's default index)"]
     assert lock.pip_sources(["six"], {"PIP_INDEX_URL": "http://mirror/simple"}) == [
         "http://mirror/simple"]
+
+
+DPKG_STATUS = """Package: tini
+Status: install ok installed
+Version: 0.19.0-1
+Description: tiny init
+ a continuation line: with a colon
+
+Package: gone
+Status: deinstall ok config-files
+Version: 1.0
+
+Package: libc6
+Status: install ok installed
+Architecture: amd64
+Version: 2.36-9+deb12u4
+"""
+
+
+def test_dpkg_status_gives_installed_packages_and_what_changed_since():
+    installed = lock.parse_dpkg_status(DPKG_STATUS)
+    assert installed == {"tini": "0.19.0-1", "libc6": "2.36-9+deb12u4"}
+    after = {**installed, "libc6": "2.36-9+deb12u5", "g++": "4:12.2.0-3"}
+    assert lock.installed_over(installed, after) == {"g++": "4:12.2.0-3",
+                                                      "libc6": "2.36-9+deb12u5"}
+    assert lock.installed_over(installed, installed) == {}
+
+
+def test_apt_preferences_hold_each_locked_version_and_read_back():
+    pins = {"tini": "0.19.0-1", "g++": "4:12.2.0-3"}
+    text = lock.apt_preferences(pins)
+    assert text.startswith("Package: g++\nPin: version 4:12.2.0-3\nPin-Priority: 1001\n\n")
+    assert lock.parse_apt_preferences(text) == pins
+    assert lock.apt_preferences({}) == ""
+
+
+def test_an_install_otherwise_than_the_lock_names_each_difference():
+    pins = {"tini": "0.19.0-1", "libtini": "0.19.0-1"}
+    before = {"libc6": "2.36"}
+    assert lock.unlocked_installs(pins, before, {**before, **pins}) == []
+    assert lock.unlocked_installs(pins, before, {**before, "tini": "0.20-1", "curl": "7.88"}) == [
+        "curl 7.88 (not in docker-ros.lock)", "libtini=0.19.0-1 (missing)",
+        "tini=0.19.0-1 (installed 0.20-1)"]
+
+
+def test_the_prepare_pins_are_the_run_and_dev_entries_and_an_old_lock_is_refused(
+        tmp_path: Path):
+    from docker_ros.host.lock import prepare_pins
+    from docker_ros.in_image.settings import load_settings
+
+    entries = {"run/amd64": {"prepare": {"tini": "1"}},
+               "dev/amd64": {"prepare": {"tini": "1", "g++": "2"}}}
+    (tmp_path / lock.LOCK_FILE).write_text(lock.dump_lock({"format": 1, "targets": entries}))
+
+    def pins(**environ):
+        return prepare_pins(load_settings(environ={"BUILD_CONTEXT": str(tmp_path), **environ},
+                                          project_dir=tmp_path), "amd64")
+
+    assert pins() == {}  # unlocked: no pins, an empty /lock in the imports image
+    assert {k: lock.parse_apt_preferences(v) for k, v in pins(LOCKED="true").items()} == {
+        "base.pref": {"tini": "1"}, "dev.pref": {"tini": "1", "g++": "2"}}
+    del entries["dev/amd64"]["prepare"]
+    (tmp_path / lock.LOCK_FILE).write_text(lock.dump_lock({"format": 1, "targets": entries}))
+    with pytest.raises(lock.LockError, match="dev/amd64 records no prepare packages .*inv lock"):
+        pins(LOCKED="true")

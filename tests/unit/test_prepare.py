@@ -91,3 +91,41 @@ def test_image_installs_skip_dpkg_syncs_host_installs_do_not():
                 and "--no-install-recommends" in c]
     assert installs and all(c[2:6] == ["-y", "--no-install-recommends", *unsafe]
                             for c in installs)
+
+
+def test_a_locked_prepare_installs_under_the_pins_and_stops_on_a_difference(
+        tmp_path, monkeypatch):
+    """held_to_lock around an install: the pins are apt's preferences meanwhile and gone after;
+    what was installed is compared with them from the state before (real apt behaviour under
+    the pins: tests/docker/test_lock.py)."""
+    from docker_ros.in_image.runtime import lock, prepare
+    from docker_ros.in_image.runtime.workspace import StepError
+
+    status = tmp_path / "status"
+    preferences = tmp_path / "preferences.d" / "docker-ros-lock"
+    pins = tmp_path / "pins"
+    pins.mkdir()
+    (pins / "base.pref").write_text(lock.apt_preferences({"tini": "1"}))
+    monkeypatch.setattr(prepare, "LOCK_PINS", pins)
+    monkeypatch.setattr(prepare, "BEFORE_PREPARE", tmp_path / "absent")
+    monkeypatch.setattr(prepare, "DPKG_STATUS", status)
+    monkeypatch.setattr(prepare, "LOCK_PREFERENCES", preferences)
+    monkeypatch.setattr(prepare, "apt_sources", lambda: ["http://deb.debian.org/debian bookworm"])
+
+    def installing(version, types="exec", held=True):
+        status.write_text("")
+        with prepare.held_to_lock(types, dry_run=False):
+            assert preferences.is_file() == held
+            if held:
+                assert lock.parse_apt_preferences(preferences.read_text()) == {"tini": "1"}
+            status.write_text(f"Package: tini\nStatus: install ok installed\nVersion: {version}\n")
+
+    installing("1")
+    assert not preferences.exists()
+    with pytest.raises(StepError, match=r"LOCKED: prepare installed otherwise than docker-ros"
+                       r".lock: tini=1 \(installed 2\)\. .*\(http://deb.debian.org/debian "
+                       r"bookworm\).*run `inv lock`"):
+        installing("2")
+    assert not preferences.exists()
+    # the toolchain pass reads dev.pref: none here, so nothing is held or checked
+    installing("2", types="all", held=False)

@@ -18,6 +18,7 @@ from docker_ros.in_image.runtime.lock import (
     LOCKED_ENV,
     LockError,
     apt_closure,
+    apt_preferences,
     base_image_ref,
     dump_lock,
     image_repository,
@@ -75,6 +76,24 @@ def locked_build_args(settings: Settings, *, target: str, platform: str) -> Dict
             " run `inv lock`"
         )
     return {"BASE_IMAGE": base_image_ref(settings.base_image or "", record), LOCKED_ENV: "true"}
+
+
+def prepare_pins(settings: Settings, platform: str) -> Dict[str, str]:
+    """The lock's pins for the image's prepare, as apt preferences files (file name -> text)
+    for the imports image's /lock: base.pref, what the base stage's prepare installs (the run
+    entry's), and dev.pref, with the dev image's toolchain (the dev entry's); none unless
+    LOCKED."""
+    if not settings.locked:
+        return {}
+    lock = load_lock(lock_path(settings))
+    pins: Dict[str, str] = {}
+    for target, name in (("run", "base.pref"), ("dev", "dev.pref")):
+        entry = locked_target(lock, target, platform)
+        if "prepare" not in entry:
+            raise LockError(f"LOCKED: docker-ros.lock's {target_key(target, platform)} records "
+                            "no prepare packages (an older docker-ros wrote it): run `inv lock`")
+        pins[name] = apt_preferences(entry["prepare"])
+    return pins
 
 
 def tag_local_base(settings: Settings, platform: str) -> None:
@@ -174,7 +193,7 @@ def entry_changes(key: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> L
     and pip versions, the base image)."""
     changes = [f"{key}: {line}" for line in stale_inputs(old.get("inputs") or {},
                                                        new.get("inputs") or {})]
-    for kind in ("repos", "apt", "pip"):
+    for kind in ("repos", "prepare", "apt", "pip"):
         before, after = old.get(kind) or {}, new.get(kind) or {}
         changes += [f"{key}: {kind} {name} {before.get(name)} -> {after.get(name)}"
                     for name in sorted({*before, *after}) if before.get(name) != after.get(name)]

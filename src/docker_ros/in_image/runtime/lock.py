@@ -9,7 +9,11 @@ The lock is JSON with sorted keys (readable, diffable, one record per target and
                     "rosdep_rules": "sha256:..."},
          "repos": {"src/upstream/foo": {"url": "...", "commit": "<40 hex>"}},
          "apt": {"name": "version"},
+         "prepare": {"name": "version"},
          "pip": {"name": {"version": "1.2", "sha256": "..."}}}}}
+`prepare` is what the image's prepare installed over the bare base image (python3, the tools,
+ROS when the base lacks it; for dev the toolchain too): a locked build's prepare installs it at
+those versions through an apt preferences file (apt_preferences).
 `inputs` is what the collect phase resolved when the lock was written: a build whose inputs
 differ is stale and stops before installing anything."""
 
@@ -122,6 +126,62 @@ def apt_pins(packages: Sequence[str], locked: Mapping[str, str]) -> List[str]:
     them, so that dependencies are held at their locked versions as well."""
     require_locked("apt", [apt_name(p) for p in packages], locked)
     return [f"{name}={version}" for name, version in sorted(locked.items())]
+
+
+DPKG_STATUS = Path("/var/lib/dpkg/status")
+# where a locked build's prepare holds apt to the lock's versions (runtime/prepare.py; removed
+# again before the layer ends)
+LOCK_PREFERENCES = Path("/etc/apt/preferences.d/docker-ros-lock")
+
+
+def parse_dpkg_status(text: str) -> Dict[str, str]:
+    """name -> version of every installed package in a dpkg status file."""
+    installed: Dict[str, str] = {}
+    for paragraph in text.split("\n\n"):
+        fields = dict(line.split(":", 1) for line in paragraph.splitlines()
+                      if ":" in line and not line[:1].isspace())
+        if fields.get("Status", "").strip().endswith(" installed") and "Package" in fields:
+            installed[fields["Package"].strip()] = fields.get("Version", "").strip()
+    return installed
+
+
+def read_dpkg_status(path: Path = DPKG_STATUS) -> Dict[str, str]:
+    """The installed packages of a dpkg status file; none when there is no file (no dpkg)."""
+    return parse_dpkg_status(path.read_text(errors="replace")) if path.is_file() else {}
+
+
+def installed_over(before: Mapping[str, str], after: Mapping[str, str]) -> Dict[str, str]:
+    """name -> version of each package installed, or at another version, since `before`."""
+    return {name: version for name, version in sorted(after.items())
+            if before.get(name) != version}
+
+
+def apt_preferences(pins: Mapping[str, str]) -> str:
+    """An apt preferences file that holds each package at its locked version, whatever pulls
+    it in (priority 1001: also when the sources offer a newer one, or it is installed newer)."""
+    return "".join(f"Package: {name}\nPin: version {version}\nPin-Priority: 1001\n\n"
+                   for name, version in sorted(pins.items()))
+
+
+def parse_apt_preferences(text: str) -> Dict[str, str]:
+    """name -> version of the version pins of an apt preferences file (apt_preferences)."""
+    pins: Dict[str, str] = {}
+    for paragraph in text.split("\n\n"):
+        fields = dict(line.split(": ", 1) for line in paragraph.splitlines() if ": " in line)
+        if "Package" in fields and fields.get("Pin", "").startswith("version "):
+            pins[fields["Package"]] = fields["Pin"][len("version "):]
+    return pins
+
+
+def unlocked_installs(pins: Mapping[str, str], before: Mapping[str, str],
+                      after: Mapping[str, str]) -> List[str]:
+    """What an install held to the lock (`pins`) did otherwise: each package it installed that
+    the lock lacks, each locked package not installed at its locked version."""
+    problems = [f"{name} {version} (not in docker-ros.lock)"
+                for name, version in installed_over(before, after).items() if name not in pins]
+    problems += [f"{name}={version} ({'installed ' + after[name] if name in after else 'missing'})"
+                 for name, version in sorted(pins.items()) if after.get(name) != version]
+    return problems
 
 
 def pip_constraints(locked: Mapping[str, Mapping[str, str]]) -> Optional[List[str]]:
@@ -535,18 +595,21 @@ def _state(ws: Workspace, name: str) -> Dict[str, Any]:
     return dict(data) if isinstance(data, dict) else {}
 
 
-def resolved_entry(ws: Workspace, settings: Settings, dependency_types: str, upstream: Path
-                   ) -> Dict[str, Any]:
+def resolved_entry(ws: Workspace, settings: Settings, dependency_types: str, upstream: Path,
+                   bare: Path) -> Dict[str, Any]:
     """One image target's lock entry, where its installs run (the resolved-dev or resolved-run
     state, resolution in .docker-ros): the collect phases' inputs, the imported commits (the
-    source stage's src/upstream at `upstream`), what apt and pip would install now (fresh apt
-    lists). The base image's digest is the host's to add."""
+    source stage's src/upstream at `upstream`), what prepare installed over the bare base image
+    (its root at `bare`), what apt and pip would install now (fresh apt lists). The base
+    image's digest is the host's to add."""
     inputs = recorded_inputs(ws, rules_path(ws, settings))
     chosen = _state(ws, "rosdep.json").get(dependency_types) or {}
     apt = sorted({*inputs["debs"], *(chosen.get("apt") or [])})
     pip = [*inputs["pip"], *(chosen.get("pip") or [])]
     constraints = _state(ws, "pip.json").get("constraints") or []
     return {"inputs": inputs, "repos": repository_commits(upstream),
+            "prepare": installed_over(read_dpkg_status(bare / "var/lib/dpkg/status"),
+                                      read_dpkg_status()),
             "apt": apt_closure(apt, update=True), "pip": pip_report(pip, constraints)}
 
 
@@ -572,14 +635,14 @@ def check_resolution(ws: Workspace, settings: Settings) -> None:
 
 def main(argv: List[str]) -> int:
     """`python3 -m docker_ros.in_image.runtime.lock check` (resolve stage) or `... resolve OUT
-    TYPES UPSTREAM` (the lock stages: OUT/<target>.json)."""
+    TYPES UPSTREAM BARE` (the lock stages: OUT/<target>.json)."""
     from docker_ros.in_image.runtime.workspace import entry_parser, image_main
 
     if argv[:1] not in (["check"], ["resolve"]):  # --help, or no command: say which there are
         parser = entry_parser("runtime.lock", "LOCKED builds: check a resolution against "
                               "docker-ros.lock, or write an image's lock entry.")
         parser.add_argument("command", choices=["check", "resolve"],
-                            help="check | resolve OUT DEPENDENCY_TYPES UPSTREAM")
+                            help="check | resolve OUT DEPENDENCY_TYPES UPSTREAM BARE")
         parser.parse_args(argv)
         parser.error("the command comes first: check ... or resolve ...")
     if argv[:1] == ["check"]:
@@ -589,15 +652,16 @@ def main(argv: List[str]) -> int:
                           action=lambda ws, settings, _: check_resolution(ws, settings))
 
     def write(ws: Workspace, settings: Settings, args: List[str]) -> None:
-        out, types, upstream = Path(args[0]), args[1], Path(args[2])
-        entry = resolved_entry(ws, settings, types, upstream)
+        out, types, upstream, bare = Path(args[0]), args[1], Path(args[2]), Path(args[3])
+        entry = resolved_entry(ws, settings, types, upstream, bare)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(dump_lock(entry))
 
     return image_main(argv[1:], module="runtime.lock resolve", step="lock",
-                      description="Write the lock entry of one image (apt and pip closure, "
-                      "imported commits) to OUT.",
-                      arguments=["OUT", "DEPENDENCY_TYPES", "UPSTREAM"], action=write)
+                      description="Write the lock entry of one image (what prepare installed "
+                      "over the base image at BARE, apt and pip closure, imported commits) to "
+                      "OUT.", arguments=["OUT", "DEPENDENCY_TYPES", "UPSTREAM", "BARE"],
+                      action=write)
 
 
 if __name__ == "__main__":

@@ -4,10 +4,19 @@ when the base image lacks them; a docker-ros workspace in the base moves to /opt
 import glob
 import os
 import shutil
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Dict, List, Mapping, Optional, Sequence
+from typing import Dict, Iterator, List, Mapping, Optional, Sequence
 
 from docker_ros.in_image.runtime.apt import apt_env, install_options
+from docker_ros.in_image.runtime.lock import (
+    DPKG_STATUS,
+    LOCK_PREFERENCES,
+    apt_sources,
+    parse_apt_preferences,
+    read_dpkg_status,
+    unlocked_installs,
+)
 from docker_ros.in_image.runtime.process import run
 from docker_ros.in_image.runtime.rosenv import BASE_IMAGE_WS, ROS1_DISTROS
 from docker_ros.in_image.runtime.workspace import LOG, StepError, Workspace, step_log
@@ -131,6 +140,41 @@ def apt_available(packages: Sequence[str]) -> List[str]:
     return available
 
 
+# LOCKED: the lock's pins for prepare as apt preferences, base.pref (the base stage: the run
+# entry's) and dev.pref (the toolchain: the dev entry's), which the tool writes into its imports
+# image (/lock) and the stages mount here; ensure-python.sh, first in the base stage, puts
+# base.pref in place and keeps dpkg's state from before it installs anything.
+LOCK_PINS = Path("/docker-ros/lock-pins")
+BEFORE_PREPARE = Path("/run/docker-ros/dpkg-status.before")
+
+
+@contextmanager
+def held_to_lock(dependency_types: object, *, dry_run: bool) -> Iterator[None]:
+    """In a locked build (the stage holds the lock's pins): what prepare installs meanwhile
+    comes at docker-ros.lock's versions, dependencies included (apt preferences, removed
+    again); then stop unless what it installed is exactly the lock's, naming each difference."""
+    pins_file = LOCK_PINS / ("dev.pref" if dependency_types == "all" else "base.pref")
+    if dry_run or not pins_file.is_file():
+        yield
+        return
+    before = read_dpkg_status(BEFORE_PREPARE if BEFORE_PREPARE.is_file() else DPKG_STATUS)
+    LOCK_PREFERENCES.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(str(pins_file), str(LOCK_PREFERENCES))
+    try:
+        yield
+    finally:
+        LOCK_PREFERENCES.unlink()
+    problems = unlocked_installs(parse_apt_preferences(pins_file.read_text()), before,
+                                 read_dpkg_status(DPKG_STATUS))
+    if problems:
+        raise StepError("prepare", f"LOCKED: prepare installed otherwise than docker-ros.lock: "
+                        f"{'; '.join(problems)}. A locked version is no longer available from "
+                        f"apt's sources ({'; '.join(apt_sources()) or 'none configured'}), or "
+                        "the base image or ROS_DISTRO, RMW_IMPLEMENTATION, "
+                        "ROS_APT_SOURCE_VERSION, DISABLE_ROS_INSTALLATION changed since the "
+                        "lock: run `inv lock`")
+
+
 APT_KEEP_CACHE = Path("/etc/apt/apt.conf.d/docker-ros-keep-cache")
 DOCKER_CLEAN = Path("/etc/apt/apt.conf.d/docker-clean")
 
@@ -173,7 +217,7 @@ def main(
     **options: object,
 ) -> None:
     environ = os.environ if environ is None else environ
-    with step_log("prepare"):
+    with step_log("prepare"), held_to_lock(options.get("dependency_types"), dry_run=dry_run):
         move_base_workspace(ws, dry_run=dry_run)
         keep_apt_downloads(dry_run=dry_run)
         distro = settings.ros_distro or environ.get("ROS_DISTRO")
