@@ -2,21 +2,26 @@
 own base image (`<BASE_IMAGE>-arm64`, as bootstrap tags it), pushed to a local registry with
 one manifest list per image, both by `docker-ros push` with PLATFORM=amd64,arm64 and by the
 GitLab template's per-architecture jobs and its Push job (gitlab-ci-local). The pulled
-arm64 run image runs its talker and listener.
+arm64 run image runs its talker and listener. `inv lock` resolves each platform's entries in
+its own image stages, and a locked arm64 build installs its platform's entry (issue 23).
 
 The workspace is one Python catkin package (a real colcon build, no C++ compile and no -dev
 packages to install under QEMU): the emulated build is the slow part of this module."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import textwrap
 import time
+import uuid
 from pathlib import Path
 
 import pytest
 
+from docker_ros.host import engine
+from docker_ros.in_image.runtime.lock import LOCK_FILE, local_base_tag
 from tests.ci.cihelp import (
     REPO,
     example_repository,
@@ -26,7 +31,14 @@ from tests.ci.cihelp import (
     registry_tags,
 )
 from tests.ci.github_harness import Event, run_action
-from tests.docker.buildhelp import docker_ros, remove_image, run_until, sh
+from tests.docker.buildhelp import (
+    docker_ros,
+    dpkg_versions,
+    own_copy,
+    remove_image,
+    run_until,
+    sh,
+)
 
 pytestmark = pytest.mark.docker
 
@@ -193,3 +205,41 @@ def test_action_single_job_multiarch_example(
     assert {"latest", "latest-slim"} <= set(tags), tags
     assert manifest_architectures(f"{local_registry}/{image}:latest") == ["amd64", "arm64"]
     assert "arm64" not in " ".join(t for t in tags if "slim" in t), tags
+
+
+def test_lock_resolves_each_platform_and_a_locked_arm64_build_installs_its_entry(
+    repository: Path, ros1_base_image: str, tmp_path: Path
+) -> None:
+    """`inv lock` with PLATFORM=amd64,arm64: four entries, each platform's from its own base
+    image (arm64 resolved under QEMU); then a locked build of the arm64 run image holds its
+    platform's versions (what prepare and the dependency steps installed)."""
+    image = f"{IMAGE}-lock-{uuid.uuid4().hex[:8]}:1"
+    repo = own_copy(repository, tmp_path / "repo", image)
+    began = time.monotonic()
+    locked = docker_ros(repo, "lock", env={"PLATFORM": "amd64,arm64"})
+    print(f"inv lock, PLATFORM=amd64,arm64: {time.monotonic() - began:.0f} s")
+    assert locked.returncode == 0, locked.stdout[-6000:]
+    targets = json.loads((repo / LOCK_FILE).read_text())["targets"]
+    assert sorted(targets) == ["dev/amd64", "dev/arm64", "run/amd64", "run/arm64"]
+    arm64_base = f"{ros1_base_image}-arm64"
+    for target in ("dev", "run"):
+        amd64, arm64 = targets[f"{target}/amd64"], targets[f"{target}/arm64"]
+        assert amd64["base_image"]["digest"] == engine.inspect_image(ros1_base_image)["Id"]
+        assert arm64["base_image"]["digest"] == engine.inspect_image(arm64_base)["Id"]
+        assert amd64["inputs"] == arm64["inputs"]  # one repository: the same resolution
+    assert "g++" in targets["dev/arm64"]["prepare"]  # the toolchain, resolved under QEMU
+    try:
+        began = time.monotonic()
+        built = docker_ros(repo, "build", "--set", "LOCKED=true",
+                           env={"PLATFORM": "arm64", "TARGET": "run"})
+        print(f"locked build, PLATFORM=arm64 TARGET=run: {time.monotonic() - began:.0f} s")
+        assert built.returncode == 0, built.stdout[-6000:]
+        assert "lock: locked build, docker-ros.lock sha256:" in built.stdout
+        installed = dpkg_versions(image)
+        assert sh(image, "uname -m").stdout.strip() == "aarch64"
+        for kind in ("prepare", "apt"):
+            entry = targets["run/arm64"][kind]
+            assert {n: installed.get(n) for n in entry} == entry, kind
+    finally:
+        remove_image(image)
+        remove_image(local_base_tag(ros1_base_image, engine.inspect_image(arm64_base)["Id"]))

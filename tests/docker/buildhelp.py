@@ -78,6 +78,14 @@ def sh(ref: str, script: str, *docker_args: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300)
 
 
+def dpkg_versions(ref: str) -> Dict[str, str]:
+    """name -> version of every package installed in ref (dpkg-query)."""
+    listed = sh(ref, "dpkg-query -W -f '${Package} ${Version} ${db:Status-Abbrev}\\n'")
+    assert listed.returncode == 0, listed.stderr
+    return {p[0]: p[1] for p in (line.split() for line in listed.stdout.splitlines())
+            if len(p) == 3 and p[2] == "ii"}
+
+
 def run_until(ref: str, needle: str, seconds: float, *docker_args: str) -> str:
     """Run the image's default command until needle appears in its output (or time is up)."""
     name = f"docker-ros-test-{os.getpid()}-{int(time.time() * 1000)}"

@@ -26,7 +26,14 @@ from docker_ros.in_image.runtime.lock import (
     local_base_tag,
     lock_digest,
 )
-from tests.docker.buildhelp import docker_ros, own_copy, remove_image, sh, write_env
+from tests.docker.buildhelp import (
+    docker_ros,
+    dpkg_versions,
+    own_copy,
+    remove_image,
+    sh,
+    write_env,
+)
 from tests.rosfixtures import (
     file_http_server,
     git,
@@ -44,13 +51,6 @@ USER, PASSWORD = "robot", "lock-test-secret"
 WHEEL = "docker-ros-lock-probe"
 MODULE = "docker_ros_lock_probe"
 LABEL = "io.github.docker-ros.lock"
-
-
-def dpkg_versions(ref: str) -> Dict[str, str]:
-    listed = sh(ref, "dpkg-query -W -f '${Package} ${Version} ${db:Status-Abbrev}\\n'")
-    assert listed.returncode == 0, listed.stderr
-    return {p[0]: p[1] for p in (line.split() for line in listed.stdout.splitlines())
-            if len(p) == 3 and p[2] == "ii"}
 
 
 def pip_versions(ref: str) -> Dict[str, str]:
