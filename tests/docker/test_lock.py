@@ -196,6 +196,13 @@ def install_space(ref: str) -> str:
     return listed.stdout
 
 
+def build_a_copy(project: dict, tmp_path: Path, image: str, *args: str
+                 ) -> subprocess.CompletedProcess:
+    """A locked build (args added) of a copy of the project, its images tagged `image`."""
+    copy = own_copy(project["repo"], tmp_path / "repo", image)
+    return docker_ros(copy, "build", "--set", "LOCKED=true", *args, env=project["env"])
+
+
 def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: Path) -> None:
     """The module's locked build and another locked build of the dev and run images in a copy
     that reuses no layer of it (NO_CACHE; another folder and name: a colcon build cache of its
@@ -204,10 +211,9 @@ def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: 
     install-space file list."""
     assert project["build"].returncode == 0
     again = f"docker-ros-test/lock-ws-again-{uuid.uuid4().hex[:8]}:1"
-    copy = own_copy(project["repo"], tmp_path / "repo", again)
     try:
-        built = docker_ros(copy, "build", "--target", "dev,run", "--set", "LOCKED=true",
-                           "--set", "NO_CACHE=true", env=project["env"])
+        built = build_a_copy(project, tmp_path, again, "--target", "dev,run",
+                             "--set", "NO_CACHE=true")
         assert built.returncode == 0, built.stdout[-5000:]
         # the dependency steps ran again (no cached layer), installing the locked versions
         assert "rosdep: apt-get install -y --no-install-recommends" in built.stdout
@@ -228,10 +234,9 @@ def test_a_locked_lean_run_image_has_the_locked_dev_image_versions(
     in install/ links) and what it depends on, each at the locked dev image's version."""
     assert project["build"].returncode == 0
     lean = f"docker-ros-test/lock-lean-{uuid.uuid4().hex[:8]}:1"
-    copy = own_copy(project["repo"], tmp_path / "repo", lean)
     try:
-        built = docker_ros(copy, "build", "--target", "run", "--set", "LOCKED=true",
-                           "--set", "ENABLE_LEAN_RUN_IMAGE=true", env=project["env"])
+        built = build_a_copy(project, tmp_path, lean, "--target", "run",
+                             "--set", "ENABLE_LEAN_RUN_IMAGE=true")
         assert built.returncode == 0, built.stdout[-5000:]
         assert "lock: locked build" in built.stdout
         installed, dev = dpkg_versions(lean), dpkg_versions(IMAGE + "-dev")
