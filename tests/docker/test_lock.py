@@ -90,11 +90,13 @@ def project(base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterat
     index = file_http_server(served)
 
     repo = base / "repo"
-    # rosdep key my_tool -> sl (exec: dev and run), from the repository's own rules
-    make_package(repo / "app", "app", exec_depends=["my_tool"])
+    # rosdep keys my_tool -> sl and my_dev_lib -> libyaml-cpp-dev (exec: dev and run; a lean
+    # run image drops the -dev package), from the repository's own rules
+    make_package(repo / "app", "app", exec_depends=["my_tool", "my_dev_lib"])
     (repo / "docker").mkdir()
     (repo / "docker" / "rosdep.yaml").write_text(
-        f"# run {uuid.uuid4().hex}\nmy_tool:\n  debian: [sl]\n")
+        f"# run {uuid.uuid4().hex}\nmy_tool:\n  debian: [sl]\n"
+        "my_dev_lib:\n  debian: [libyaml-cpp-dev]\n")
     (repo / "docker" / "additional-debs.txt").write_text("cmatrix\n")
     (repo / "docker" / "additional-pip-requirements.txt").write_text(
         f"--no-index --find-links http://127.0.0.1:{index.server_address[1]}/{wheels.name}/\n"
@@ -194,6 +196,13 @@ def install_space(ref: str) -> str:
     return listed.stdout
 
 
+def build_a_copy(project: dict, tmp_path: Path, image: str, *args: str
+                 ) -> subprocess.CompletedProcess:
+    """A locked build (args added) of a copy of the project, its images tagged `image`."""
+    copy = own_copy(project["repo"], tmp_path / "repo", image)
+    return docker_ros(copy, "build", "--set", "LOCKED=true", *args, env=project["env"])
+
+
 def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: Path) -> None:
     """The module's locked build and another locked build of the dev and run images in a copy
     that reuses no layer of it (NO_CACHE; another folder and name: a colcon build cache of its
@@ -202,10 +211,9 @@ def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: 
     install-space file list."""
     assert project["build"].returncode == 0
     again = f"docker-ros-test/lock-ws-again-{uuid.uuid4().hex[:8]}:1"
-    copy = own_copy(project["repo"], tmp_path / "repo", again)
     try:
-        built = docker_ros(copy, "build", "--target", "dev,run", "--set", "LOCKED=true",
-                           "--set", "NO_CACHE=true", env=project["env"])
+        built = build_a_copy(project, tmp_path, again, "--target", "dev,run",
+                             "--set", "NO_CACHE=true")
         assert built.returncode == 0, built.stdout[-5000:]
         # the dependency steps ran again (no cached layer), installing the locked versions
         assert "rosdep: apt-get install -y --no-install-recommends" in built.stdout
@@ -218,6 +226,25 @@ def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: 
     finally:
         remove_image(again)
         remove_image(again + "-dev")
+
+
+def test_a_locked_lean_run_image_has_the_locked_dev_image_versions(
+        project: dict, tmp_path: Path) -> None:
+    """ENABLE_LEAN_RUN_IMAGE with LOCKED: the lean set (sl, not libyaml-cpp-dev, which nothing
+    in install/ links) and what it depends on, each at the locked dev image's version."""
+    assert project["build"].returncode == 0
+    lean = f"docker-ros-test/lock-lean-{uuid.uuid4().hex[:8]}:1"
+    try:
+        built = build_a_copy(project, tmp_path, lean, "--target", "run",
+                             "--set", "ENABLE_LEAN_RUN_IMAGE=true")
+        assert built.returncode == 0, built.stdout[-5000:]
+        assert "lock: locked build" in built.stdout
+        installed, dev = dpkg_versions(lean), dpkg_versions(IMAGE + "-dev")
+        assert "sl" in installed and "libyaml-cpp-dev" not in installed
+        assert "libyaml-cpp-dev" in dpkg_versions(IMAGE)  # the locked run image, not lean
+        assert {n: dev.get(n) for n in installed} == installed
+    finally:
+        remove_image(lean)
 
 
 def test_unlocked_build_takes_the_new_commit_and_wheel(project: dict) -> None:

@@ -370,3 +370,22 @@ def test_the_prepare_pins_are_the_run_and_dev_entries_and_an_old_lock_is_refused
     (tmp_path / lock.LOCK_FILE).write_text(lock.dump_lock({"format": 1, "targets": entries}))
     with pytest.raises(lock.LockError, match="dev/amd64 records no prepare packages .*inv lock"):
         pins(LOCKED="true")
+
+
+def test_the_installed_closure_follows_dependencies_alternatives_and_virtual_packages():
+    status = "\n\n".join([
+        "Package: sl\nStatus: install ok installed\nVersion: 5.02-1+b1\n"
+        "Depends: libc6 (>= 2.34), libncurses6 (>= 6) | libncursesw6, mail-transport-agent",
+        "Package: libncurses6\nStatus: install ok installed\nVersion: 6.4-4\n"
+        "Pre-Depends: libtinfo6:any (= 6.4-4)",
+        "Package: libtinfo6\nStatus: install ok installed\nVersion: 6.4-4\nDepends: libc6",
+        "Package: libc6\nStatus: install ok installed\nVersion: 2.36-9\nDepends: libgcc-s1",
+        "Package: libgcc-s1\nStatus: install ok installed\nVersion: 12.2.0-14\nDepends: libc6",
+        "Package: exim4\nStatus: install ok installed\nVersion: 4.96-15\n"
+        "Provides: mail-transport-agent",
+        "Package: libyaml-cpp-dev\nStatus: install ok installed\nVersion: 0.7.0+dfsg-8",
+        "Package: removed\nStatus: deinstall ok config-files\nVersion: 1"])
+    assert lock.installed_closure(["sl=5.02-1+b1"], status) == {
+        "exim4": "4.96-15", "libc6": "2.36-9", "libgcc-s1": "12.2.0-14",
+        "libncurses6": "6.4-4", "libtinfo6": "6.4-4", "sl": "5.02-1+b1"}
+    assert lock.installed_closure(["removed", "absent"], status) == {}

@@ -65,9 +65,6 @@ def locked_build_args(settings: Settings, *, target: str, platform: str) -> Dict
     and DOCKER_ROS_LOCKED, which makes the image's steps honour the lock."""
     if not settings.locked or target not in IMAGE_TARGETS:
         return {}
-    if settings.enable_lean_run_image:
-        raise LockError("LOCKED with ENABLE_LEAN_RUN_IMAGE: the lean run image's packages are "
-                        "known only after the build, so they cannot be locked; unset one")
     entry = locked_target(load_lock(lock_path(settings)), target, platform)
     record = entry.get("base_image") or {}
     if record.get("ref") != settings.base_image:

@@ -10,7 +10,9 @@ resolve stage's .docker-ros) to DEST with the exec apt set of rosdep.json replac
   - the packages owning the modules the Python files in install/ import (in the ROS environment).
 Everything else of the run image (additional debs, pip, files, hooks) stays as declared.
 Libraries loaded with dlopen (plugins) are not seen: their packages must be non-dev exec
-dependencies. Standard library only, Python 3.8+ (runs inside images)."""
+dependencies. In a locked build the resolution's copy of the lock gets a run entry for the lean
+set: it and all it depends on at the locked dev image's versions (lock.lean_entry).
+Standard library only, Python 3.8+ (runs inside images)."""
 
 import ast
 import json
@@ -20,6 +22,7 @@ import sys
 from pathlib import Path
 from typing import Dict, Iterable, List, Mapping, Sequence, Set, Tuple
 
+from docker_ros.in_image.runtime.lock import LOCK_FILE, LockError, lock_lean
 from docker_ros.in_image.runtime.process import probe
 from docker_ros.in_image.runtime.rosenv import sourced_env, workspace_setup_files
 from docker_ros.in_image.runtime.workspace import LOG, StepError, Workspace, image_main
@@ -238,6 +241,11 @@ def lean_resolution(ws: Workspace, settings: Settings, resolved: Path,
     declared = list(exec_set.get("apt") or [])
     exec_set["apt"] = lean_packages(declared, set(for_libraries) | set(for_modules))
     plan_file.write_text(json.dumps(plan, indent=2, sort_keys=True) + "\n")
+    if (destination / LOCK_FILE).is_file():  # a locked build (the resolve stage put it there)
+        try:
+            lock_lean(destination / LOCK_FILE, exec_set["apt"])
+        except LockError as exc:
+            raise StepError(STEP, str(exc)) from None
     dropped = sorted(set(declared) - set(exec_set["apt"]))
     unowned = sorted(unowned_libraries + unowned_modules)
     missing = sorted(missing_libraries | missing_modules)

@@ -134,15 +134,55 @@ DPKG_STATUS = Path("/var/lib/dpkg/status")
 LOCK_PREFERENCES = Path("/etc/apt/preferences.d/docker-ros-lock")
 
 
+def installed_records(text: str) -> Dict[str, Dict[str, str]]:
+    """name -> fields (Version, Depends, Provides...) of every installed package in a dpkg
+    status file."""
+    installed: Dict[str, Dict[str, str]] = {}
+    for paragraph in text.split("\n\n"):
+        fields = {key: value.strip() for key, _, value in
+                  (line.partition(":") for line in paragraph.splitlines()
+                   if ":" in line and not line[:1].isspace())}
+        if fields.get("Status", "").endswith(" installed") and "Package" in fields:
+            installed[fields["Package"]] = fields
+    return installed
+
+
 def parse_dpkg_status(text: str) -> Dict[str, str]:
     """name -> version of every installed package in a dpkg status file."""
-    installed: Dict[str, str] = {}
-    for paragraph in text.split("\n\n"):
-        fields = dict(line.split(":", 1) for line in paragraph.splitlines()
-                      if ":" in line and not line[:1].isspace())
-        if fields.get("Status", "").strip().endswith(" installed") and "Package" in fields:
-            installed[fields["Package"].strip()] = fields.get("Version", "").strip()
-    return installed
+    return {name: fields.get("Version", "") for name, fields in installed_records(text).items()}
+
+
+def relation_names(field: str) -> List[List[str]]:
+    """A Depends-style field's package names: one list of alternatives per relation (version
+    constraints and architecture qualifiers left out)."""
+    return [[re.split(r"[\s(:]", alternative.strip(), maxsplit=1)[0]
+             for alternative in relation.split("|")]
+            for relation in field.split(",") if relation.strip()]
+
+
+def installed_closure(packages: Sequence[str], text: str) -> Dict[str, str]:
+    """name -> installed version of the packages and of what they depend on (Depends and
+    Pre-Depends, recursively) in a dpkg status file: of alternatives and virtual packages,
+    the installed one that satisfies them. Names not installed are left out."""
+    records = installed_records(text)
+    providers: Dict[str, str] = {}
+    for name, fields in sorted(records.items()):
+        for (provided, *_) in relation_names(fields.get("Provides", "")):
+            providers.setdefault(provided, name)
+    found: Dict[str, str] = {}
+    queue = [apt_name(package) for package in packages]
+    while queue:
+        name = queue.pop()
+        name = name if name in records else providers.get(name, "")
+        if not name or name in found:
+            continue
+        fields = records[name]
+        found[name] = fields.get("Version", "")
+        for field in ("Pre-Depends", "Depends"):
+            for alternatives in relation_names(fields.get(field, "")):
+                chosen = [a for a in alternatives if a in records or a in providers]
+                queue.extend(chosen[:1])
+    return dict(sorted(found.items()))
 
 
 def read_dpkg_status(path: Path = DPKG_STATUS) -> Dict[str, str]:
@@ -154,6 +194,27 @@ def installed_over(before: Mapping[str, str], after: Mapping[str, str]) -> Dict[
     """name -> version of each package installed, or at another version, since `before`."""
     return {name: version for name, version in sorted(after.items())
             if before.get(name) != version}
+
+
+def lean_entry(entry: Mapping[str, Any], lean: Sequence[str], status_text: str
+               ) -> Dict[str, Any]:
+    """A locked run entry for ENABLE_LEAN_RUN_IMAGE (made in the lean-resolve stage, the locked
+    dev image's state, status_text its dpkg status): rosdep's exec apt set is the lean one,
+    and apt installs it and the debs with all they depend on at the versions the dev image
+    holds, which are the lock's."""
+    inputs = {**(entry.get("inputs") or {}), "rosdep_apt_exec": sorted(lean)}
+    wanted = [*lean, *(inputs.get("debs") or [])]
+    return {**entry, "inputs": inputs, "apt": installed_closure(wanted, status_text)}
+
+
+def lock_lean(path: Path, lean: Sequence[str]) -> None:
+    """Rewrite the run entry of this platform in the resolution's copy of the lock (path) for
+    the lean run image (lean_entry)."""
+    lock = load_lock(path)
+    entry = locked_target(lock, "run", host_platform())
+    lock["targets"][target_key("run", host_platform())] = lean_entry(
+        entry, lean, DPKG_STATUS.read_text())
+    path.write_text(dump_lock(lock))
 
 
 def apt_preferences(pins: Mapping[str, str]) -> str:
