@@ -347,8 +347,9 @@ class Settings:
     )
     locked: bool = setting(
         False,
-        "Build exactly what docker-ros.lock records (base image digest, imported commits, apt"
-        " and pip versions); a repository that no longer matches the lock stops the build",
+        "Build exactly what docker-ros.lock records (base image digest, imported commits, the"
+        " apt versions of prepare and the steps, pip versions); a repository that no longer"
+        " matches the lock stops the build",
         group="ours", build="tool", flags=("image", "host"),
     )
     image_postfix: Optional[str] = setting(
