@@ -6,7 +6,7 @@ set -e
 # LOCKED: the tool put the lock's pins for prepare into the build (runtime/prepare.py,
 # held_to_lock): python3 too comes at its locked version; prepare compares what it installed,
 # from this copy of dpkg's state on, with the lock and removes the pins again.
-if [ -f /docker-ros/lock-pins/base.pref ]; then
+if [ -s /docker-ros/lock-pins/base.pref ]; then
     cp /var/lib/dpkg/status /run/docker-ros/dpkg-status.before
     mkdir -p /etc/apt/preferences.d
     cp /docker-ros/lock-pins/base.pref /etc/apt/preferences.d/docker-ros-lock

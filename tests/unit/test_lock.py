@@ -336,9 +336,10 @@ def test_dpkg_status_gives_installed_packages_and_what_changed_since():
 def test_apt_preferences_hold_each_locked_version_and_read_back():
     pins = {"tini": "0.19.0-1", "g++": "4:12.2.0-3"}
     text = lock.apt_preferences(pins)
-    assert text.startswith("Package: g++\nPin: version 4:12.2.0-3\nPin-Priority: 1001\n\n")
+    assert text.startswith(lock.PREFERENCES_HEADER
+                           + "Package: g++\nPin: version 4:12.2.0-3\nPin-Priority: 1001\n\n")
     assert lock.parse_apt_preferences(text) == pins
-    assert lock.apt_preferences({}) == ""
+    assert lock.apt_preferences({}) == lock.PREFERENCES_HEADER  # a lock of nothing: not empty
 
 
 def test_an_install_otherwise_than_the_lock_names_each_difference():

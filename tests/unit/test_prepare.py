@@ -127,5 +127,13 @@ def test_a_locked_prepare_installs_under_the_pins_and_stops_on_a_difference(
                        r"bookworm\).*run `inv lock`"):
         installing("2")
     assert not preferences.exists()
-    # the toolchain pass reads dev.pref: none here, so nothing is held or checked
+    # the toolchain pass reads dev.pref: none, or an empty file (a mount's stub), holds and
+    # checks nothing; a lock of no package holds apt to installing none
     installing("2", types="all", held=False)
+    (pins / "dev.pref").write_text("")
+    installing("2", types="all", held=False)
+    (pins / "dev.pref").write_text(lock.apt_preferences({}))
+    with pytest.raises(StepError, match=r"tini 2 \(not in docker-ros.lock\)"):
+        status.write_text("")
+        with prepare.held_to_lock("all", dry_run=False):
+            status.write_text("Package: tini\nStatus: install ok installed\nVersion: 2\n")

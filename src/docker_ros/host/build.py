@@ -19,7 +19,7 @@ import docker_ros
 from docker_ros.host import builder, buildstate, engine
 from docker_ros.host.baseimage import arch_ref
 from docker_ros.host.engine import image_exists, image_size
-from docker_ros.host.lock import lock_labels, locked_build_args, prepare_pins, tag_local_base
+from docker_ros.host.lock import lock_labels, locked_build_args, prepare_pin_secrets, tag_local_base
 from docker_ros.in_image.runtime.files import walk
 from docker_ros.in_image.runtime.inputs import resolve_inputs
 from docker_ros.in_image.runtime.lock import LOCK_FILE
@@ -692,11 +692,10 @@ def source_stages(settings: Settings) -> Dict[str, str]:
 
 def ensure_imports_image(settings: Settings, platform: str,
                          buildx: Sequence[str] = BUILDX) -> str:
-    """A FROM-scratch image with the repository's .repos files at /repository, its
-    skeleton_files at /inputs and with LOCKED the lock's pins for prepare at /lock (an empty
-    folder else), tagged by their content. Each is COPY'd or bind-mounted by the stages that
-    need it (content-addressed): the import stays cached while the .repos files do, the source
-    stage while the skeleton does, and prepare while its pins do."""
+    """A FROM-scratch image with the repository's .repos files at /repository and its
+    skeleton_files at /inputs, tagged by their content. Each is COPY'd by the stage that
+    needs it (content-addressed): the import stays cached while the .repos files do, and the
+    source stage while the skeleton does."""
     repository = Path(settings.build_context)
     with tempfile.TemporaryDirectory(prefix="docker-ros-imports-") as tmp:
         digest = hashlib.sha256()
@@ -714,12 +713,6 @@ def ensure_imports_image(settings: Settings, platform: str,
                 copy.write_bytes(content)
                 shutil.copymode(source, copy)  # hooks keep their executable bit
                 digest.update(f"{folder}/{rel}\0{copy.stat().st_mode:o}\0".encode() + content)
-        pins = Path(tmp) / "context" / "lock"
-        pins.mkdir()
-        digest.update(b"/lock/\0")
-        for name, text in sorted(prepare_pins(settings, platform).items()):
-            (pins / name).write_text(text)
-            digest.update(f"lock/{name}\0{text}\0".encode())
         ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{platform}"
         return scratch_image(Path(tmp), "context", ref, platform, into="/",
                              buildx=buildx)
@@ -802,6 +795,7 @@ def build_images(
         bundle = None
         if settings.extra_ca_certs:
             bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
+        pin_args, pin_secrets = prepare_pin_secrets(settings, platform, Path(tmp))
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
         base, why = platform_base(settings, platform)
@@ -809,9 +803,9 @@ def build_images(
             print(why, file=out)
         specs = {target: definition(settings, target=target, platform=platform,
                                     tools_image=tools, tag=tag,
-                                    secrets=plan_secrets(settings, bundle), push=push,
-                                    dockerfile=dockerfile, output=output,
-                                    extra_build_args=extra_build_args,
+                                    secrets={**plan_secrets(settings, bundle), **pin_secrets},
+                                    push=push, dockerfile=dockerfile, output=output,
+                                    extra_build_args={**extra_build_args, **pin_args},
                                     imports_image=imports, base_image=base,
                                     cache_export=export)
                  for target, tag in targets.items()}

@@ -8,7 +8,7 @@ import tempfile
 import uuid
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional
+from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 from docker_ros.host import engine
 from docker_ros.in_image.runtime.lock import (
@@ -76,10 +76,9 @@ def locked_build_args(settings: Settings, *, target: str, platform: str) -> Dict
 
 
 def prepare_pins(settings: Settings, platform: str) -> Dict[str, str]:
-    """The lock's pins for the image's prepare, as apt preferences files (file name -> text)
-    for the imports image's /lock: base.pref, what the base stage's prepare installs (the run
-    entry's), and dev.pref, with the dev image's toolchain (the dev entry's); none unless
-    LOCKED."""
+    """The lock's pins for the image's prepare, as apt preferences files (file name -> text):
+    base.pref, what the base stage's prepare installs (the run entry's), and dev.pref, with
+    the dev image's toolchain (the dev entry's); none unless LOCKED."""
     if not settings.locked:
         return {}
     lock = load_lock(lock_path(settings))
@@ -91,6 +90,30 @@ def prepare_pins(settings: Settings, platform: str) -> Dict[str, str]:
                             "no prepare packages (an older docker-ros wrote it): run `inv lock`")
         pins[name] = apt_preferences(entry["prepare"])
     return pins
+
+
+# the BuildKit secret ids that carry prepare's pins (the Dockerfile mounts them where prepare
+# reads them: /docker-ros/lock-pins/<file>)
+PIN_SECRETS = {"base.pref": "DOCKER_ROS_PINS_BASE", "dev.pref": "DOCKER_ROS_PINS_DEV"}
+PINS_ARG = "DOCKER_ROS_PREPARE_PINS"
+
+
+def prepare_pin_secrets(settings: Settings, platform: str, folder: Path
+                        ) -> Tuple[Dict[str, str], Dict[str, str]]:
+    """(build arguments, secrets) that bring prepare_pins into a locked build: each file
+    (written to folder) as a BuildKit secret, and their digest as DOCKER_ROS_PREPARE_PINS,
+    since a secret's content is no part of a cache key and a new lock must run prepare again.
+    (Not files in an image the stage mounts: on Engine 26, a registry cache exported by a job
+    that took the base stage from it no longer matched the next job's base stage.)"""
+    pins = prepare_pins(settings, platform)
+    if not pins:
+        return {}, {}
+    secrets: Dict[str, str] = {}
+    for name, text in sorted(pins.items()):
+        (folder / name).write_text(text)
+        secrets[PIN_SECRETS[name]] = f"src={folder / name}"
+    digest = lock_digest("".join(f"{name}\0{text}\0" for name, text in sorted(pins.items())))
+    return {PINS_ARG: digest}, secrets
 
 
 def tag_local_base(settings: Settings, platform: str) -> None:

@@ -217,11 +217,16 @@ def lock_lean(path: Path, lean: Sequence[str]) -> None:
     path.write_text(dump_lock(lock))
 
 
+PREFERENCES_HEADER = "# docker-ros.lock, what prepare installs at its locked version\n"
+
+
 def apt_preferences(pins: Mapping[str, str]) -> str:
     """An apt preferences file that holds each package at its locked version, whatever pulls
-    it in (priority 1001: also when the sources offer a newer one, or it is installed newer)."""
-    return "".join(f"Package: {name}\nPin: version {version}\nPin-Priority: 1001\n\n"
-                   for name, version in sorted(pins.items()))
+    it in (priority 1001: also when the sources offer a newer one, or it is installed newer).
+    Never empty (a first comment line): an empty file is no lock (a mount's leftover stub)."""
+    return PREFERENCES_HEADER + "".join(
+        f"Package: {name}\nPin: version {version}\nPin-Priority: 1001\n\n"
+        for name, version in sorted(pins.items()))
 
 
 def parse_apt_preferences(text: str) -> Dict[str, str]:

@@ -141,9 +141,9 @@ def apt_available(packages: Sequence[str]) -> List[str]:
 
 
 # LOCKED: the lock's pins for prepare as apt preferences, base.pref (the base stage: the run
-# entry's) and dev.pref (the toolchain: the dev entry's), which the tool writes into its imports
-# image (/lock) and the stages mount here; ensure-python.sh, first in the base stage, puts
-# base.pref in place and keeps dpkg's state from before it installs anything.
+# entry's) and dev.pref (the toolchain: the dev entry's), which the tool passes as BuildKit
+# secrets and the stages mount here; ensure-python.sh, first in the base stage, puts base.pref
+# in place and keeps dpkg's state from before it installs anything.
 LOCK_PINS = Path("/docker-ros/lock-pins")
 BEFORE_PREPARE = Path("/run/docker-ros/dpkg-status.before")
 
@@ -154,7 +154,7 @@ def held_to_lock(dependency_types: object, *, dry_run: bool) -> Iterator[None]:
     comes at docker-ros.lock's versions, dependencies included (apt preferences, removed
     again); then stop unless what it installed is exactly the lock's, naming each difference."""
     pins_file = LOCK_PINS / ("dev.pref" if dependency_types == "all" else "base.pref")
-    if dry_run or not pins_file.is_file():
+    if dry_run or not pins_file.is_file() or not pins_file.stat().st_size:
         yield
         return
     before = read_dpkg_status(BEFORE_PREPARE if BEFORE_PREPARE.is_file() else DPKG_STATUS)
