@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence, Set, Tuple
 
+from docker_ros.in_image.runtime.lock import DPKG_STATUS
 from docker_ros.in_image.runtime.packages import Package, find_packages
 from docker_ros.in_image.runtime.process import run, run_tee
 from docker_ros.in_image.runtime.rosenv import ros_setup_files, sourced_env
@@ -27,7 +28,6 @@ INSTALL_RECORD = ".docker-ros-install.json"
 # A build state from elsewhere (the registry's, bind-mounted by the Dockerfile; empty locally):
 # it seeds a build/ cache that holds no state of its own.
 BUILD_STATE_SEED = Path("/docker-ros/build-state")
-DPKG_STATUS = Path("/var/lib/dpkg/status")
 LOG = logging.getLogger(__name__)
 _FAILED = re.compile(r"^Failed\s+<<<\s+(\S+)")
 
