@@ -12,8 +12,9 @@ from __future__ import annotations
 import json
 import subprocess
 import uuid
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Dict, Iterator
+from typing import Dict, Iterator, Tuple
 
 import pytest
 
@@ -196,11 +197,18 @@ def install_space(ref: str) -> str:
     return listed.stdout
 
 
-def build_a_copy(project: dict, tmp_path: Path, image: str, *args: str
-                 ) -> subprocess.CompletedProcess:
-    """A locked build (args added) of a copy of the project, its images tagged `image`."""
+@contextmanager
+def built_copy(project: dict, tmp_path: Path, name: str, *args: str
+               ) -> Iterator[Tuple[str, subprocess.CompletedProcess]]:
+    """A locked build (args added) of a copy of the project, its images tagged with a new name
+    starting with `name`: (the run image's tag, the build); the images go afterwards."""
+    image = f"docker-ros-test/{name}-{uuid.uuid4().hex[:8]}:1"
     copy = own_copy(project["repo"], tmp_path / "repo", image)
-    return docker_ros(copy, "build", "--set", "LOCKED=true", *args, env=project["env"])
+    try:
+        yield image, docker_ros(copy, "build", "--set", "LOCKED=true", *args, env=project["env"])
+    finally:
+        remove_image(image)
+        remove_image(image + "-dev")
 
 
 def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: Path) -> None:
@@ -210,10 +218,8 @@ def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: 
     pip packages at the same versions, the same imported commit, and in the run image the same
     install-space file list."""
     assert project["build"].returncode == 0
-    again = f"docker-ros-test/lock-ws-again-{uuid.uuid4().hex[:8]}:1"
-    try:
-        built = build_a_copy(project, tmp_path, again, "--target", "dev,run",
-                             "--set", "NO_CACHE=true")
+    with built_copy(project, tmp_path, "lock-ws-again", "--target", "dev,run",
+                    "--set", "NO_CACHE=true") as (again, built):
         assert built.returncode == 0, built.stdout[-5000:]
         # the dependency steps ran again (no cached layer), installing the locked versions
         assert "rosdep: apt-get install -y --no-install-recommends" in built.stdout
@@ -223,9 +229,6 @@ def test_a_locked_build_from_scratch_installs_the_same(project: dict, tmp_path: 
         assert install_space(again) == install_space(IMAGE)
         upstream = "cat /docker-ros/ws/src/upstream/upstream_libs/VERSION"
         assert sh(again + "-dev", upstream).stdout.strip() == "one"
-    finally:
-        remove_image(again)
-        remove_image(again + "-dev")
 
 
 def test_a_locked_lean_run_image_has_the_locked_dev_image_versions(
@@ -233,18 +236,14 @@ def test_a_locked_lean_run_image_has_the_locked_dev_image_versions(
     """ENABLE_LEAN_RUN_IMAGE with LOCKED: the lean set (sl, not libyaml-cpp-dev, which nothing
     in install/ links) and what it depends on, each at the locked dev image's version."""
     assert project["build"].returncode == 0
-    lean = f"docker-ros-test/lock-lean-{uuid.uuid4().hex[:8]}:1"
-    try:
-        built = build_a_copy(project, tmp_path, lean, "--target", "run",
-                             "--set", "ENABLE_LEAN_RUN_IMAGE=true")
+    with built_copy(project, tmp_path, "lock-lean", "--target", "run",
+                    "--set", "ENABLE_LEAN_RUN_IMAGE=true") as (lean, built):
         assert built.returncode == 0, built.stdout[-5000:]
         assert "lock: locked build" in built.stdout
         installed, dev = dpkg_versions(lean), dpkg_versions(IMAGE + "-dev")
         assert "sl" in installed and "libyaml-cpp-dev" not in installed
         assert "libyaml-cpp-dev" in dpkg_versions(IMAGE)  # the locked run image, not lean
         assert {n: dev.get(n) for n in installed} == installed
-    finally:
-        remove_image(lean)
 
 
 def test_unlocked_build_takes_the_new_commit_and_wheel(project: dict) -> None:
