@@ -98,10 +98,13 @@ def project(base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterat
     (repo / "docker" / "rosdep.yaml").write_text(
         f"# run {uuid.uuid4().hex}\nmy_tool:\n  debian: [sl]\n"
         "my_dev_lib:\n  debian: [libyaml-cpp-dev]\n")
-    (repo / "docker" / "additional-debs.txt").write_text("cmatrix\n")
+    # termcolor: from Debian (python3-termcolor) before the pip step, whose requirement it
+    # satisfies, though the index has a newer one
+    make_wheel(wheels, "termcolor", "99.0")
+    (repo / "docker" / "additional-debs.txt").write_text("cmatrix\npython3-termcolor\n")
     (repo / "docker" / "additional-pip-requirements.txt").write_text(
         f"--no-index --find-links http://127.0.0.1:{index.server_address[1]}/{wheels.name}/\n"
-        f"{MODULE}\n")
+        f"{MODULE}\ntermcolor\n")
     write_repos(repo / ".repos", {"upstream_libs": {"url": f"http://{host}/upstream_libs.git",
                                                     "version": "main"}})
     write_env(repo, BASE_IMAGE=base_image, IMAGE=IMAGE, TARGET="dev,run",
@@ -145,7 +148,7 @@ def test_inv_lock_resolves_each_target_in_the_images(project: dict) -> None:
         assert entry["repos"]["upstream/upstream_libs"]["commit"] == project["first"]
         assert {"sl", "cmatrix"} <= set(entry["apt"])
         assert entry["pip"][WHEEL]["version"] == "1.0"
-        assert entry["inputs"]["debs"] == ["cmatrix"]
+        assert entry["inputs"]["debs"] == ["cmatrix", "python3-termcolor"]
         assert entry["inputs"]["rosdep_rules"].startswith("sha256:")
         assert entry["base_image"]["digest"].startswith("sha256:")
         assert "tini" in entry["prepare"]  # installed by prepare: not in the base image
@@ -189,6 +192,18 @@ def test_locked_build_installs_exactly_the_lock(project: dict) -> None:
     # the locked commit, not upstream's newest
     version = sh(IMAGE + "-dev", "cat /docker-ros/ws/src/upstream/upstream_libs/VERSION")
     assert version.stdout.strip() == "one", version.stdout + version.stderr
+
+
+def test_a_pip_requirement_debian_satisfies_keeps_debian_s_version(project: dict) -> None:
+    """As the pip step finds termcolor installed from Debian, so does the lock's dry run: no
+    pip entry, and the locked images keep Debian's termcolor, not the index's 99.0."""
+    assert project["build"].returncode == 0
+    for ref, target in ((IMAGE + "-dev", "dev"), (IMAGE, "run")):
+        entry = entries(project)[f"{target}/{host_platform()}"]
+        assert "python3-termcolor" in entry["apt"] and "termcolor" not in entry["pip"], target
+        assert WHEEL in entry["pip"], target  # what only the index has stays pip's
+        frozen, debian = pip_versions(ref)["termcolor"], entry["apt"]["python3-termcolor"]
+        assert frozen != "99.0" and debian.startswith(frozen + "-"), (ref, frozen, debian)
 
 
 def install_space(ref: str) -> str:

@@ -390,3 +390,11 @@ def test_the_installed_closure_follows_dependencies_alternatives_and_virtual_pac
         "exim4": "4.96-15", "libc6": "2.36-9", "libgcc-s1": "12.2.0-14",
         "libncurses6": "6.4-4", "libtinfo6": "6.4-4", "sl": "5.02-1+b1"}
     assert lock.installed_closure(["removed", "absent"], status) == {}
+
+
+def test_python_debs_are_the_closure_s_python_packages_at_their_versions() -> None:
+    closure = {"cmatrix": "2.0-3", "python3-termcolor": "1.1.0-4", "python-is-python3": "3.11.2-1",
+               "libpython3.11": "3.11.2-6", "python3": "3.11.2-1"}
+    assert lock.python_debs(closure) == ["python-is-python3=3.11.2-1",
+                                         "python3-termcolor=1.1.0-4"]
+    assert lock.python_debs({"cmatrix": "2.0-3"}) == []

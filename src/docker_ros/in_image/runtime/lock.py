@@ -25,7 +25,8 @@ import subprocess
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
-from docker_ros.in_image.runtime.process import probe
+from docker_ros.in_image.runtime.apt import apt_env, apt_get, apt_lists_present, install_options
+from docker_ros.in_image.runtime.process import probe, run
 from docker_ros.in_image.runtime.workspace import StepError, Workspace
 from docker_ros.in_image.settings import Settings, host_platform
 
@@ -481,8 +482,6 @@ def apt_closure(packages: Sequence[str], *, step: str = "lock", update: bool = F
     if not packages:
         return {}
     if update:
-        from docker_ros.in_image.runtime.apt import apt_env, apt_get
-
         probe(apt_get(["update"]), step=step, env=apt_env())
     argv = ["apt-get", "install", "-s", "--reinstall", "--no-install-recommends", *packages]
     proc = probe(argv, step=step, env={**os.environ, "LC_ALL": "C"})
@@ -521,7 +520,6 @@ def check_available(pins: Sequence[str], *, step: str) -> None:
     package, its version and the sources (after fresh lists: old ones may hide it)."""
     if not pins:
         return
-    from docker_ros.in_image.runtime.apt import apt_env, apt_get, apt_lists_present
 
     argv = ["apt-get", "install", "-s", "--no-install-recommends", *pins]
     for attempt in range(2):
@@ -673,10 +671,29 @@ def resolved_entry(ws: Workspace, settings: Settings, dependency_types: str, ups
     apt = sorted({*inputs["debs"], *(chosen.get("apt") or [])})
     pip = [*inputs["pip"], *(chosen.get("pip") or [])]
     constraints = _state(ws, "pip.json").get("constraints") or []
-    return {"inputs": inputs, "repos": repository_commits(upstream),
-            "prepare": installed_over(read_dpkg_status(bare / "var/lib/dpkg/status"),
-                                      read_dpkg_status()),
-            "apt": apt_closure(apt, update=True), "pip": pip_report(pip, constraints)}
+    prepare = installed_over(read_dpkg_status(bare / "var/lib/dpkg/status"), read_dpkg_status())
+    closure = apt_closure(apt, update=True)
+    if pip:
+        install_python_debs(closure)
+    return {"inputs": inputs, "repos": repository_commits(upstream), "prepare": prepare,
+            "apt": closure, "pip": pip_report(pip, constraints)}
+
+
+def python_debs(closure: Mapping[str, str]) -> List[str]:
+    """`name=version` of the Python packages (python3-*, python-*) of an apt closure."""
+    return [f"{name}={version}" for name, version in sorted(closure.items())
+            if name.startswith(("python3-", "python-"))]
+
+
+def install_python_debs(closure: Mapping[str, str]) -> None:
+    """Install the closure's Python packages where the lock stage resolves pip, as the image's
+    apt installs come before its pip step: a requirement a Debian package satisfies is then
+    none of pip's, in the lock as in an unlocked build (else the lock would hold the index's
+    newest version, and a locked build would install it over Debian's)."""
+    debs = python_debs(closure)
+    if debs:
+        run(apt_get(["install", *install_options("image"), *debs]), step="lock", env=apt_env(),
+            what="installing the apt closure's Python packages (for pip's dry run)")
 
 
 def rules_path(ws: Workspace, settings: Settings) -> Optional[Path]:
