@@ -11,7 +11,7 @@ from typing import Set
 
 import pytest
 
-from docker_ros.cli.tasks import ns
+from docker_ros.cli.tasks import EXAMPLE, ns
 from docker_ros.in_image.steps import STEPS
 
 pytestmark = pytest.mark.host
@@ -85,3 +85,10 @@ def test_the_console_script_reads_the_projects_invoke_yaml(tmp_path: Path) -> No
     assert result.returncode == 0, result.stderr
     row = next(line for line in result.stdout.splitlines() if line.startswith("BASE_IMAGE "))
     assert row.split()[1:] == ["from-invoke-yaml/x:1", "invoke.yaml"], row
+
+
+def test_example_task_builds_the_repository_s_example_folder() -> None:
+    """`inv example`, the README's first command, finds the bundled example (it looked in
+    src/example after the command line moved into docker_ros/cli)."""
+    assert Path(__file__).resolve().parents[2] / "example" == EXAMPLE
+    assert "BASE_IMAGE=docker-ros/ros1:bookworm" in (EXAMPLE / ".env").read_text()

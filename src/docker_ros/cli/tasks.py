@@ -19,6 +19,7 @@ from typing import Any, Callable, Dict, List, Mapping, Sequence, Tuple
 
 from invoke import Collection, Context, Exit, Task
 
+import docker_ros
 from docker_ros.host import baseimage, build, container, devshell, engine
 from docker_ros.host.config import config_table, input_problems, read_settings
 from docker_ros.host.lock import lock, lock_status
@@ -461,6 +462,10 @@ def bootstrap_base_image(
         print(baseimage.bootstrap(flavor, tag=tag, mirror=mirror, platform=platform, force=force))
 
 
+# the bundled example workspace, in the source repository (src/docker_ros/.. ..): no wheel has it
+EXAMPLE = Path(docker_ros.__file__).resolve().parents[2] / "example"
+
+
 @settings_task(
     "example",
     "Build and run the bundled example (bootstraps its ROS 1 base image)",
@@ -468,7 +473,7 @@ def bootstrap_base_image(
 )
 def example(c: Context, settings: Settings, *, seconds: int) -> None:
 
-    project = Path(__file__).resolve().parents[2] / "example"
+    project = EXAMPLE
     if not project.is_dir():
         raise TaskError(f"{project} not found: the example ships with the source repository")
     settings = read_settings({}, {"build_context": str(project)}, project_dir=project)
