@@ -462,7 +462,8 @@ def bootstrap_base_image(
         print(baseimage.bootstrap(flavor, tag=tag, mirror=mirror, platform=platform, force=force))
 
 
-# the bundled example workspace, in the source repository (src/docker_ros/.. ..): no wheel has it
+# the bundled example workspace at the source repository's root (two levels above the package,
+# src/docker_ros): an installed wheel has none
 EXAMPLE = Path(docker_ros.__file__).resolve().parents[2] / "example"
 
 

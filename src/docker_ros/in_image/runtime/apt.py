@@ -9,6 +9,9 @@ from typing import Dict, List, Sequence
 from docker_ros.in_image.runtime.process import hook_context, is_root, run
 from docker_ros.in_image.runtime.workspace import LOG, StepError
 
+# dpkg's record of what is installed
+DPKG_STATUS = Path("/var/lib/dpkg/status")
+
 
 def apt_env() -> Dict[str, str]:
     env = dict(os.environ)

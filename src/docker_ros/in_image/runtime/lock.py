@@ -25,8 +25,14 @@ import subprocess
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
-from docker_ros.in_image.runtime.apt import apt_env, apt_get, apt_lists_present, install_options
-from docker_ros.in_image.runtime.process import probe, run
+from docker_ros.in_image.runtime.apt import (
+    DPKG_STATUS,
+    apt_env,
+    apt_get,
+    apt_install,
+    apt_lists_present,
+)
+from docker_ros.in_image.runtime.process import probe
 from docker_ros.in_image.runtime.workspace import StepError, Workspace
 from docker_ros.in_image.settings import Settings, host_platform
 
@@ -129,7 +135,6 @@ def apt_pins(packages: Sequence[str], locked: Mapping[str, str]) -> List[str]:
     return [f"{name}={version}" for name, version in sorted(locked.items())]
 
 
-DPKG_STATUS = Path("/var/lib/dpkg/status")
 # where a locked build's prepare holds apt to the lock's versions (runtime/prepare.py; removed
 # again before the layer ends)
 LOCK_PREFERENCES = Path("/etc/apt/preferences.d/docker-ros-lock")
@@ -520,7 +525,6 @@ def check_available(pins: Sequence[str], *, step: str) -> None:
     package, its version and the sources (after fresh lists: old ones may hide it)."""
     if not pins:
         return
-
     argv = ["apt-get", "install", "-s", "--no-install-recommends", *pins]
     for attempt in range(2):
         if attempt or not apt_lists_present():
@@ -692,8 +696,8 @@ def install_python_debs(closure: Mapping[str, str]) -> None:
     newest version, and a locked build would install it over Debian's)."""
     debs = python_debs(closure)
     if debs:
-        run(apt_get(["install", *install_options("image"), *debs]), step="lock", env=apt_env(),
-            what="installing the apt closure's Python packages (for pip's dry run)")
+        apt_install(debs, step="lock", dry_run=False,
+                    what="installing the apt closure's Python packages (for pip's dry run)")
 
 
 def rules_path(ws: Workspace, settings: Settings) -> Optional[Path]:

@@ -8,9 +8,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Dict, Iterator, List, Mapping, Optional, Sequence
 
-from docker_ros.in_image.runtime.apt import apt_env, install_options
+from docker_ros.in_image.runtime.apt import DPKG_STATUS, apt_env, install_options
 from docker_ros.in_image.runtime.lock import (
-    DPKG_STATUS,
     LOCK_PREFERENCES,
     apt_sources,
     parse_apt_preferences,

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence, Set, Tuple
 
-from docker_ros.in_image.runtime.lock import DPKG_STATUS
+from docker_ros.in_image.runtime.apt import DPKG_STATUS
 from docker_ros.in_image.runtime.packages import Package, find_packages
 from docker_ros.in_image.runtime.process import run, run_tee
 from docker_ros.in_image.runtime.rosenv import ros_setup_files, sourced_env
