@@ -143,6 +143,8 @@ def test_secrets_and_setup_stay_out_of_the_log(pipelines: dict) -> None:
         assert auth.password not in out
         assert f"docker-ros ci: logged in to {auth.address} as {auth.user}" in out
         assert f"docker-ros manifest: logged in to {auth.address} as {auth.user}" in out
+        # once per job: the tasks `ci` runs use its login
+        assert out.count(f"logged in to {auth.address}") == 2, out[-6000:]
     argvs = pipelines["argv_log"].read_text()
     assert f"login --username {auth.user} --password-stdin {auth.address}" in argvs
     assert "buildx build" in argvs or "buildx bake" in argvs

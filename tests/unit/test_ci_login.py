@@ -4,8 +4,15 @@ slim (the runner's architecture only, pushed under the slim names as docker-ros 
 import json
 from pathlib import Path
 
+from docker_ros.cli.tasks import logs_in_now
 from docker_ros.host.build import slim_platforms
-from docker_ros.host.login import mirror_docker_config, plan_login, private_config
+from docker_ros.host.login import (
+    LOGGED_IN,
+    job_login,
+    mirror_docker_config,
+    plan_login,
+    private_config,
+)
 from docker_ros.host.push import plan_push, push_targets
 from docker_ros.in_image.settings import load_settings
 
@@ -69,3 +76,22 @@ def test_single_job_multi_arch_pushes_the_runners_slim_image_under_the_slim_name
                                     "ENABLE_SLIM": "true", "ENABLE_SINGLEARCH_PUSH": "true"})
     assert [c for c in plan_push(single, ["slim"], host="amd64")] == [
         ["docker", "push", "reg/x:v1-slim-amd64"]]
+
+
+def test_tasks_that_reach_a_registry_log_in_but_not_on_the_host() -> None:
+    assert logs_in_now(True, {"dry_run": False})
+    assert not logs_in_now(True, {"host": True})
+    assert not logs_in_now(False, {})
+    assert logs_in_now("in_container", {"in_container": True})
+    assert not logs_in_now("in_container", {"in_container": False})
+
+
+def test_a_task_of_a_logged_in_job_uses_its_login(tmp_path: Path) -> None:
+    """`ci` runs `push` as a process: push finds the job's login (registry and user) in its
+    environment and runs `docker login` no second time (no docker is needed for that)."""
+    s = load_settings(environ={"REGISTRY": "reg:5000", "REGISTRY_USER": "me",
+                               "REGISTRY_PASSWORD": "pw"})
+    environ = {LOGGED_IN: "reg:5000 me", "DOCKER_CONFIG": str(tmp_path)}
+    with job_login(s, environ, label="docker-ros push"):
+        assert environ["DOCKER_CONFIG"] == str(tmp_path)
+    assert environ == {LOGGED_IN: "reg:5000 me", "DOCKER_CONFIG": str(tmp_path)}

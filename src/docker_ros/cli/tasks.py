@@ -15,7 +15,7 @@ import sys
 import textwrap
 import time
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Mapping, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Mapping, Sequence, Tuple, Union
 
 from invoke import Collection, Context, Exit, Task
 
@@ -119,11 +119,15 @@ def settings_task(
     uses: Sequence[str] = (),
     shortflags: Mapping[str, str] = {},
     lenient: bool = False,
+    logs_in: Union[bool, str] = False,
 ) -> Callable[..., Task]:
     """Make an invoke Task whose flags are the task's own, one per setting it uses, and
     --set NAME=VALUE for any other setting (the full reference: README and `inv config`);
     a flag whose default is a list may be given several times. `lenient`: invalid values
-    reach the task in Settings.problems instead of stopping it."""
+    reach the task in Settings.problems instead of stopping it. `logs_in`: a task that reaches
+    a registry (a private BASE_IMAGE, CACHE_FROM/CACHE_TO, pushes) runs logged in with
+    REGISTRY_USER/REGISTRY_PASSWORD when they are set, in a DOCKER_CONFIG of its own, removed
+    at its end (see logs_in_now)."""
 
     def decorate(func: Callable[..., Any]) -> Task:
         own = [f[0] for f in flags]
@@ -150,7 +154,11 @@ def settings_task(
                     kwargs.pop(n, None)
                 cfg = c.config.get("docker_ros", None) or {}
                 settings = read_settings(dict(cfg), overrides, lenient=lenient, command=name)
-                return func(c, settings, **kwargs)
+                if not logs_in_now(logs_in, kwargs):
+                    return func(c, settings, **kwargs)
+                with logged_in_job(settings, f"docker-ros {name}",
+                                   dry_run=bool(kwargs.get("dry_run"))):
+                    return func(c, settings, **kwargs)
             except KeyboardInterrupt:
                 raise Exit(f"docker-ros {name}: interrupted", code=130) from None
             except (SettingsError, StepError, TaskError, LockError) as exc:
@@ -185,6 +193,14 @@ def settings_task(
     return decorate
 
 
+def logs_in_now(logs_in: Union[bool, str], flags: Mapping[str, object]) -> bool:
+    """Whether a task logs in: `logs_in` True (not with --host, on this machine), or the name
+    of the flag that makes it reach a registry (a step's --in-container)."""
+    if isinstance(logs_in, str):
+        return bool(flags.get(logs_in))
+    return logs_in and not flags.get("host")
+
+
 def hear_interrupts() -> None:
     """Ctrl-C raises KeyboardInterrupt (exit 130, "interrupted") even when we started with
     SIGINT ignored, as a background job of a script does: buildx and docker (Go) stop on it
@@ -217,7 +233,8 @@ def make_step_task(step: str) -> Task:
                "with --in-container in a container of the image state before the step.")
 
     @settings_task(step, summary, [DRY_RUN, IN_CONTAINER, SHELL_ON_FAILURE],
-                   uses=BY_NAME[step].settings + HOST_SETTINGS + ("base_image", "image"))
+                   uses=BY_NAME[step].settings + HOST_SETTINGS + ("base_image", "image"),
+                   logs_in="in_container")
     def step_task(c: Context, settings: Settings, *, dry_run: bool, in_container: bool,
                   shell_on_failure: bool) -> None:
         if in_container:
@@ -257,6 +274,7 @@ def config(c: Context, settings: Settings) -> None:
      ("host", False, "Lock this machine's host entry (host steps) instead of the images")],
     uses=("build_context", "base_image", "platform")
     + tuple(n for n in IMAGE_SETTINGS if n != "locked"),  # (it resolves afresh, unlocked)
+    logs_in=True,
 )
 def lock_task(c: Context, settings: Settings, *, check: bool, host: bool) -> None:
 
@@ -289,7 +307,8 @@ COMPOSITE_HELP = {
 
 def make_composite_task(name: str) -> Task:
     @settings_task(name, COMPOSITE_HELP[name], [HOST, DRY_RUN, IN_CONTAINER, SHELL_ON_FAILURE],
-                   uses=IMAGE_SETTINGS + HOST_SETTINGS + (("command",) if name == "run" else ()))
+                   uses=IMAGE_SETTINGS + HOST_SETTINGS + (("command",) if name == "run" else ()),
+                   logs_in=True)
     def composite(c: Context, settings: Settings, **flags: bool) -> None:
         composite_flow(settings, name, **flags)
 
@@ -306,6 +325,7 @@ dev, run = make_composite_task("dev"), make_composite_task("run")
      ("until", "", "Build only up to (and including) this step, tag the result "
       "<IMAGE>-until-<step> and stop; the README shows how to run the next step in it")],
     uses=("target",) + IMAGE_SETTINGS + ("command", "enable_slim"),
+    logs_in=True,
 )
 def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failure: bool,
                until: str) -> None:
@@ -326,6 +346,7 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failur
     "SLIM_IMAGE_NAME:SLIM_IMAGE_TAG only when the result behaves like the run image.",
     [DRY_RUN],
     uses=IMAGE_SETTINGS + ("command", "slim_build_args", "additional_slim_build_args"),
+    logs_in=True,
 )
 def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     settings = dataclasses.replace(settings, target=("run",))
@@ -349,7 +370,8 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     "in it, copies the results to --results-dir and fails when a test fails.",
     [DRY_RUN, ("results_dir", "", "Folder for the JUnit XML, logs and exit codes (default "
                "<WORKSPACE>/test-results; replaced only if empty or made by an earlier run)")],
-    uses=IMAGE_SETTINGS + ("workspace",),
+    uses=IMAGE_SETTINGS + ("command", "workspace"),
+    logs_in=True,
 )
 def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str) -> None:
     run_test_stage(settings, results_dir=results_dir, dry_run=dry_run)
@@ -359,9 +381,11 @@ def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str
     "push",
     "Build the TARGET images, then push them with docker-ros's tags\n\n"
     "Several platforms: one manifest list per image. REGISTRY_USER and REGISTRY_PASSWORD "
-    "(environment or .env only) log in first.",
+    "(environment or .env only) log in first (a private BASE_IMAGE or CACHE_FROM), into a "
+    "DOCKER_CONFIG of the task's own that is removed at its end.",
     [DRY_RUN],
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
+    logs_in=True,
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
@@ -376,14 +400,14 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     "PLATFORM pushed with ENABLE_SINGLEARCH_PUSH.",
     [DRY_RUN],
     uses=("target", "image", "image_tag", "platform") + PUSH_SETTINGS,
+    logs_in=True,
 )
 def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
     images = made_images(settings)
     if "slim" in images:
         require_tasks([["slim"]], ns.task_names)
-    with logged_in_job(settings, "docker-ros manifest", dry_run=dry_run):
-        push_and_report(settings, images, manifest, dry_run=dry_run)
+    push_and_report(settings, images, manifest, dry_run=dry_run)
 
 
 @settings_task(
@@ -392,6 +416,7 @@ def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     "Each a `docker-ros` task: build, test (ENABLE_INDUSTRIAL_CI), slim (ENABLE_SLIM), push.",
     [DRY_RUN],
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
+    logs_in=True,
 )
 def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
@@ -400,8 +425,7 @@ def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     require_tasks(plan, ns.task_names)
     if ["slim"] in plan:
         check_slim_options(settings)
-    with logged_in_job(settings, "docker-ros ci", dry_run=dry_run):
-        run_ci_plan(settings, plan, dry_run=dry_run)
+    run_ci_plan(settings, plan, dry_run=dry_run)
 
 
 @settings_task(
@@ -425,6 +449,7 @@ def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     ],
     uses=IMAGE_SETTINGS,
     shortflags={"cmd": "c"},
+    logs_in=True,
 )
 def dev_shell(
     c: Context, settings: Settings, *, cmd: str, volume: List[str], env: List[str],

@@ -749,18 +749,13 @@ def check_engine(settings: Optional[Settings] = None) -> None:
 
 
 def selected_builder(settings: Settings) -> builder.Builder:
-    """The builder of this run (BUILDER, BUILDX_BUILDER or the current one), inspected once;
-    with CACHE_TO, `docker login` first when credentials are set (buildx exports the cache
-    with the CLI's credentials)."""
+    """The builder of this run (BUILDER, BUILDX_BUILDER or the current one), inspected once.
+    (buildx exports a registry cache with the CLI's credentials: the task's login, see
+    cli.tasks.settings_task.)"""
     try:
-        chosen = builder.selected(settings.builder or "", bool(settings.cache_to))
+        return builder.selected(settings.builder or "", bool(settings.cache_to))
     except builder.BuilderError as exc:
         raise BuildError(str(exc)) from None
-    if settings.cache_to and builder.cache_export(chosen) == "registry":
-        from docker_ros.host.push import login  # (push imports this module)
-
-        login(settings)
-    return chosen
 
 
 

@@ -15,6 +15,9 @@ from typing import Any, Dict, Iterator, List, Mapping, MutableMapping, Optional
 from docker_ros.host.engine import docker_config_dir
 from docker_ros.in_image.settings import Settings
 
+# Set while a job's login is in force: the registry and user it logged in as.
+LOGGED_IN = "DOCKER_ROS_LOGGED_IN"
+
 
 class LoginError(Exception):
     """`docker login` refused the credentials or could not reach the registry."""
@@ -73,23 +76,27 @@ def job_login(
     """Log in for the duration of a CI job's task: DOCKER_CONFIG in environ (which the task's
     docker commands and subprocesses inherit) names a private folder, removed afterwards."""
     argv = plan_login(settings)
-    if argv is None:
+    login = f"{settings.registry} {settings.registry_user}"
+    # A task of a job that logged in (`ci` runs `push` as a process) uses that login.
+    if argv is None or environ.get(LOGGED_IN) == login:
         yield
         return
     folder = Path(tempfile.mkdtemp(prefix="docker-ros-login-"))
-    previous = environ.get("DOCKER_CONFIG")
+    previous = {name: environ.get(name) for name in ("DOCKER_CONFIG", LOGGED_IN)}
     try:
         mirror_docker_config(docker_config_dir(environ), folder / "config",
                              settings.registry or "https://index.docker.io/v1/")
         environ["DOCKER_CONFIG"] = str(folder / "config")
         docker_login(argv, settings.registry_password or "", settings.registry or "")
+        environ[LOGGED_IN] = login
         print(f"{label}: logged in to {settings.registry or 'Docker Hub'} as "
               f"{settings.registry_user} (job-private DOCKER_CONFIG, removed at the end)",
               flush=True)
         yield
     finally:
-        if previous is None:
-            environ.pop("DOCKER_CONFIG", None)
-        else:
-            environ["DOCKER_CONFIG"] = previous
+        for name, value in previous.items():
+            if value is None:
+                environ.pop(name, None)
+            else:
+                environ[name] = value
         shutil.rmtree(folder, ignore_errors=True)

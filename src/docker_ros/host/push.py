@@ -8,7 +8,6 @@ from typing import Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.host import engine
 from docker_ros.host.build import BuildError, image_ref, platform_ref, slim_platforms, target_ref
-from docker_ros.host.login import LoginError, docker_login, plan_login
 from docker_ros.in_image.runtime.workspace import format_argv
 from docker_ros.in_image.settings import Settings, host_platform, made_images
 
@@ -131,18 +130,6 @@ def auth_config(settings: Settings) -> Optional[Dict[str, str]]:
     return {**auth, "serveraddress": settings.registry} if settings.registry else auth
 
 
-def login(settings: Settings) -> None:
-    """`docker login` with the password on standard input (never a command line or log), for
-    `docker buildx imagetools`, which reads the CLI's credentials: only when writing manifests."""
-    argv = plan_login(settings)
-    if argv is None:
-        return
-    try:
-        docker_login(argv, settings.registry_password or "", settings.registry or "")
-    except LoginError as exc:
-        raise BuildError(str(exc)) from None
-
-
 def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
     """Push; return the pushed names. Fails with the command and docker's reason."""
     return run_commands(settings, plan_push(settings, targets), dry_run=dry_run, label="push")
@@ -185,8 +172,6 @@ def run_commands(
         for argv in commands:
             print(f"[dry-run] {label}:", format_argv(argv))
         return []
-    if any(is_manifest(argv) for argv in commands):
-        login(settings)
     auth = auth_config(settings)
     pushed = []
     for argv in commands:

@@ -1,0 +1,66 @@
+"""`docker-ros push` on a developer's machine logs in first, as a CI job does: a private
+BASE_IMAGE in a registry that requires a login is pulled with REGISTRY_USER/REGISTRY_PASSWORD,
+the images are pushed, and no login stays in the user's docker configuration."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from tests.ci.cihelp import docker_recorder, push_private_base_image, registry_tags
+from tests.docker.buildhelp import docker_ros, remove_image, write_env
+from tests.rosfixtures import make_package
+
+pytestmark = pytest.mark.docker
+
+
+def test_push_logs_in_pulls_a_private_base_and_leaves_no_login(
+    ros1_base_image: str, auth_registry, tmp_path: Path
+) -> None:
+    base = push_private_base_image(ros1_base_image, auth_registry.address, auth_registry.auth)
+    make_package(tmp_path / "project" / "pkg_login", "pkg_login")
+    project = tmp_path / "project"
+    ref = f"{auth_registry.address}/docker-ros-test/push-login:1"
+    write_env(project, BASE_IMAGE=base, IMAGE=ref, TARGET="run", COMMAND="pkg_login_node",
+              REGISTRY=auth_registry.address, REGISTRY_USER=auth_registry.user)
+    config, argv_log, shim = docker_recorder(tmp_path)
+    (config / "config.json").write_text(json.dumps({"auths": {"other.invalid": {"auth": "eA=="}}}))
+    env = {"DOCKER_CONFIG": str(config), "PATH": f"{shim}{os.pathsep}{os.environ['PATH']}",
+           "REGISTRY_PASSWORD": auth_registry.password}
+    try:
+        pushed = docker_ros(project, "push", env=env)
+    finally:
+        remove_image(ref)
+        remove_image(base)
+    assert pushed.returncode == 0, pushed.stdout[-4000:]
+    assert (f"docker-ros push: logged in to {auth_registry.address} as {auth_registry.user}"
+            in pushed.stdout)
+    assert pushed.stdout.count("logged in to") == 1, pushed.stdout[-4000:]
+    assert f"pushed {ref}" in pushed.stdout
+    assert "1" in registry_tags(auth_registry.address, "docker-ros-test/push-login",
+                                auth=auth_registry.auth)
+    assert "login --username docker-ros-ci --password-stdin" in argv_log.read_text()
+    assert auth_registry.password not in pushed.stdout + argv_log.read_text()
+    # The user's configuration is as it was: their other login, none for this registry.
+    assert json.loads((config / "config.json").read_text()) == {
+        "auths": {"other.invalid": {"auth": "eA=="}}}
+    assert sorted(os.listdir(config)) == ["cli-plugins", "config.json"]
+
+
+def test_push_without_credentials_cannot_pull_the_private_base(
+    ros1_base_image: str, auth_registry, tmp_path: Path
+) -> None:
+    """The control: the same private base without REGISTRY_PASSWORD is refused before the
+    build, naming BASE_IMAGE (so the test above needs its login)."""
+    base = push_private_base_image(ros1_base_image, auth_registry.address, auth_registry.auth)
+    project = tmp_path / "project"
+    make_package(project / "pkg_login", "pkg_login")
+    write_env(project, BASE_IMAGE=base, IMAGE="docker-ros-test/push-login:1", TARGET="run",
+              COMMAND="pkg_login_node")
+    config, _, _ = docker_recorder(tmp_path)
+    pushed = docker_ros(project, "push", env={"DOCKER_CONFIG": str(config)})
+    assert pushed.returncode != 0
+    assert "BASE_IMAGE" in pushed.stdout, pushed.stdout[-3000:]
