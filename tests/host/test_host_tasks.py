@@ -111,6 +111,27 @@ def test_bad_input_is_one_clear_line_and_non_zero(project: Path) -> None:
     assert "BASE_IMAGE" in missing.stderr and "COMMAND" in missing.stderr
 
 
+def test_test_needs_no_command_and_takes_it_as_a_flag(project: Path) -> None:
+    """`test` builds the dev stage only: BASE_IMAGE is enough; --command is accepted (the
+    dev stage of a build with that COMMAND is reused)."""
+    (project / ".env").write_text("BASE_IMAGE=docker-ros-test/ros1:bookworm\n")
+    for extra in ((), ("--command", "roslaunch x y")):
+        result = cli(project, "test", "--dry-run", *extra)
+        assert result.returncode == 0, result.stderr
+        assert "[dry-run] test:" in result.stdout
+
+
+def test_push_dry_run_logs_in_first_password_on_standard_input(project: Path) -> None:
+    env = {"REGISTRY": "reg.invalid:5000", "REGISTRY_USER": "me", "REGISTRY_PASSWORD": "hunter2",
+           "BASE_IMAGE": "docker-ros-test/ros1:bookworm"}
+    result = cli(project, "push", "--dry-run", env=env)
+    assert result.returncode == 0, result.stderr
+    first = result.stdout.splitlines()[0]
+    assert first.startswith("[dry-run] docker-ros push: docker login --username me "
+                            "--password-stdin reg.invalid:5000"), result.stdout
+    assert "hunter2" not in result.stdout + result.stderr
+
+
 def test_build_dry_run_shows_secret_arguments_without_their_values(project: Path) -> None:
     env = {"GIT_HTTPS_PASSWORD": "hunter2", "GIT_HTTPS_SERVER": "git.example.com",
            "GIT_HTTPS_USER": "me", "BASE_IMAGE": "docker-ros-test/ros1:bookworm"}

@@ -56,7 +56,6 @@ from docker_ros.in_image.settings import (
     made_images,
     parse_set,
     require,
-    required_for_build,
     settings_where,
 )
 from docker_ros.in_image.steps import BY_NAME, STEPS
@@ -280,7 +279,7 @@ def lock_task(c: Context, settings: Settings, *, check: bool, host: bool) -> Non
 
     started = time.monotonic()
     if not host:
-        require(settings, required_for_build(settings))
+        require(settings, ["base_image"])  # (COMMAND is no input of what a build installs)
         try:
             build.check_engine()
         except build.BuildError as exc:

@@ -228,9 +228,10 @@ def default_results_dir(settings: Settings) -> Path:
 
 
 def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
-    """Build the test stage per platform, export its results; fail when a test failed."""
+    """Build the test stage per platform, export its results; fail when a test failed.
+    (The dev stage needs no COMMAND.)"""
 
-    require(settings, required_for_build(settings))
+    require(settings, ["base_image"])
     root = Path(results_dir).resolve() if results_dir else default_results_dir(settings)
     failures = []
     for platform in settings.platform:
