@@ -163,3 +163,69 @@ def test_bad_volume_and_slim_args_are_refused_before_any_build(repo: Path) -> No
     # checked only where the run image is slimmed
     unslimmed = run(["docker_ros", "build", "--dry-run"], repo, env={**unknown, "ENABLE_SLIM": "0"})
     assert unslimmed.returncode == 0, unslimmed.stderr
+
+
+def test_unreadable_dotenv_line_stops_naming_the_file_and_line(repo: Path) -> None:
+    with (repo / ".env").open("a") as env:
+        env.write('THIS IS NOT VALID\nENABLE_SLIM="true\n')
+    for task in ("config", "build"):
+        proc = run(["docker_ros", task, "--dry-run"] if task == "build" else ["docker_ros", task],
+                   repo)
+        assert proc.returncode == 1
+        assert last_line(proc) == (
+            f"docker-ros {task}: {repo / '.env'}: line 4: cannot read 'THIS IS NOT VALID'; "
+            "line 5: cannot read 'ENABLE_SLIM=\"true': write NAME=VALUE (quote a value with "
+            "spaces or #, and close the quotes)")
+
+
+def test_invoke_yaml_that_is_no_yaml_or_no_mapping_is_one_line(repo: Path) -> None:
+    (repo / "invoke.yaml").write_text("docker_ros: [1, 2\n")
+    proc = run(["docker_ros", "config"], repo)
+    assert proc.returncode == 2
+    assert last_line(proc) == ("docker-ros: invoke.yaml (line 2) is not valid YAML: expected ',' "
+                               "or ']', but got '<stream end>': fix or remove it")
+    (repo / "invoke.yaml").write_text("docker_ros: 5\n")
+    proc = run(["docker_ros", "config"], repo)
+    assert proc.returncode == 1
+    assert last_line(proc) == ("docker-ros config: invoke configuration: `docker_ros:` is 5: give "
+                               "it the settings as NAME: value lines")
+
+
+def test_a_folder_where_a_file_belongs_is_named_so(repo: Path) -> None:
+    (repo / "docker" / "blacklisted-packages.txt").mkdir(parents=True)
+    for args in (["blacklist", "--dry-run"], ["build", "--dry-run"]):
+        proc = run(["docker_ros", *args], repo)
+        assert proc.returncode == 1
+        assert last_line(proc).endswith(
+            "BLACKLISTED_PACKAGES_FILE 'docker/blacklisted-packages.txt' is a folder, not a "
+            "file: give the path of a file"), proc.stderr
+
+
+def test_a_repos_file_vcstool_cannot_read_is_caught_before_anything_runs(repo: Path,
+                                                                          tmp_path: Path) -> None:
+    (repo / ".repos").write_text("repositories:\n  dep:\n    type: git\n   url: x\n")
+    for args in (["clone", "--dry-run"], ["build", "--dry-run"], ["config"]):
+        proc = run(["docker_ros", *args], repo)
+        assert proc.returncode == 1
+        assert last_line(proc).strip().startswith(
+            "VCS_IMPORT_FILE .repos:4:4: not valid YAML: expected <block end>"), proc.stderr
+        assert last_line(proc).endswith("fix the file (vcstool cannot import it)")
+    # The step itself (as the image runs it) names the file in the workspace, not a path of
+    # this machine.
+    ws = tmp_path / "image-ws"
+    (ws / "src").mkdir(parents=True)
+    (ws / "src" / "target").symlink_to(repo)
+    proc = run(["docker_ros.in_image.steps", "clone", "--workspace", str(ws)], repo)
+    assert proc.returncode == 1
+    assert last_line(proc).startswith(
+        "docker-ros clone: src/target/.repos is not a .repos file vcstool can read:"), proc.stderr
+    assert last_line(proc).endswith(": fix the file")
+
+
+def test_config_marks_what_a_build_misses_and_still_shows_the_table(repo: Path) -> None:
+    (repo / ".env").write_text("TARGET=dev,run\n")
+    proc = run(["docker_ros", "config"], repo)
+    assert proc.returncode == 0, proc.stderr
+    rows = {line.split()[0]: line for line in proc.stdout.splitlines()}
+    assert rows["BASE_IMAGE"].endswith("<- MISSING (a build needs it)")
+    assert rows["COMMAND"].endswith("<- MISSING (a build needs it)")

@@ -1,5 +1,6 @@
 """Settings: declarations, precedence, strict parsing, derived defaults, README table."""
 
+import re
 from pathlib import Path
 
 import pytest
@@ -237,3 +238,18 @@ def test_readme_configuration_table_matches_declarations():
     assert begin in text and end in text, "README lacks the generated settings table"
     table = text.split(begin, 1)[1].split(end, 1)[0].strip()
     assert table == readme.table(), "regenerate with: python -m docker_ros.cli.readme"
+
+
+def test_readme_configuration_table_rows_have_four_cells():
+    """A `|` inside a cell is escaped: GitHub would cut the row at it."""
+    for row in readme.table().splitlines():
+        cells = re.split(r"(?<!\\)\|", row.strip())[1:-1]
+        assert len(cells) == 4, row
+
+
+def test_a_later_source_s_valid_value_clears_an_earlier_invalid_one():
+    settings = load(invoke_config={"target": "foo"}, dotenv={"TARGET": "dev"}, lenient=True)
+    assert settings.target == ("dev",) and settings.source_of("target") == ".env"
+    assert "target" not in settings.problems
+    with pytest.raises(SettingsError, match="TARGET='bar'.*from .env"):
+        load(invoke_config={"target": "dev"}, dotenv={"TARGET": "bar"})

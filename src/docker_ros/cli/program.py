@@ -6,7 +6,8 @@ import os
 import sys
 from typing import List, Optional
 
-from invoke import Program
+from invoke import Exit, Program
+from invoke.config import yaml  # (the YAML module invoke reads its files with)
 
 from docker_ros import __version__
 from docker_ros.cli.tasks import ns
@@ -20,7 +21,14 @@ class DockerRosProgram(Program):
     def parse_collection(self) -> None:
         super().parse_collection()
         self.config.set_project_location(os.getcwd())
-        self.config.load_project()
+        try:
+            self.config.load_project()
+        except yaml.YAMLError as exc:
+            where = getattr(exc, "problem_mark", None)
+            line = f" (line {where.line + 1})" if where else ""
+            problem = getattr(exc, "problem", None) or exc
+            raise Exit(f"docker-ros: invoke.yaml{line} is not valid YAML: {problem}: fix or "
+                       "remove it", code=2) from None
 
 
 def main(argv: Optional[List[str]] = None) -> None:

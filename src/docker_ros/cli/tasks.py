@@ -56,6 +56,7 @@ from docker_ros.in_image.settings import (
     made_images,
     parse_set,
     require,
+    required_for_build,
     settings_where,
 )
 from docker_ros.in_image.steps import BY_NAME, STEPS
@@ -152,6 +153,9 @@ def settings_task(
                 for n in settings_flags:
                     kwargs.pop(n, None)
                 cfg = c.config.get("docker_ros", None) or {}
+                if not isinstance(cfg, Mapping):
+                    raise SettingsError(f"invoke configuration: `docker_ros:` is {cfg!r}: "
+                                        "give it the settings as NAME: value lines")
                 settings = read_settings(dict(cfg), overrides, lenient=lenient, command=name)
                 if not logs_in_now(logs_in, kwargs):
                     return func(c, settings, **kwargs)
@@ -213,7 +217,9 @@ def setting_help(name: str) -> str:
     A default with a word too long for the help column is left to `inv config`."""
     default = default_doc(name).replace("`", "").replace("*", "")
     text = str(FIELDS[name].metadata["help"])
-    if not default or max(len(word) for word in default.split()) > 24:
+    # (the defaults of the CI integrations are not this machine's: the README lists them)
+    if (not default or max(len(word) for word in default.split()) > 24
+            or default.startswith("GitHub Action:")):
         return text
     return f"{text} (default: {default})"
 
@@ -231,7 +237,10 @@ def make_step_task(step: str) -> Task:
     summary = (f"[step {number}] {BY_NAME[step].help}\n\nRuns on this machine, in WORKSPACE; "
                "with --in-container in a container of the image state before the step.")
 
-    @settings_task(step, summary, [DRY_RUN, IN_CONTAINER, SHELL_ON_FAILURE],
+    shell_on_failure = (SHELL_ON_FAILURE[0], False,
+                        "With --in-container, w" + SHELL_ON_FAILURE[2][1:])
+
+    @settings_task(step, summary, [DRY_RUN, IN_CONTAINER, shell_on_failure],
                    uses=BY_NAME[step].settings + HOST_SETTINGS + ("base_image", "image"),
                    logs_in="in_container")
     def step_task(c: Context, settings: Settings, *, dry_run: bool, in_container: bool,
@@ -255,7 +264,8 @@ def make_step_task(step: str) -> Task:
 )
 def config(c: Context, settings: Settings) -> None:
     problems = input_problems(settings, settings.target, images=True)
-    print(config_table(settings, problems))
+    missing = [n for n in required_for_build(settings) if not getattr(settings, n)]
+    print(config_table(settings, problems, missing))
     print(lock_status(settings))
     messages = [*(why for _, why in settings.problems.values()), *problems.values()]
     if messages:
@@ -501,7 +511,8 @@ def example(c: Context, settings: Settings, *, seconds: int) -> None:
     project = EXAMPLE
     if not project.is_dir():
         raise TaskError(f"{project} not found: the example ships with the source repository")
-    settings = read_settings({}, {"build_context": str(project)}, project_dir=project)
+    given = {n: getattr(settings, n) for n in FIELDS if settings.source_of(n) == "flag"}
+    settings = read_settings({}, {**given, "build_context": str(project)}, project_dir=project)
     assert settings.base_image
     # Made once with debootstrap, then reused while its recipe is unchanged.
     baseimage.bootstrap("ros1", tag=settings.base_image)

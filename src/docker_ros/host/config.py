@@ -4,6 +4,7 @@ and the checks of the configuration against the repository before anything is bu
 from __future__ import annotations
 
 import difflib
+import io
 import logging
 import os
 import re
@@ -11,13 +12,16 @@ from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence
 
 from dotenv import dotenv_values
+from dotenv.parser import parse_stream
 
 from docker_ros.in_image.ci import github_default_branch
 from docker_ros.in_image.runtime.files import path_problem
+from docker_ros.in_image.runtime.repos import repos_problem
 from docker_ros.in_image.runtime.rosdeprules import rules_problem
 from docker_ros.in_image.settings import (
     FIELDS,
     Settings,
+    SettingsError,
     display_value,
     env_name,
     explicitly_set,
@@ -48,6 +52,11 @@ def read_settings(
     `command`."""
     project = project_dir or Path.cwd()
     env_file = project / ".env"
+    if env_file.is_file():
+        unreadable = dotenv_problems(env_file.read_text(errors="replace"))
+        if unreadable:
+            raise SettingsError(f"{env_file}: " + "; ".join(unreadable) + ": write NAME=VALUE "
+                                "(quote a value with spaces or #, and close the quotes)")
     dotenv = dotenv_values(env_file) if env_file.is_file() else {}
     environ = os.environ if environ is None else environ
     if environ.get("GITHUB_ACTIONS") == "true" and not environ.get("GITHUB_DEFAULT_BRANCH"):
@@ -64,6 +73,13 @@ def read_settings(
         lenient=lenient,
         command=command,
     )
+
+
+def dotenv_problems(text: str) -> List[str]:
+    """The lines of a .env file python-dotenv cannot read (it would skip them with a warning,
+    and the variable would silently keep another value)."""
+    return [f"line {b.original.line}: cannot read {b.original.string.strip()!r}"
+            for b in parse_stream(io.StringIO(text)) if b.error]
 
 
 def dotenv_warnings(dotenv: Mapping[str, object]) -> List[str]:
@@ -97,7 +113,13 @@ def path_problems(settings: Settings) -> Dict[str, str]:
         kind = FIELDS[name].metadata["path"]
         switch = FIELDS[name].metadata["recursive"]
         recursive = bool(switch and getattr(settings, switch))
-        exists = (repository / value).is_dir() if kind == "dir" else (repository / value).is_file()
+        path = repository / value
+        exists = path.is_dir() if kind == "dir" else path.is_file()
+        if path.exists() and not exists:
+            wanted, found = ("folder", "file") if kind == "dir" else ("file", "folder")
+            problems[name] = (f"{env_name(name)} '{value}' is a {found}, not a {wanted}: give "
+                              f"the path of a {wanted}")
+            continue
         # With recursive discovery the file may come with the imported repositories.
         if explicitly_set(settings, name) and not exists and not recursive:
             problems[name] = (f"{env_name(name)} '{value}' not found in the repository, but "
@@ -107,10 +129,19 @@ def path_problems(settings: Settings) -> Dict[str, str]:
 
 def content_problems(settings: Settings) -> Dict[str, str]:
     """Setting name -> what is wrong inside the file it names: a rosdep rules file that is not
-    valid YAML (rosdep would skip it and the build go on without its rules)."""
-    rules = Path(settings.build_context).expanduser() / settings.rosdep_rules_file
+    valid YAML (rosdep would skip it and the build go on without its rules), the repository's
+    .repos file that vcstool cannot read (the clone step would stop on it)."""
+    repository = Path(settings.build_context).expanduser()
+    problems: Dict[str, str] = {}
+    rules = repository / settings.rosdep_rules_file
     problem = rules_problem(rules, settings.rosdep_rules_file) if rules.is_file() else None
-    return {"rosdep_rules_file": problem} if problem else {}
+    if problem:
+        problems["rosdep_rules_file"] = problem
+    repos = repository / settings.vcs_import_file
+    problem = repos_problem(repos, settings.vcs_import_file) if repos.is_file() else None
+    if problem:
+        problems["vcs_import_file"] = f"VCS_IMPORT_FILE {problem}"
+    return problems
 
 
 def input_problems(settings: Settings, targets: Sequence[str], *, images: bool) -> Dict[str, str]:
@@ -118,7 +149,7 @@ def input_problems(settings: Settings, targets: Sequence[str], *, images: bool) 
     the files that exist), all at once, before anything runs."""
     problems = {**path_problems(settings),
                 **(image_problems(settings, targets) if images else {})}
-    if not problems.keys() & {"build_context", "rosdep_rules_file"}:
+    if not problems.keys() & {"build_context", "rosdep_rules_file", "vcs_import_file"}:
         problems.update(content_problems(settings))
     return problems
 
@@ -151,14 +182,16 @@ def origin_of(settings: Settings, name: str) -> str:
     return env_name(name)
 
 
-def config_table(settings: Settings, problems: Optional[Mapping[str, str]] = None) -> str:
+def config_table(settings: Settings, problems: Optional[Mapping[str, str]] = None,
+                 missing: Sequence[str] = ()) -> str:
     """Every setting with its effective value and where it came from; secrets masked; invalid
-    values shown as given and marked."""
+    values shown as given and marked, and the `missing` ones a build requires."""
     bad = set(settings.problems) | set(problems or {})
     rows = []
     for n in FIELDS:
         value = display_value(settings, n)
-        mark = "  <- INVALID" if n in bad else ""
+        mark = ("  <- INVALID" if n in bad
+                else "  <- MISSING (a build needs it)" if n in missing else "")
         if n in settings.problems and not FIELDS[n].metadata["secret"]:
             value = settings.problems[n][0]
         rows.append((env_name(n), value, settings.source_of(n) + mark))

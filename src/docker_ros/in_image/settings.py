@@ -29,6 +29,8 @@ TARGETS = ("dev", "run", "slim")
 # they produce is what CI pushes. A local `build` slims only when asked (slim_default).
 SLIMMING_COMMANDS = ("push", "ci", "manifest")
 PLATFORMS = ("amd64", "arm64")
+# The default of a setting the CI integrations set (as docker-ros's action and template do).
+CI_DEFAULT = "GitHub Action: {}; GitLab template: {}; else none"
 
 # Where a value came from, lowest to highest precedence.
 SOURCES = ("default", "invoke.yaml", ".env", "environment", "flag")
@@ -203,13 +205,16 @@ class Settings:
         " `build` (slim with `true`, a `slim` target or `inv slim`)",
     )
     git_https_password: Optional[str] = setting(
-        None, "Password for cloning private Git repositories via HTTPS", secret=True, build="tool"
+        None, "Password for cloning private Git repositories via HTTPS", secret=True,
+        build="tool", default_doc=CI_DEFAULT.format("`${{ github.token }}`", "`$CI_JOB_TOKEN`"),
     )
     git_https_server: Optional[str] = setting(
-        None, "Server URL (without protocol) for cloning private Git repositories via HTTPS"
+        None, "Server URL (without protocol) for cloning private Git repositories via HTTPS",
+        default_doc=CI_DEFAULT.format("`github.com`", "`$CI_SERVER_HOST`"),
     )
     git_https_user: Optional[str] = setting(
-        None, "Username for cloning private Git repositories via HTTPS"
+        None, "Username for cloning private Git repositories via HTTPS",
+        default_doc=CI_DEFAULT.format("`${{ github.actor }}`", "`gitlab-ci-token`"),
     )
     git_ssh_known_host_keys: Optional[str] = setting(
         None, "Known SSH host keys for cloning private Git repositories via SSH"
@@ -225,7 +230,8 @@ class Settings:
     image_name: Optional[str] = setting(
         None,
         "Image name of run image",
-        default_doc="`ghcr.io/$GITHUB_REPOSITORY` | `$CI_REGISTRY_IMAGE` | repository folder name",
+        default_doc="GitHub Action: `ghcr.io/<owner>/<repository>`; GitLab template: "
+        "`$CI_REGISTRY_IMAGE`; else the repository folder name",
         build="tool",
     )
     image_tag: str = setting("latest", "Image tag of run image", build="tool", flags=("image",))
@@ -233,18 +239,21 @@ class Settings:
         (),
         "Target platform architecture (comma-separated list)",
         choices=PLATFORMS,
-        default_doc="runner architecture", build="tool", flags=("image",),
+        default_doc="this machine's architecture; GitLab template: `amd64`", build="tool",
+        flags=("image",),
     )
     registry: Optional[str] = setting(
-        None, "Docker registry to push images to", default_doc="`ghcr.io` | `$CI_REGISTRY`",
+        None, "Docker registry to push images to",
+        default_doc=CI_DEFAULT.format("`ghcr.io`", "`$CI_REGISTRY`"),
         build="none", flags=("push",)
     )
     registry_password: Optional[str] = setting(
-        None, "Docker registry password", secret=True, build="none"
+        None, "Docker registry password", secret=True, build="none",
+        default_doc=CI_DEFAULT.format("`${{ github.token }}`", "`$CI_REGISTRY_PASSWORD`"),
     )
     registry_user: Optional[str] = setting(
-        None, "Docker registry username",
-        build="none", flags=("push",)
+        None, "Docker registry username", build="none", flags=("push",),
+        default_doc=CI_DEFAULT.format("`${{ github.actor }}`", "`$CI_REGISTRY_USER`"),
     )
     rmw_implementation: str = setting("rmw_fastrtps_cpp", "ROS 2 middleware implementation")
     ros_distro: Optional[str] = setting(
@@ -544,11 +553,12 @@ def load_settings(
             try:
                 values[name] = parse_value(name, value)
             except SettingsError as exc:
-                errors.append(f"{exc} (from {source})")
-                problems[name] = (str(value), errors[-1])
+                problems[name] = (str(value), f"{exc} (from {source})")
                 sources[name] = source
                 continue
+            problems.pop(name, None)  # a later source's valid value is the one in force
             sources[name] = origin
+    errors += [why for name, (_, why) in problems.items() if name in FIELDS]
     conflict = slim_conflict(values, sources)
     if conflict:
         errors.append(conflict)
@@ -859,7 +869,6 @@ def markdown_table(flag_tasks: Optional[Mapping[str, Iterable[str]]] = None) -> 
             extras.append("CI integrations only")
         if extras:
             help_text += " (" + "; ".join(extras) + ")"
-        rows.append(
-            f"| `{env_name(name)}` | {flag} | {default_doc(name)} | {help_text} |"
-        )
+        cells = [f"`{env_name(name)}`", flag, default_doc(name), help_text]
+        rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     return "\n".join(rows)

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional
 
 from docker_ros.in_image.runtime.process import tool_path
+from docker_ros.in_image.runtime.rosdeprules import yaml_problem
 from docker_ros.in_image.runtime.workspace import StepError
 
 Repos = Dict[str, Dict[str, str]]
@@ -47,31 +48,47 @@ def normalise(repos: Mapping[str, Any]) -> Repos:
     }
 
 
-def read_repos(path: Path, *, step: str) -> Repos:
+EXPECTED = ("expected `repositories:` with `name: {type, url, version}` entries, or a "
+            "rosinstall list of `- git: {local-name, uri, version}`")
+
+
+def read_repos(path: Path, *, step: str, shown: str = "") -> Repos:
     """The repositories `vcs import --input path` would import: name -> {type, url, version}.
-    A file vcstool cannot read is a StepError naming the file and vcstool's reason."""
+    A file vcstool cannot read is a StepError naming the file (as `shown`) and vcstool's
+    reason."""
     text = Path(path).read_text()
     if is_empty(text):
         return {}
     try:
         from vcstool.commands.import_ import get_repositories
     except ImportError:
-        return _read_elsewhere(Path(path), step=step)
+        return _read_elsewhere(Path(path), step=step, shown=shown)
     try:
         with open(str(path)) as handle:
             return normalise(get_repositories(handle))
     except RuntimeError as exc:
-        raise StepError(step, unreadable(path, str(exc))) from None
+        raise StepError(step, unreadable(shown or str(path), str(exc))) from None
 
 
-def unreadable(path: Path, reason: str) -> str:
+def unreadable(shown: str, reason: str) -> str:
     """One line: vcstool's reason (a YAML error spans lines), and the expected form when the
     file is YAML but not a list of repositories."""
     text = " ".join(reason.split())
     if "yaml" not in text:
-        text += (" (expected `repositories:` with `name: {type, url, version}` entries, or a "
-                 "rosinstall list of `- git: {local-name, uri, version}`)")
-    return f"{path} is not a .repos file vcstool can read: {text}"
+        text += f" ({EXPECTED})"
+    return f"{shown} is not a .repos file vcstool can read: {text}: fix the file"
+
+
+def repos_problem(path: Path, shown: str) -> Optional[str]:
+    """What keeps vcstool from reading a .repos file, in one line naming `shown` (None when it
+    reads, or when no YAML reader is here: the clone step reports it then)."""
+    data, problem = yaml_problem(path, shown)
+    if problem:
+        return f"{problem}: fix the file (vcstool cannot import it)"
+    if data is None or isinstance(data, list) or (
+            isinstance(data, dict) and isinstance(data.get("repositories"), dict)):
+        return None
+    return f"{shown}: not a .repos file: {EXPECTED}"
 
 
 def interpreters(vcs: Optional[str]) -> List[List[str]]:
@@ -89,7 +106,7 @@ def interpreters(vcs: Optional[str]) -> List[List[str]]:
     return found + [["python3"]]
 
 
-def _read_elsewhere(path: Path, *, step: str) -> Repos:
+def _read_elsewhere(path: Path, *, step: str, shown: str) -> Repos:
     for interpreter in interpreters(shutil.which(tool_path("vcs"))):
         try:
             proc = subprocess.run([*interpreter, "-c", READER, str(path)],
@@ -101,7 +118,7 @@ def _read_elsewhere(path: Path, *, step: str) -> Repos:
             continue
         answer = json.loads(lines[-1])
         if "error" in answer:
-            raise StepError(step, unreadable(path, answer["error"]))
+            raise StepError(step, unreadable(shown or str(path), answer["error"]))
         return normalise(answer["repositories"])
     raise StepError(step, f"cannot read {path}: no Python here has vcstool (which the clone "
                           "step needs anyway): install vcstool (pip install vcstool, or apt "

@@ -27,14 +27,14 @@ def _yaml() -> Any:
     return None
 
 
-def rules_problem(path: Path, shown: str) -> Optional[str]:
-    """What makes a rules file unusable, in one line naming `shown`:line:column (None when it
-    is fine, or when no YAML reader is here: rosdep's own update reports it then)."""
+def yaml_problem(path: Path, shown: str) -> Tuple[Any, Optional[str]]:
+    """(the file's data, None), or (None, one line naming `shown`:line:column and YAML's
+    reason) when it is not valid YAML; (None, None) when no YAML reader is here."""
     yaml = _yaml()
     if yaml is None:
-        return None
+        return None, None
     try:
-        data = yaml.safe_load(path.read_text())
+        return yaml.safe_load(path.read_text()), None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{shown}:{mark.line + 1}:{mark.column + 1}" if mark else shown
@@ -42,8 +42,15 @@ def rules_problem(path: Path, shown: str) -> Optional[str]:
         context, started = getattr(exc, "context", None), getattr(exc, "context_mark", None)
         if context and started and (not mark or started.line != mark.line):
             problem += f" ({context} at line {started.line + 1})"
-        return (f"ROSDEP_RULES_FILE {where}: not valid YAML: {problem}: fix the file (rosdep "
-                "would skip all of its rules)")
+        return None, f"{where}: not valid YAML: {problem}"
+
+
+def rules_problem(path: Path, shown: str) -> Optional[str]:
+    """What makes a rules file unusable, in one line naming `shown`:line:column (None when it
+    is fine, or when no YAML reader is here: rosdep's own update reports it then)."""
+    data, problem = yaml_problem(path, shown)
+    if problem:
+        return f"ROSDEP_RULES_FILE {problem}: fix the file (rosdep would skip all of its rules)"
     if data is not None and not isinstance(data, dict):
         return (f"ROSDEP_RULES_FILE {shown}: holds a {type(data).__name__}, not rules: map each "
                 "rosdep key to its packages, e.g. `my_key: {debian: [libfoo-dev]}`")

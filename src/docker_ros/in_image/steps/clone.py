@@ -358,7 +358,7 @@ def _import_once(
 ) -> None:
     rel = ws.relative(repos_file)
     digest = file_sha256(repos_file)
-    repos = read_repos(repos_file, step=STEP)
+    repos = read_repos(repos_file, step=STEP, shown=rel)
     record = imported.get(rel) or {}
     if digest in done_hashes:
         LOG.info("%s: %s has the content of a file already imported, skipped", STEP, rel)
