@@ -81,9 +81,22 @@ def test_explicit_list_files_must_exist_defaults_stay_silent(repo: Path, tmp_pat
         assert "VCS_IMPORT_FILE 'deps.repos' not found in the repository" in last_line(proc)
 
 
-def test_duplicate_package_names_fail_in_collect_naming_both(repo: Path) -> None:
+def test_duplicate_package_names_fail_before_anything_runs_naming_both(repo: Path,
+                                                                       tmp_path: Path) -> None:
     make_package(repo / "copy" / "pkg_a", "pkg_a")
-    proc = run(["docker_ros", "rosdep", "--dry-run"], repo)
+    for args in (["rosdep", "--dry-run"], ["build", "--dry-run"], ["config"]):
+        proc = run(["docker_ros", *args], repo)
+        assert proc.returncode == 1
+        assert last_line(proc) == (
+            "  two packages with the same name: pkg_a in copy/pkg_a and pkg_a (colcon cannot "
+            "build both: remove one, or put a COLCON_IGNORE file in its folder)"), proc.stderr
+        assert "#1 [internal]" not in proc.stdout  # BuildKit never started
+    # A duplicate an imported repository brings: the collect phase stops (as in the image).
+    ws = tmp_path / "image-ws"
+    (ws / "src").mkdir(parents=True)
+    (ws / "src" / "target").symlink_to(repo)
+    proc = run(["docker_ros.in_image.steps", "rosdep", "--workspace", str(ws), "--phase",
+                "collect"], repo)
     assert proc.returncode == 1
     assert last_line(proc) == (
         "docker-ros rosdep: two packages with the same name: pkg_a in src/target/copy/pkg_a and "

@@ -82,8 +82,10 @@ def test_lock_text_is_stable_and_loads_back(tmp_path: Path):
     path.write_text(text)
     assert lock.locked_target(lock.load_lock(path), "run", "amd64")["apt"] == {"a": "2", "b": "1"}
     assert lock.lock_digest(text).startswith("sha256:")
-    with pytest.raises(lock.LockError, match="no entry for dev/amd64"):
+    with pytest.raises(lock.LockError, match="no entry for dev/amd64: run `inv lock`$"):
         lock.locked_target(lock.load_lock(path), "dev", "amd64")
+    with pytest.raises(lock.LockError, match="no entry for host/amd64: run `inv lock --host`"):
+        lock.locked_target(lock.load_lock(path), "host", "amd64")
     with pytest.raises(lock.LockError, match="not found: run `inv lock`"):
         lock.load_lock(tmp_path / "missing.lock")
 

@@ -16,6 +16,7 @@ from dotenv.parser import parse_stream
 
 from docker_ros.in_image.ci import github_default_branch
 from docker_ros.in_image.runtime.files import path_problem
+from docker_ros.in_image.runtime.packages import duplicates_message, repository_duplicates
 from docker_ros.in_image.runtime.repos import repos_problem
 from docker_ros.in_image.runtime.rosdeprules import rules_problem
 from docker_ros.in_image.settings import (
@@ -130,7 +131,8 @@ def path_problems(settings: Settings) -> Dict[str, str]:
 def content_problems(settings: Settings) -> Dict[str, str]:
     """Setting name -> what is wrong inside the file it names: a rosdep rules file that is not
     valid YAML (rosdep would skip it and the build go on without its rules), the repository's
-    .repos file that vcstool cannot read (the clone step would stop on it)."""
+    .repos file that vcstool cannot read (the clone step would stop on it); and two packages
+    of the repository with the same name (the build would stop in its blacklist step)."""
     repository = Path(settings.build_context).expanduser()
     problems: Dict[str, str] = {}
     rules = repository / settings.rosdep_rules_file
@@ -141,6 +143,9 @@ def content_problems(settings: Settings) -> Dict[str, str]:
     problem = repos_problem(repos, settings.vcs_import_file) if repos.is_file() else None
     if problem:
         problems["vcs_import_file"] = f"VCS_IMPORT_FILE {problem}"
+    duplicates = repository_duplicates(repository)
+    if duplicates:
+        problems["packages"] = duplicates_message(duplicates)
     return problems
 
 

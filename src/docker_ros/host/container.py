@@ -387,15 +387,17 @@ def run_plan(
     return plan.tag
 
 
-def reproduce(settings: Settings, error: build.BuildError, *, out: IO[str]) -> None:
+def reproduce(settings: Settings, error: build.BuildError, *, out: IO[str]) -> Optional[int]:
     """An image build failed in a step: run that stage's commands in a container of the state
-    before it, up to the failed step, with a shell where it fails again."""
+    before it, up to the failed step, with a shell where it fails again. The step's exit code
+    there (None: it did not fail again)."""
     plan = plan_step(settings, error.step, stage=error.stage)
     out.write(f"==> docker-ros: reproducing the failure of {error.step} in a container "
               f"(stage {error.stage})\n")
     try:
         run_plan(settings, plan, shell_on_failure=True, out=out)
-    except StepError:
-        return
+    except StepError as failed:
+        return failed.returncode
     out.write(f"==> docker-ros: {error.step} succeeded in the container (state {plan.tag}); "
               "the build failure did not repeat\n")
+    return None

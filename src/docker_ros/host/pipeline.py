@@ -13,7 +13,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable, Collection, Dict, Iterator, List, Sequence
+from typing import Any, Callable, Collection, Dict, Iterator, List, Optional, Sequence
 
 from docker_ros.host import build, container, devshell, slim
 from docker_ros.host.build import BuiltImage
@@ -40,7 +40,12 @@ DEV_STEPS = tuple(s for s in STEPS if BY_NAME[s].stage in ("source", "dependenci
 
 
 class TaskError(Exception):
-    """An expected failure outside the steps (bad repository layout, failed build...)."""
+    """An expected failure outside the steps (bad repository layout, failed build...), and the
+    task's exit code."""
+
+    def __init__(self, message: str, returncode: int = 1) -> None:
+        super().__init__(message)
+        self.returncode = returncode
 
 
 def link_repository(ws: Workspace, repository: Path) -> None:
@@ -181,9 +186,8 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             try:
                 built += build.build_images(settings, targets=tags, platform=platform)
             except build.BuildError as exc:
-                if shell_on_failure:
-                    reproduce_failure(settings, exc)
-                raise TaskError(str(exc)) from None
+                code = reproduce_failure(settings, exc) if shell_on_failure else None
+                raise TaskError(str(exc), code or 1) from None
         if slim and "run" in targets and slimmed_here(settings, platform):
             slimmed = slim_one(settings, platform, dry_run=dry_run)
             built += [] if dry_run else [slimmed]
@@ -268,18 +272,19 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
         raise TaskError("; ".join(failures) + "; see the output above")
 
 
-def reproduce_failure(settings: Settings, error: build.BuildError) -> None:
+def reproduce_failure(settings: Settings, error: build.BuildError) -> Optional[int]:
     """--shell-on-failure of an image build: the failed step again, in a container of the state
-    before it, with the shell where it fails."""
+    before it, with the shell where it fails; the step's exit code there, if it failed."""
 
     if error.stage not in container.STAGES:
         print(f"docker-ros build: --shell-on-failure: the failure is not in one of the ten "
               f"steps (stage {error.stage or 'unknown'}); no shell to open")
-        return
+        return None
     try:
-        container.reproduce(settings, error, out=sys.stdout)
+        return container.reproduce(settings, error, out=sys.stdout)
     except build.BuildError as exc:
         print(f"docker-ros build: --shell-on-failure: {exc}")
+        return None
 
 
 def build_until(settings: Settings, step: str, *, dry_run: bool,

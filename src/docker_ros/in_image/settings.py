@@ -847,6 +847,9 @@ def default_doc(name: str) -> str:
     return f"`{default}`"
 
 
+FEW_TASKS = 4  # a flag of at most this many tasks is listed with their names
+
+
 def markdown_table(flag_tasks: Optional[Mapping[str, Iterable[str]]] = None) -> str:
     """The README configuration table, derived from the declarations; flag_tasks says which
     tasks have a setting as a flag (others are reached with --set NAME=VALUE)."""
@@ -856,7 +859,9 @@ def markdown_table(flag_tasks: Optional[Mapping[str, Iterable[str]]] = None) -> 
         if is_secret(name):
             flag = "none: environment or `.env` only"
         elif flag_tasks.get(name):
-            flag = f"`{flag_name(name)}`"
+            tasks = list(flag_tasks[name])
+            flag = f"`{flag_name(name)}`" + (
+                f" ({', '.join(tasks)})" if len(tasks) <= FEW_TASKS else "")
         else:
             flag = f"`--set {env_name(name)}=...`"
         help_text = str(f.metadata["help"])

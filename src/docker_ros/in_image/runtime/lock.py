@@ -81,7 +81,8 @@ def locked_target(lock: Mapping[str, Any], target: str, platform: str) -> Dict[s
     key = target_key(target, platform)
     entry = (lock.get("targets") or {}).get(key)
     if entry is None:
-        raise LockError(f"LOCKED: docker-ros.lock has no entry for {key}: run `inv lock`")
+        task = "inv lock --host" if target == HOST_TARGET else "inv lock"
+        raise LockError(f"LOCKED: docker-ros.lock has no entry for {key}: run `{task}`")
     return dict(entry)
 
 

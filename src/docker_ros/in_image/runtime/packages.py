@@ -22,6 +22,7 @@ from typing import (
     Set,
     Tuple,
 )
+from xml.etree import ElementTree
 
 from docker_ros.in_image.runtime.files import walk
 from docker_ros.in_image.runtime.process import HOST_EXTRA
@@ -154,13 +155,31 @@ def find_packages(
             raise StepError(step, f"{ws.relative(path)}: {exc}") from None
     duplicates = duplicate_packages(packages)
     if duplicates:
-        listed = "; ".join(
-            f"{name} in {' and '.join(ws.relative(p) for p in paths)}"
-            for name, paths in duplicates.items()
-        )
-        raise StepError(step, f"two packages with the same name: {listed} (colcon cannot build "
-                        "both: remove one, or put a COLCON_IGNORE file in its folder)")
+        raise StepError(step, duplicates_message(
+            {name: [ws.relative(p) for p in paths] for name, paths in duplicates.items()}))
     return packages
+
+
+def duplicates_message(duplicates: Mapping[str, Sequence[str]]) -> str:
+    listed = "; ".join(f"{name} in {' and '.join(paths)}" for name, paths in duplicates.items())
+    return (f"two packages with the same name: {listed} (colcon cannot build both: remove one, "
+            "or put a COLCON_IGNORE file in its folder)")
+
+
+def repository_duplicates(repository: Path) -> Dict[str, List[str]]:
+    """Package names found more than once in a repository (its own packages, before anything is
+    imported), with the folders relative to it; package.xml files that do not parse are left to
+    the steps, which name their error."""
+    paths: Dict[str, List[str]] = {}
+    for directory in find_package_dirs(repository):
+        try:
+            name = ElementTree.parse(str(directory / "package.xml")).findtext("name")
+        except (ElementTree.ParseError, OSError):
+            continue
+        if name and name.strip():
+            paths.setdefault(name.strip(), []).append(
+                directory.relative_to(repository).as_posix())
+    return {name: found for name, found in sorted(paths.items()) if len(found) > 1}
 
 
 def duplicate_packages(packages: Sequence[Package]) -> Dict[str, List[Path]]:
