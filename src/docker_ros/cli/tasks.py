@@ -120,6 +120,7 @@ def settings_task(
     shortflags: Mapping[str, str] = {},
     lenient: bool = False,
     logs_in: Union[bool, str] = False,
+    helps: Mapping[str, str] = {},
 ) -> Callable[..., Task]:
     """Make an invoke Task whose flags are the task's own, one per setting it uses, and
     --set NAME=VALUE for any other setting (the full reference: README and `inv config`);
@@ -127,7 +128,8 @@ def settings_task(
     reach the task in Settings.problems instead of stopping it. `logs_in`: a task that reaches
     a registry (a private BASE_IMAGE, CACHE_FROM/CACHE_TO, pushes) runs logged in with
     REGISTRY_USER/REGISTRY_PASSWORD when they are set, in a DOCKER_CONFIG of its own, removed
-    at its end (see logs_in_now)."""
+    at its end (see logs_in_now). `helps`: a setting's flag help where this task needs
+    another than the declaration's."""
 
     def decorate(func: Callable[..., Any]) -> Task:
         own = [f[0] for f in flags]
@@ -184,7 +186,7 @@ def settings_task(
         body.__name__ = name.replace("-", "_")
         help_map: Dict[str, str] = {n: h for n, _, h in [*flags, SET]}
         for n in settings_flags:
-            help_map[n] = setting_help(n)
+            help_map[n] = helps.get(n) or setting_help(n)
         for n in SECRETS:
             help_map[n] = f"Refused (a secret): set {env_name(n)} in the env or .env"
         repeatable = ["set"] + [n for n, d, _ in flags if isinstance(d, list)]
@@ -242,6 +244,7 @@ def make_step_task(step: str) -> Task:
 
     @settings_task(step, summary, [DRY_RUN, IN_CONTAINER, shell_on_failure],
                    uses=BY_NAME[step].settings + HOST_SETTINGS + ("base_image", "image"),
+                   helps={"base_image": "Base image `name:tag` (required with --in-container)"},
                    logs_in="in_container")
     def step_task(c: Context, settings: Settings, *, dry_run: bool, in_container: bool,
                   shell_on_failure: bool) -> None:
