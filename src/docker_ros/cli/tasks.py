@@ -244,7 +244,7 @@ def make_step_task(step: str) -> Task:
 
     @settings_task(step, summary, [DRY_RUN, IN_CONTAINER, shell_on_failure],
                    uses=BY_NAME[step].settings + HOST_SETTINGS + ("base_image", "image"),
-                   helps={"base_image": "Base image `name:tag` (required with --in-container)"},
+                   helps={"base_image": "Base image of --in-container (`name:tag`)"},
                    logs_in="in_container")
     def step_task(c: Context, settings: Settings, *, dry_run: bool, in_container: bool,
                   shell_on_failure: bool) -> None:
