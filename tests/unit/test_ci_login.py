@@ -4,10 +4,13 @@ slim (the runner's architecture only, pushed under the slim names as docker-ros 
 import json
 from pathlib import Path
 
+import pytest
+
 from docker_ros.cli.tasks import logs_in_now
 from docker_ros.host.build import slim_platforms
 from docker_ros.host.login import (
     LOGGED_IN,
+    LoginError,
     job_login,
     mirror_docker_config,
     plan_login,
@@ -15,6 +18,7 @@ from docker_ros.host.login import (
 )
 from docker_ros.host.push import plan_push, push_targets
 from docker_ros.in_image.settings import load_settings
+from tests.rosfixtures import free_port
 
 
 def test_login_takes_the_password_on_standard_input_only() -> None:
@@ -95,3 +99,21 @@ def test_a_task_of_a_logged_in_job_uses_its_login(tmp_path: Path) -> None:
     with job_login(s, environ, label="docker-ros push"):
         assert environ["DOCKER_CONFIG"] == str(tmp_path)
     assert environ == {LOGGED_IN: "reg:5000 me", "DOCKER_CONFIG": str(tmp_path)}
+
+
+def test_a_failed_login_only_stops_a_task_that_needs_it(tmp_path: Path, capsys) -> None:
+    """`build` (required=False) may need no registry: a refused login is a warning and the
+    user's own docker configuration stays in force; `push` (required) stops."""
+    registry = f"127.0.0.1:{free_port()}"  # nothing listens: docker login is refused
+    s = load_settings(environ={"REGISTRY": registry, "REGISTRY_USER": "me",
+                               "REGISTRY_PASSWORD": "pw-never-shown"})
+    environ = {"DOCKER_CONFIG": str(tmp_path)}
+    with job_login(s, environ, label="docker-ros build", required=False):
+        assert environ == {"DOCKER_CONFIG": str(tmp_path)}
+    err = capsys.readouterr().err
+    assert f"docker-ros build: docker login to {registry} as me failed:" in err
+    assert "going on without it" in err and "pw-never-shown" not in err
+    pushing = job_login(s, environ, label="docker-ros push")
+    with pytest.raises(LoginError, match=f"docker login to {registry} as me failed"), pushing:
+        pass
+    assert environ == {"DOCKER_CONFIG": str(tmp_path)}

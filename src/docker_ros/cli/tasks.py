@@ -120,6 +120,7 @@ def settings_task(
     shortflags: Mapping[str, str] = {},
     lenient: bool = False,
     logs_in: Union[bool, str] = False,
+    login_required: bool = False,
     helps: Mapping[str, str] = {},
 ) -> Callable[..., Task]:
     """Make an invoke Task whose flags are the task's own, one per setting it uses, and
@@ -128,8 +129,9 @@ def settings_task(
     reach the task in Settings.problems instead of stopping it. `logs_in`: a task that reaches
     a registry (a private BASE_IMAGE, CACHE_FROM/CACHE_TO, pushes) runs logged in with
     REGISTRY_USER/REGISTRY_PASSWORD when they are set, in a DOCKER_CONFIG of its own, removed
-    at its end (see logs_in_now). `helps`: a setting's flag help where this task needs
-    another than the declaration's."""
+    at its end (see logs_in_now); a failed login stops only a task that `login_required`
+    (pushes), others go on with a warning (they may need no registry). `helps`: a setting's
+    flag help where this task needs another than the declaration's."""
 
     def decorate(func: Callable[..., Any]) -> Task:
         own = [f[0] for f in flags]
@@ -161,7 +163,7 @@ def settings_task(
                 settings = read_settings(dict(cfg), overrides, lenient=lenient, command=name)
                 if not logs_in_now(logs_in, kwargs):
                     return func(c, settings, **kwargs)
-                with logged_in_job(settings, f"docker-ros {name}",
+                with logged_in_job(settings, f"docker-ros {name}", required=login_required,
                                    dry_run=bool(kwargs.get("dry_run"))):
                     return func(c, settings, **kwargs)
             except KeyboardInterrupt:
@@ -398,6 +400,7 @@ def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str
     [DRY_RUN],
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
     logs_in=True,
+    login_required=True,
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
@@ -413,6 +416,7 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     [DRY_RUN],
     uses=("target", "image", "image_tag", "platform") + PUSH_SETTINGS,
     logs_in=True,
+    login_required=True,
 )
 def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
@@ -429,6 +433,7 @@ def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     [DRY_RUN],
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
     logs_in=True,
+    login_required=True,
 )
 def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 

@@ -8,6 +8,7 @@ import contextlib
 import json
 import shutil
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, MutableMapping, Optional
@@ -71,10 +72,12 @@ def docker_login(argv: List[str], password: str, registry: str) -> None:
 
 @contextlib.contextmanager
 def job_login(
-    settings: Settings, environ: MutableMapping[str, str], *, label: str
+    settings: Settings, environ: MutableMapping[str, str], *, label: str, required: bool = True
 ) -> Iterator[None]:
-    """Log in for the duration of a CI job's task: DOCKER_CONFIG in environ (which the task's
-    docker commands and subprocesses inherit) names a private folder, removed afterwards."""
+    """Log in for the duration of a task: DOCKER_CONFIG in environ (which the task's docker
+    commands and subprocesses inherit) names a private folder, removed afterwards. A login that
+    is not `required` (the task may need no registry: a build from local images, offline) and
+    fails is a warning, and the task goes on with the user's own docker configuration."""
     argv = plan_login(settings)
     login = f"{settings.registry} {settings.registry_user}"
     # A task of a job that logged in (`ci` runs `push` as a process) uses that login.
@@ -87,16 +90,28 @@ def job_login(
         mirror_docker_config(docker_config_dir(environ), folder / "config",
                              settings.registry or "https://index.docker.io/v1/")
         environ["DOCKER_CONFIG"] = str(folder / "config")
-        docker_login(argv, settings.registry_password or "", settings.registry or "")
-        environ[LOGGED_IN] = login
-        print(f"{label}: logged in to {settings.registry or 'Docker Hub'} as "
-              f"{settings.registry_user} (job-private DOCKER_CONFIG, removed at the end)",
-              flush=True)
+        try:
+            docker_login(argv, settings.registry_password or "", settings.registry or "")
+        except LoginError as exc:
+            if required:
+                raise
+            print(f"{label}: {exc}; going on without it (a private image of that registry "
+                  "will not be pullable)", file=sys.stderr, flush=True)
+            restore(environ, previous)
+        else:
+            environ[LOGGED_IN] = login
+            print(f"{label}: logged in to {settings.registry or 'Docker Hub'} as "
+                  f"{settings.registry_user} (job-private DOCKER_CONFIG, removed at the end)",
+                  flush=True)
         yield
     finally:
-        for name, value in previous.items():
-            if value is None:
-                environ.pop(name, None)
-            else:
-                environ[name] = value
+        restore(environ, previous)
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def restore(environ: MutableMapping[str, str], previous: Mapping[str, Optional[str]]) -> None:
+    for name, value in previous.items():
+        if value is None:
+            environ.pop(name, None)
+        else:
+            environ[name] = value

@@ -315,9 +315,11 @@ def push_and_report(
 
 
 @contextlib.contextmanager
-def logged_in_job(settings: Settings, label: str, *, dry_run: bool) -> Iterator[None]:
+def logged_in_job(settings: Settings, label: str, *, dry_run: bool,
+                  required: bool = True) -> Iterator[None]:
     """REGISTRY_USER/REGISTRY_PASSWORD logged in before anything else of the job (a private
-    BASE_IMAGE or CACHE_FROM), into a DOCKER_CONFIG of the job's own, removed at its end."""
+    BASE_IMAGE or CACHE_FROM), into a DOCKER_CONFIG of the job's own, removed at its end; a
+    failed login that is not `required` is a warning (see login.job_login)."""
 
     argv = plan_login(settings)
     if dry_run:
@@ -327,7 +329,7 @@ def logged_in_job(settings: Settings, label: str, *, dry_run: bool) -> Iterator[
         yield
         return
     try:
-        with job_login(settings, os.environ, label=label):
+        with job_login(settings, os.environ, label=label, required=required):
             yield
     except LoginError as exc:
         raise TaskError(str(exc)) from None
