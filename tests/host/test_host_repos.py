@@ -107,6 +107,23 @@ def test_own_rules_live_in_the_workspace_with_the_base_rules_it_reaches(
     assert again.returncode == 0 and "rosdep update" not in again.stderr  # inputs unchanged
 
 
+def test_a_ros_distro_the_unreachable_index_cannot_name_still_resolves(
+    repo: Path, tmp_path: Path, no_rosdep_database: dict
+) -> None:
+    """ROS_DISTRO set (e.g. jazzy) on a machine or base without the rosdistro index: the
+    update without the index drops --rosdistro (an empty index knows no distribution) and
+    the rules files resolve."""
+    ws = tmp_path / "ws"
+    (ws / "src").mkdir(parents=True)
+    (ws / "src" / "target").symlink_to(repo)
+    env = {**no_rosdep_database, "ROSDISTRO_INDEX_URL": "file:///nonexistent",
+           "ROS_DISTRO": "jazzy"}
+    proc = run([STEPS, "rosdep", "--workspace", str(ws), "--phase", "collect"], repo, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "trying without the rosdistro index" in proc.stderr
+    assert '"jq"' in (ws / ".docker-ros" / "rosdep.json").read_text()
+
+
 def test_hooks_know_where_they_run(repo: Path, tmp_path: Path) -> None:
     seen = tmp_path / "seen.txt"
     for hook in ("before_dependency_identification.sh", "before_dependency_installation.sh",

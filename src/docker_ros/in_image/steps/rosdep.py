@@ -264,9 +264,10 @@ def private_database(
             index = home / "index-v4.yaml"
             index.write_text("type: index\nversion: 4\ndistributions: {}\n")
             env["ROSDISTRO_INDEX_URL"] = index.as_uri()
+            argv = ["rosdep", "update"]  # (an empty index knows no ROS_DISTRO)
     if not cache.is_file():
         raise StepError(STEP, "rosdep update failed: " + (
-            proc.stderr.strip().splitlines() or ["no message"])[-1])
+            proc.stderr.strip().splitlines() or ["no message"])[-1].strip())
     for source in unreachable_sources(proc.stderr):
         LOG.warning("%s: rules source not reachable, its keys stay unresolved: %s", STEP, source)
     stamp.write_text(digest)
