@@ -116,6 +116,10 @@ def test_every_setting_reaches_docker_ros_through_env_only() -> None:
             continue
         key = name.replace("_", "-")
         assert key in inputs, key
+        if name == "build_context":  # the step runs in it: a relative one is read from there
+            assert env["BUILD_CONTEXT"] == "."
+            assert steps["docker-ros"]["working-directory"] == "${{ inputs.build-context }}"
+            continue
         assert env[name.upper()] == f"${{{{ inputs.{key} }}}}", name
     assert steps["setup"]["env"]["DOCKER_ROS_GIT_REF"] == "${{ inputs.docker-ros-git-ref }}"
     checkout = steps["Checkout repository"]
@@ -152,6 +156,8 @@ def test_template_installs_at_docker_ros_git_ref_and_runs_the_tasks() -> None:
     template = load(TEMPLATE)
     setup = "\n".join(template["default"]["before_script"])
     assert 'spec="git+${DOCKER_ROS_GIT_URL}@${DOCKER_ROS_GIT_REF}"' in setup
+    # the job runs in BUILD_CONTEXT, so a relative one is read from there as "."
+    assert 'cd "$BUILD_CONTEXT" && export BUILD_CONTEXT=.' in setup
     assert template[".build"]["script"] == [[".docker-ros-qemu", "script"],
                                             'PLATFORM="$_PLATFORM" docker-ros ci']
     assert template[".push"]["script"] == ["docker-ros manifest"]
