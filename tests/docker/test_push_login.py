@@ -15,6 +15,15 @@ from tests.docker.buildhelp import docker_ros, remove_image, write_env
 from tests.rosfixtures import make_package
 
 pytestmark = pytest.mark.docker
+# A docker credential helper that knows no login and records any attempt to store one.
+CREDENTIAL_HELPER = """#!/bin/sh
+case "$1" in
+  get) cat >/dev/null; echo "credentials not found in native keychain"; exit 1 ;;
+  list) echo "{{}}" ;;
+  store) cat >> '{stored}' ;;
+  erase) cat >/dev/null ;;
+esac
+"""
 
 
 def test_push_logs_in_pulls_a_private_base_and_leaves_no_login(
@@ -27,7 +36,14 @@ def test_push_logs_in_pulls_a_private_base_and_leaves_no_login(
     write_env(project, BASE_IMAGE=base, IMAGE=ref, TARGET="run", COMMAND="pkg_login_node",
               REGISTRY=auth_registry.address, REGISTRY_USER=auth_registry.user)
     config, argv_log, shim = docker_recorder(tmp_path)
-    (config / "config.json").write_text(json.dumps({"auths": {"other.invalid": {"auth": "eA=="}}}))
+    # The user's logins live in a credential store (as Docker Desktop's do): it stays theirs,
+    # and the registry's password never reaches it.
+    user_config = {"auths": {"other.invalid": {}}, "credsStore": "drtest"}
+    (config / "config.json").write_text(json.dumps(user_config))
+    stored = tmp_path / "store-calls"
+    helper = shim / "docker-credential-drtest"
+    helper.write_text(CREDENTIAL_HELPER.format(stored=stored))
+    helper.chmod(0o755)
     env = {"DOCKER_CONFIG": str(config), "PATH": f"{shim}{os.pathsep}{os.environ['PATH']}",
            "REGISTRY_PASSWORD": auth_registry.password}
     try:
@@ -44,10 +60,10 @@ def test_push_logs_in_pulls_a_private_base_and_leaves_no_login(
                                 auth=auth_registry.auth)
     assert "login --username docker-ros-ci --password-stdin" in argv_log.read_text()
     assert auth_registry.password not in pushed.stdout + argv_log.read_text()
-    # The user's configuration is as it was: their other login, none for this registry.
-    assert json.loads((config / "config.json").read_text()) == {
-        "auths": {"other.invalid": {"auth": "eA=="}}}
+    # The user's configuration is as it was: their store, none of this registry's login.
+    assert json.loads((config / "config.json").read_text()) == user_config
     assert sorted(os.listdir(config)) == ["cli-plugins", "config.json"]
+    assert not stored.exists(), stored.read_text()
 
 
 def test_push_without_credentials_cannot_pull_the_private_base(

@@ -40,7 +40,7 @@ def test_private_docker_config_copies_logins_and_links_the_rest(tmp_path: Path) 
     assert (private / "cli-plugins").resolve() == (user / "cli-plugins").resolve()
     assert not (private / "config.json").is_symlink()
     assert json.loads((private / "config.json").read_text()) == {
-        "auths": {"other.example": {"auth": "eA=="}}}
+        "auths": {"other.example": {"auth": "eA=="}}, "credHelpers": {"reg.example": ""}}
     (private / "config.json").write_text("{}")  # what a login changes
     assert "other.example" in (user / "config.json").read_text()
     mirror_docker_config(tmp_path / "missing", tmp_path / "fresh", "reg.example")
@@ -48,10 +48,13 @@ def test_private_docker_config_copies_logins_and_links_the_rest(tmp_path: Path) 
 
 
 def test_the_login_never_goes_to_a_credential_store() -> None:
+    """The user's other logins (their store, their helpers) stay usable; the registry's goes to
+    the job's file (docker: an empty helper is the file)."""
     config = {"credsStore": "desktop", "credHelpers": {"reg.example": "ecr", "gcr.io": "gcr"},
               "currentContext": "ci"}
-    assert private_config(config, "reg.example") == {"credHelpers": {"gcr.io": "gcr"},
-                                                     "currentContext": "ci"}
+    assert private_config(config, "reg.example") == {
+        "credsStore": "desktop", "credHelpers": {"reg.example": "", "gcr.io": "gcr"},
+        "currentContext": "ci"}
 
 
 def test_several_platforms_slim_the_runners_only() -> None:

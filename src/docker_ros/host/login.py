@@ -33,13 +33,10 @@ def plan_login(settings: Settings) -> Optional[List[str]]:
 
 
 def private_config(config: Mapping[str, Any], registry: str) -> Dict[str, Any]:
-    """The user's config.json for the job: their logins and settings, but no credential store
-    for the registry (`docker login` would put the password there, outside the job's folder)."""
-    copy = {key: value for key, value in config.items() if key != "credsStore"}
-    helpers = {k: v for k, v in (config.get("credHelpers") or {}).items() if k != registry}
-    if "credHelpers" in config:
-        copy["credHelpers"] = helpers
-    return copy
+    """The user's config.json for the job: their logins, credential store and settings, but the
+    registry's credentials in the file (an empty credential helper means the file to docker):
+    `docker login` would put the password in the store, outside the job's folder."""
+    return {**config, "credHelpers": {**(config.get("credHelpers") or {}), registry: ""}}
 
 
 def mirror_docker_config(source: Path, target: Path, registry: str) -> None:
