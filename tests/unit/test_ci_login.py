@@ -2,11 +2,14 @@
 slim (the runner's architecture only, pushed under the slim names as docker-ros does)."""
 
 import json
+import socket
+import time
 from pathlib import Path
 
 import pytest
 
 from docker_ros.cli.tasks import logs_in_now
+from docker_ros.host import login
 from docker_ros.host.build import slim_platforms
 from docker_ros.host.login import (
     LOGGED_IN,
@@ -120,3 +123,22 @@ def test_a_failed_login_only_stops_a_task_that_needs_it(tmp_path: Path, capsys) 
     with pytest.raises(LoginError, match=f"docker login to {registry} as me failed"), pushing:
         pass
     assert environ == {"DOCKER_CONFIG": str(tmp_path)}
+
+
+def test_an_optional_login_that_gets_no_answer_gives_up(tmp_path: Path, capsys,
+                                                        monkeypatch) -> None:
+    """A registry that accepts connections and never answers (out of reach behind a VPN looks
+    alike to a client): a build does not wait for docker's own timeouts."""
+    monkeypatch.setattr(login, "OPTIONAL_LOGIN_SECONDS", 2.0)
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(8)
+        registry = f"127.0.0.1:{silent.getsockname()[1]}"
+        s = load_settings(environ={"REGISTRY": registry, "REGISTRY_USER": "me",
+                                   "REGISTRY_PASSWORD": "pw"})
+        environ = {"DOCKER_CONFIG": str(tmp_path)}
+        started = time.monotonic()
+        with job_login(s, environ, label="docker-ros build", required=False):
+            pass
+        assert time.monotonic() - started < 15
+    assert f"docker login to {registry} as me got no answer in 2 s" in capsys.readouterr().err

@@ -18,6 +18,9 @@ from docker_ros.in_image.settings import Settings
 
 # Set while a job's login is in force: the registry and user it logged in as.
 LOGGED_IN = "DOCKER_ROS_LOGGED_IN"
+# How long a login that is not required may take (a registry out of reach, e.g. behind a VPN,
+# must not hold up a build from local images for docker's own connection timeouts).
+OPTIONAL_LOGIN_SECONDS = 20.0
 
 
 class LoginError(Exception):
@@ -58,8 +61,14 @@ def mirror_docker_config(source: Path, target: Path, registry: str) -> None:
             (target / entry.name).symlink_to(entry)
 
 
-def docker_login(argv: List[str], password: str, registry: str) -> None:
-    proc = subprocess.run(argv, input=password, capture_output=True, text=True)
+def docker_login(argv: List[str], password: str, registry: str,
+                 timeout: Optional[float] = None) -> None:
+    try:
+        proc = subprocess.run(argv, input=password, capture_output=True, text=True,
+                              timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise LoginError(f"docker login to {registry or 'Docker Hub'} as {argv[3]} got no "
+                         f"answer in {timeout:.0f} s") from None
     if proc.returncode != 0:
         reason = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no reason given"
         # docker echoes no password; the reason is the registry's or the daemon's
@@ -88,7 +97,8 @@ def job_login(
                              settings.registry or "https://index.docker.io/v1/")
         environ["DOCKER_CONFIG"] = str(folder / "config")
         try:
-            docker_login(argv, settings.registry_password or "", settings.registry or "")
+            docker_login(argv, settings.registry_password or "", settings.registry or "",
+                         timeout=None if required else OPTIONAL_LOGIN_SECONDS)
         except LoginError as exc:
             if required:
                 raise
