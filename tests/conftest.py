@@ -198,6 +198,12 @@ def serve_registry(docker_client: docker.DockerClient, work: Path,
                 if tag.startswith(f"{address}/"):
                     with contextlib.suppress(docker.errors.APIError):
                         docker_client.images.remove(tag)
+            # pulled by digest (no tag): known by a repository digest of this registry only
+            digests = image.get("RepoDigests") or []
+            if not image.get("RepoTags") and digests and all(
+                    d.startswith(f"{address}/") for d in digests):
+                with contextlib.suppress(docker.errors.APIError):
+                    docker_client.images.remove(image["Id"])
 
 
 def stop(process: subprocess.Popen, *, timeout: float) -> None:
