@@ -1,6 +1,7 @@
-"""Registry login for one CI job: `docker login` before the build (a private BASE_IMAGE,
-CACHE_FROM and BUILD_STATE_FROM need it, as in docker-ros), into a job-private DOCKER_CONFIG that
-is removed when the job's task ends, so no credential stays on a shared or self-hosted runner."""
+"""Registry login for a task that reaches a registry (CI jobs and local builds alike): `docker
+login` before the build (a private BASE_IMAGE, CACHE_FROM and BUILD_STATE_FROM need it, as in
+docker-ros), into a DOCKER_CONFIG private to the task that is removed when it ends, so no
+credential stays on a shared or self-hosted runner or in the user's own docker config."""
 
 from __future__ import annotations
 
@@ -108,7 +109,7 @@ def job_login(
         else:
             environ[LOGGED_IN] = login
             print(f"{label}: logged in to {settings.registry or 'Docker Hub'} as "
-                  f"{settings.registry_user} (job-private DOCKER_CONFIG, removed at the end)",
+                  f"{settings.registry_user} (task-private DOCKER_CONFIG, removed at the end)",
                   flush=True)
         yield
     finally:

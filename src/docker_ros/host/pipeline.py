@@ -325,7 +325,7 @@ def logged_in_job(settings: Settings, label: str, *, dry_run: bool,
     if dry_run:
         if argv:
             print(f"[dry-run] {label}: {format_argv(argv)} (password on standard input, "
-                  "job-private DOCKER_CONFIG)")
+                  "task-private DOCKER_CONFIG)")
         yield
         return
     try:
