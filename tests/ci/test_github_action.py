@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -46,8 +47,9 @@ def runs(ros1_base_image: str, auth_registry, tmp_path_factory: pytest.TempPathF
            if k not in ("TARGET", "COMMAND", "IMAGE") and not k.startswith(("GITHUB_", "CI_"))}
     env.update({"PATH": f"{shim}{os.pathsep}{env['PATH']}", "DOCKER_CONFIG": str(docker_config)})
     results = {}
+    # main also runs the tests (docker-ros's enable-industrial-ci), into the default folder
     for key, branch, extra in (("feature", FEATURE, {"enable-slim": "false"}),
-                               ("main", "main", {})):
+                               ("main", "main", {"enable-industrial-ci": "true"})):
         forget_local(base)  # each run pulls it
         event = Event(origin=root / "origin.git", repository="Org/Example-Repo", ref_name=branch,
                       actor=auth_registry.user, token=auth_registry.password)
@@ -88,6 +90,17 @@ def test_outputs_name_the_pushed_images(runs: dict) -> None:
     # IMAGE_TAG is latest already: ENABLE_PUSH_AS_LATEST adds no second push of it
     assert runs["main"].outputs["docker-ros"]["images"] == (
         f"{name}:latest-dev,{name}:latest,{name}:latest-slim")
+
+
+def test_test_results_are_in_the_folder_the_output_names(runs: dict) -> None:
+    """With enable-industrial-ci the results go to `<runner.temp>/docker-ros-test-results`,
+    which the output `test-results` names (for actions/upload-artifact)."""
+    folder = runs["main"].outputs["setup"]["test-results"]
+    assert folder == str(runs["root"] / "main" / "runner-temp" / "docker-ros-test-results")
+    assert (Path(folder) / "outcome.json").is_file()
+    assert "docker-ros test (amd64): " in runs["main"].log
+    assert f"(JUnit XML and logs in {folder})" in runs["main"].log
+    assert not Path(runs["feature"].outputs["setup"]["test-results"]).exists()  # no tests
 
 
 def test_token_never_reaches_the_log(runs: dict) -> None:

@@ -155,6 +155,17 @@ def test_secrets_and_setup_stay_out_of_the_log(pipelines: dict) -> None:
     assert list(pipelines["runner_tmp"].iterdir()) == []
 
 
+def test_test_results_are_the_build_job_s_artifact(pipelines: dict) -> None:
+    """The tests write outside the checkout (the build context stays as it is); after_script
+    copies their results into it, where `artifacts:` (and `reports: junit`) collect them."""
+    main, feature = pipelines["main"].stdout, pipelines["feature"].stdout
+    assert "docker-ros: test results in the job's artifact docker-ros-test-results/" in main
+    assert "docker-ros: no test results (ENABLE_INDUSTRIAL_CI is not true)" in feature
+    collected = pipelines["repo"] / ".gitlab-ci-local" / "artifacts" / "build-amd64"
+    assert (collected / "docker-ros-test-results" / "outcome.json").is_file(), \
+        sorted(str(p) for p in collected.rglob("*"))[:20]
+
+
 def test_pushed_run_image_runs(pipelines: dict) -> None:
     ref = f"{pipelines['registry'].address}/{IMAGE}:latest_feature-gitlab--test_ci"
     assert_pulled_image_runs(ref, pipelines["registry"].auth)

@@ -98,3 +98,15 @@ def test_test_plan_exports_results_and_reruns_every_time():
     # (the build stage's, the test stage's, and build-state's copy of it)
     assert len(build_mounts) == 3
     assert len({m.strip().replace("RUN ", "", 1) for m in build_mounts}) == 1
+
+
+def test_results_go_to_the_flag_else_test_results_dir_else_the_workspace(tmp_path: Path):
+    from docker_ros.host.pipeline import results_root
+
+    env = {"BASE_IMAGE": "base:1", "WORKSPACE": str(tmp_path / "ws")}
+    plain = load_settings(environ=env, project_dir=tmp_path)
+    assert results_root(plain, "") == tmp_path / "ws" / "test-results"
+    named = load_settings(environ={**env, "TEST_RESULTS_DIR": str(tmp_path / "ci")},
+                          project_dir=tmp_path)
+    assert results_root(named, "") == tmp_path / "ci"
+    assert results_root(named, str(tmp_path / "flag")) == tmp_path / "flag"

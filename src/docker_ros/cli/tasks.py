@@ -383,7 +383,8 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     "Builds the dev stage (from cache), runs colcon build, colcon test and colcon test-result "
     "in it, copies the results to --results-dir and fails when a test fails.",
     [DRY_RUN, ("results_dir", "", "Folder for the JUnit XML, logs and exit codes (default "
-               "<WORKSPACE>/test-results; replaced only if empty or made by an earlier run)")],
+               "TEST_RESULTS_DIR, else <WORKSPACE>/test-results; replaced only if empty or "
+               "made by an earlier run)")],
     uses=IMAGE_SETTINGS + ("command", "workspace"),
     logs_in=True,
 )

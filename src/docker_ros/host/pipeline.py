@@ -225,8 +225,12 @@ def slim_one(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
     return BuiltImage("slim", result.ref, platform, result.seconds)
 
 
-def default_results_dir(settings: Settings) -> Path:
-    """Outside the repository (never written into the user's sources unasked)."""
+def results_root(settings: Settings, results_dir: str) -> Path:
+    """Where the tests' results go: --results-dir, else TEST_RESULTS_DIR, else outside the
+    repository (never written into the user's sources unasked)."""
+    given = results_dir or settings.test_results_dir
+    if given:
+        return Path(given).expanduser().resolve()
     assert settings.workspace
     return Path(settings.workspace).expanduser() / "test-results"
 
@@ -236,7 +240,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
     (The dev stage needs no COMMAND.)"""
 
     require(settings, ["base_image"])
-    root = Path(results_dir).resolve() if results_dir else default_results_dir(settings)
+    root = results_root(settings, results_dir)
     failures = []
     for platform in settings.platform:
         dest = root if len(settings.platform) == 1 else root / platform

@@ -298,6 +298,15 @@ class Settings:
         default_doc="`~/.cache/docker-ros/ws/<repository folder name>`",
         group="ours", build="none", flags=("host",),
     )
+    test_results_dir: Optional[str] = setting(
+        None,
+        "Folder the tests (ENABLE_INDUSTRIAL_CI, `inv test`) write their JUnit XML, logs and exit"
+        " codes to; replaced only when empty or made by an earlier run",
+        default_doc="`<WORKSPACE>/test-results`; GitHub Action: `<runner.temp>/docker-ros-test-"
+        "results` (output `test-results`); GitLab template: the job's folder, copied to "
+        "`docker-ros-test-results/` (the job's artifact)",
+        group="ours", build="none",
+    )
     extra_ca_certs: Optional[str] = setting(
         None,
         "PEM file or directory of PEM files trusted during the build (never left in the image)",
