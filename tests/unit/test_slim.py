@@ -246,7 +246,7 @@ def test_trace_and_check_are_reported_one_line_each() -> None:
     figures = {"traced": 412, "kept": 2101, "keep_seconds": 2.46}
     assert trace_report(7.23, settled, figures, options) == (
         "slim: trace 7.2 s: COMMAND watched 5.0 s, until no new file was opened for 3 s and "
-        "every --expect text was printed; 412 files opened, 2101 kept (keep set 2.5 s)")
+        "every --expect text was printed; 412 files opened (keep set 2.5 s)")
     assert check_report(6.01, settled, options) == (
         "slim: functional check 6.0 s passed (COMMAND still running after 5 s in both; "
         "1 exec(s), 1 expectation(s))")
@@ -312,6 +312,19 @@ def test_link_chain_and_python_companions(tmp_path: Path) -> None:
         str(real / "mod.py")]
     assert slimtrace.python_companions(str(real / "mod.py")) == [
         str(real / "__pycache__" / "mod.cpython-311.pyc")]
+
+
+def test_the_keep_set_names_each_file_once(tmp_path: Path) -> None:
+    """A file reached through a symlinked folder keeps its real name only (the size report
+    and the export count the same files)."""
+    root = tmp_path.resolve()
+    (root / "usr" / "lib").mkdir(parents=True)
+    (root / "usr" / "lib" / "libc.so.6").write_text("c")
+    (root / "lib").symlink_to("usr/lib")
+    named = {str(root / "lib" / "libc.so.6"), str(root / "usr" / "lib" / "libc.so.6"),
+             str(root / "lib"), str(root / "usr" / "lib")}
+    assert slimtrace.without_aliases(named) == {
+        str(root / "lib"), str(root / "usr" / "lib"), str(root / "usr" / "lib" / "libc.so.6")}
 
 
 def test_ld_so_conf_includes(tmp_path: Path) -> None:

@@ -653,8 +653,8 @@ def trace_report(seconds: float, reference: Probe, figures: Mapping, options: Sl
                  ) -> str:
     """The trace in one line: its time, the window, what the tracer saw."""
     return (f"slim: trace {seconds:.1f} s: {window_words(reference, options)}; "
-            f"{figures.get('traced', 0)} files opened, {figures.get('kept', 0)} kept "
-            f"(keep set {figures.get('keep_seconds', 0):.1f} s)")
+            f"{figures.get('traced', 0)} files opened (keep set "
+            f"{figures.get('keep_seconds', 0):.1f} s)")
 
 
 def check_report(seconds: float, reference: Probe, options: SlimOptions) -> str:

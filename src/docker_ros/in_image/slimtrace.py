@@ -29,7 +29,7 @@ import struct
 import subprocess
 import sys
 import time
-from typing import Any, Dict, Iterator, List, Optional, Set, Tuple
+from typing import Any, Dict, Iterable, Iterator, List, Optional, Set, Tuple
 
 FAN_CLOEXEC, FAN_NONBLOCK, FAN_CLASS_NOTIF, FAN_UNLIMITED_QUEUE = 0x1, 0x2, 0x0, 0x10
 FAN_MARK_ADD, FAN_MARK_MOUNT = 0x1, 0x10
@@ -496,7 +496,14 @@ def keep_set(spec: Dict[str, Any], traced: Set[str], library_path: List[str]) ->
         elif number in numbers and same_file(path, inodes):
             keep.add(path)  # the other names of a kept hard-linked file
     keep |= ancestors(keep)
-    return {p for p in keep if p != "/" and os.path.lexists(p)}
+    return without_aliases(p for p in keep if p != "/" and os.path.lexists(p))
+
+
+def without_aliases(paths: Iterable[str]) -> Set[str]:
+    """paths without the names reached through a symlinked folder (/lib/x86_64-linux-gnu/libc.so.6
+    when /lib -> usr/lib): an image's files have one name each, and link_chain kept the real one
+    and the symlink."""
+    return {p for p in paths if canonical(p) == p}
 
 
 def same_file(path: str, inodes: Set[Tuple[int, int]]) -> bool:
