@@ -2,17 +2,19 @@
 local git server stay cached and uncompiled on source edits, blacklisted packages are invisible
 to colcon in the dev image, the repository's own rosdep rules are used, hooks know they run in
 an image. One workspace, built once for dev+run; the source-edit test builds a copy of its own
-(its own images), then rebuilds it twice."""
+(its own images), then rebuilds it three times."""
 
 from __future__ import annotations
 
 import subprocess
 import uuid
 from pathlib import Path
-from typing import Dict, Iterator
+from typing import Dict, Iterator, List
 
 import pytest
 
+from docker_ros.host import build, engine
+from docker_ros.host.engine import image_exists
 from tests.docker.buildhelp import (
     cached_vertices,
     docker_ros,
@@ -93,13 +95,22 @@ def test_own_rosdep_rules_and_hook_context_in_the_image(workspace: dict) -> None
     assert sh(IMAGE, "cat /docker-ros-context").stdout.strip() == "image"
 
 
+def imports_images(repo: Path) -> List[str]:
+    """The imports images the tool made for this repository (its label)."""
+    return sorted(engine.tags_labelled({build.IMPORTS_LABEL: build.imports_owner(repo)}))
+
+
 def test_source_edit_keeps_imports_cached_and_uncompiled(workspace: dict, tmp_path: Path) -> None:
     edited = f"{IMAGE}-edited"
     repo, env = own_copy(workspace["repo"], tmp_path / "repo", edited), workspace["env"]
+    # a .repos of its own: its imports image is new (the tool labels what it makes)
+    with (repo / ".repos").open("a") as repos:
+        repos.write(f"# {uuid.uuid4().hex}\n")
     try:
         edit_and_reimport(repo, env, edited)
     finally:
         remove_image(edited)
+        engine.remove_quietly(imports_images(repo))
 
 
 def edit_and_reimport(repo: Path, env: Dict[str, str], image: str) -> None:
@@ -114,12 +125,25 @@ def edit_and_reimport(repo: Path, env: Dict[str, str], image: str) -> None:
     assert list(compiled_objects(edited.stdout)) == ["app"], compiled_objects(edited.stdout)
 
     # A changed .repos file imports again: fresh clones, same content, nothing recompiled.
+    imports_before = imports_images(repo)
+    assert len(imports_before) == 1, imports_before
+    original = (repo / ".repos").read_text()
     with (repo / ".repos").open("a") as repos:
         repos.write("# touched\n")
     reimported = docker_ros(repo, "build", "--target", "run", env=env)
     assert reimported.returncode == 0, reimported.stdout[-5000:]
     assert list(upstream_vertex(reimported.stdout).values()) == [False]
     assert compiled_objects(reimported.stdout) == {}, compiled_objects(reimported.stdout)
+    # its imports image replaced the repository's earlier one (they do not pile up)
+    imports_after = imports_images(repo)
+    assert len(imports_after) == 1 and imports_after != imports_before, imports_after
+    assert not image_exists(imports_before[0])
+    # and an edit back makes that image again, whose import BuildKit still has (by content)
+    (repo / ".repos").write_text(original)
+    back = docker_ros(repo, "build", "--target", "run", env=env)
+    assert back.returncode == 0, back.stdout[-5000:]
+    assert list(upstream_vertex(back.stdout).values()) == [True], upstream_vertex(back.stdout)
+    assert imports_images(repo) == imports_before
     ran = subprocess.run(["docker", "run", "--rm", image], capture_output=True, text=True,
                          timeout=120)
     assert ran.stdout.split()[:3] == ["app", "edited", "up_a"], ran

@@ -335,3 +335,12 @@ def test_the_tools_tree_makes_the_same_layer_whenever_and_however_it_was_install
     assert layer_bytes(trees[0]) == layer_bytes(trees[1])
     scripts = list(trees[0].rglob("*.sh"))
     assert scripts and all(p.stat().st_mode & 0o777 == 0o755 for p in scripts)
+
+
+def test_a_new_imports_image_replaces_the_repository_s_others_of_its_platform():
+    current = f"{build.IMPORTS_REPOSITORY}:bbbb-amd64"
+    tags = [current, f"{build.IMPORTS_REPOSITORY}:aaaa-amd64",
+            f"{build.IMPORTS_REPOSITORY}:aaaa-arm64", "my/own:aaaa-amd64"]
+    assert build.superseded_imports(tags, current) == [f"{build.IMPORTS_REPOSITORY}:aaaa-amd64"]
+    assert build.imports_owner(Path("a")) == build.imports_owner(Path("a").resolve())
+    assert build.imports_owner(Path("a")) != build.imports_owner(Path("b"))

@@ -13,7 +13,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
+from typing import IO, Any, Dict, Iterable, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 import docker_ros
 from docker_ros.host import builder, buildstate, engine
@@ -30,6 +30,7 @@ PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
 TOOLS_REPOSITORY = "docker-ros-tools"
 IMPORTS_REPOSITORY = "docker-ros-imports"
+IMPORTS_LABEL = "docker-ros.imports-of"  # the repository (imports_owner) that made the image
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
 TOOLS_PATTERNS = ("__init__.py", "in_image/*.py", "in_image/*/*.py", "docker/*.sh")
 SECRETS = build_secrets()
@@ -617,7 +618,7 @@ def reproducible(folder: Path) -> None:
 
 
 def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str = "",
-                  buildx: Sequence[str] = BUILDX) -> str:
+                  buildx: Sequence[str] = BUILDX, labels: Mapping[str, str] = {}) -> str:
     """ref: FROM scratch with context/folder at /folder (or its contents at into), built
     (on the builder of the build, where its FROM finds it) unless it exists already."""
     if image_exists(ref):
@@ -625,6 +626,7 @@ def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str
     (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} {into or '/' + folder}\n")
     reproducible(context / folder)
     argv = [*buildx, "build", "--quiet", "--load", "--platform", f"linux/{platform}",
+            *[a for k, v in labels.items() for a in ("--label", f"{k}={v}")],
             "--tag", ref, str(context)]
     proc = subprocess.run(argv, capture_output=True, text=True)
     if proc.returncode != 0:
@@ -714,8 +716,27 @@ def ensure_imports_image(settings: Settings, platform: str,
                 shutil.copymode(source, copy)  # hooks keep their executable bit
                 digest.update(f"{folder}/{rel}\0{copy.stat().st_mode:o}\0".encode() + content)
         ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{platform}"
-        return scratch_image(Path(tmp), "context", ref, platform, into="/",
-                             buildx=buildx)
+        if image_exists(ref):
+            return ref
+        owner = {IMPORTS_LABEL: imports_owner(repository)}
+        scratch_image(Path(tmp), "context", ref, platform, into="/", buildx=buildx,
+                      labels=owner)
+    engine.remove_quietly(superseded_imports(engine.tags_labelled(owner), ref))
+    return ref
+
+
+def imports_owner(repository: Path) -> str:
+    """The label value of a repository's imports images (its absolute path, hashed)."""
+    return hashlib.sha256(str(repository.resolve()).encode()).hexdigest()[:16]
+
+
+def superseded_imports(tags: Iterable[str], current: str) -> List[str]:
+    """The imports images of the same repository and platform as current, which replaces
+    them (one per repository and platform stays; an edit back makes its image again, a few
+    KB, and its steps stay cached by content)."""
+    platform = current.rpartition("-")[2]
+    return sorted(t for t in tags if t != current and t.startswith(f"{IMPORTS_REPOSITORY}:")
+                  and t.rpartition("-")[2] == platform)
 
 
 def ca_bundle(path: Path, destination: Path) -> Path:

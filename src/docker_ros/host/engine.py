@@ -11,7 +11,7 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import Any, Dict, Iterable, Mapping, Optional
+from typing import Any, Dict, Iterable, List, Mapping, Optional
 
 import docker
 from docker.errors import DockerException, ImageNotFound, NotFound
@@ -103,6 +103,19 @@ def inspect_image(ref: str) -> Optional[Dict[str, Any]]:
 
 def image_exists(ref: str) -> bool:
     return inspect_image(ref) is not None
+
+
+def tags_labelled(labels: Mapping[str, str]) -> List[str]:
+    """The tags of the local images that carry all these labels."""
+    found = client().images.list(filters={"label": [f"{k}={v}" for k, v in labels.items()]})
+    return [tag for image in found for tag in image.tags]
+
+
+def remove_quietly(refs: Iterable[str]) -> None:
+    """Remove tags this tool made, as housekeeping: whatever the engine says is not an error."""
+    for ref in refs:
+        with contextlib.suppress(DockerException):
+            client().images.remove(ref, noprune=False)
 
 
 def image_size(ref: str) -> int:
