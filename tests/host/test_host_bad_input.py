@@ -197,6 +197,12 @@ def test_invoke_yaml_that_is_no_yaml_or_no_mapping_is_one_line(repo: Path) -> No
     assert proc.returncode == 2
     assert last_line(proc) == ("docker-ros: invoke.yaml (line 2) is not valid YAML: expected ',' "
                                "or ']', but got '<stream end>': fix or remove it")
+    # `inv` over the one-line tasks.py reads invoke.yaml itself, after importing it
+    (repo / "tasks.py").write_text("from docker_ros.tasks import ns  # noqa: F401\n")
+    proc = run(["invoke", "config"], repo)
+    assert proc.returncode == 2
+    assert last_line(proc) == (f"docker-ros: {repo / 'invoke.yaml'} (line 2) is not valid YAML: "
+                               "expected ',' or ']', but got '<stream end>': fix or remove it")
     (repo / "invoke.yaml").write_text("docker_ros: 5\n")
     proc = run(["docker_ros", "config"], repo)
     assert proc.returncode == 1
