@@ -238,6 +238,14 @@ else
     if command -v pyenv >/dev/null; then pyenv rehash; fi
 fi
 
+# The suite builds many images; a full run needs about 15 GB of free space on docker's disk.
+root_dir="$(docker info --format '{{.DockerRootDir}}' 2>/dev/null || echo /var/lib/docker)"
+free_gb=$(( $(df -Pk "$root_dir" 2>/dev/null | awk 'NR == 2 {print $4}' || echo 0) / 1048576 ))
+if [ "$free_gb" -lt 20 ]; then
+    echo "warning: only ${free_gb} GB free for docker ($root_dir): the test suite needs about 15 GB;" \
+        "free some space on that disk first" >&2
+fi
+
 if [ "$CHANGED" -eq 0 ]; then
     echo "nothing to do"
 else
