@@ -3,7 +3,7 @@
 from pathlib import Path
 
 from docker_ros.host.push import (
-    latest_ref,
+    also_ref,
     plan_manifest,
     plan_outputs,
     plan_push,
@@ -32,7 +32,8 @@ def test_push_as_latest_tags_latest_and_latest_dev():
     tag = ["docker", "tag", "127.0.0.1:5000/img:v1-dev", "127.0.0.1:5000/img:latest-dev"]
     assert tag in commands
     assert ["docker", "push", "127.0.0.1:5000/img:latest"] in commands
-    assert latest_ref("127.0.0.1:5000/img", "run") == "127.0.0.1:5000/img:latest"
+    assert also_ref("127.0.0.1:5000/img", "latest", "run") == "127.0.0.1:5000/img:latest"
+    assert also_ref("127.0.0.1:5000/img:v1", "latest", "slim") == "127.0.0.1:5000/img:latest-slim"
 
 
 def test_several_platforms_push_arch_images_and_one_manifest_list():

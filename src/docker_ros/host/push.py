@@ -19,11 +19,6 @@ def also_ref(ref: str, tag: str, target: str) -> str:
     return f"{name}:{tag}-{target}" if target in ("dev", "slim") else f"{name}:{tag}"
 
 
-def latest_ref(ref: str, target: str) -> str:
-    """ENABLE_PUSH_AS_LATEST: `latest` for run, `latest-dev` for dev, `latest-slim` for slim."""
-    return also_ref(ref, "latest", target)
-
-
 def push_targets(settings: Settings) -> List[str]:
     """TARGET's images (made_images: slim after run when ENABLE_SLIM, as docker-ros's CI
     pushes it), the build state after run with BUILD_STATE_FROM."""

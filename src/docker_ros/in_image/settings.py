@@ -32,9 +32,6 @@ PLATFORMS = ("amd64", "arm64")
 # The default of a setting the CI integrations set (as docker-ros's action and template do).
 CI_DEFAULT = "GitHub Action: {}; GitLab template: {}; else none"
 
-# Where a value came from, lowest to highest precedence.
-SOURCES = ("default", "invoke.yaml", ".env", "environment", "flag")
-
 Value = Union[str, bool, Tuple[str, ...], None]
 
 

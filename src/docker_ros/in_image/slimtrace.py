@@ -331,10 +331,6 @@ def glob_source(pattern: str) -> str:
     return "".join(out)
 
 
-def glob_regex(pattern: str) -> "re.Pattern[str]":
-    return re.compile(glob_source(pattern) + r"\Z")
-
-
 def globs_regex(patterns: List[str]) -> "Optional[re.Pattern[str]]":
     """One regex for paths that match one of the globs or lie below a path that does (one
     match per path: the keep set tests every file of the image against the include paths)."""
