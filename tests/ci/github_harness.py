@@ -16,6 +16,8 @@ What GitHub does and this harness does too:
 - actions/checkout: `git clone` of the event's branch from the test's origin into
   GITHUB_WORKSPACE, then `git submodule update --init [--recursive]` as its `submodules:` says;
   `lfs: true` would also `git lfs pull` (no LFS object in the test repository, so only recorded).
+  As its default `persist-credentials: true` does, the token stays in the checkout's
+  `.git/config` (`http.https://github.com/.extraheader`, `AUTHORIZATION: basic <base64>`).
 - docker/setup-qemu-action: nothing (binfmt handlers come from scripts/setup.sh); recorded.
 Any other `uses:` or an expression outside the small grammar below makes the harness fail
 rather than guess. Grammar: `path`, `'literal'`, `a == b`, `a != b` (paths like
@@ -24,6 +26,7 @@ rather than guess. Grammar: `path`, `'literal'`, `a == b`, `a != b` (paths like
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import re
@@ -228,6 +231,9 @@ def replaced_step(uses: str, with_: Mapping[str, str], event: Event,
         argv = ["git", "clone", "-q", "--branch", event.ref_name, str(event.origin),
                 str(workspace)]
         log = subprocess.run(argv, capture_output=True, text=True, check=True).stderr
+        basic = base64.b64encode(f"x-access-token:{event.token}".encode()).decode()
+        subprocess.run(["git", "config", "--local", "http.https://github.com/.extraheader",
+                        f"AUTHORIZATION: basic {basic}"], cwd=workspace, check=True)
         submodules = with_.get("submodules", "false")
         if submodules in ("true", "recursive"):
             sub = ["git", "submodule", "update", "--init"]

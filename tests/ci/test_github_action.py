@@ -6,6 +6,7 @@ private base image there."""
 
 from __future__ import annotations
 
+import base64
 import os
 import subprocess
 from pathlib import Path
@@ -16,6 +17,7 @@ from tests.ci.cihelp import (
     EXAMPLE_COMMAND,
     REPO,
     assert_pulled_image_runs,
+    assert_sources_hold_no_secret,
     docker_recorder,
     example_repository,
     forget_local,
@@ -121,6 +123,15 @@ def test_token_never_reaches_the_log(runs: dict) -> None:
                               f"{auth.address}/{IMAGE}:latest"],
                              capture_output=True, text=True, check=True).stdout
     assert auth.password not in history
+
+
+def test_pushed_dev_image_holds_no_token(runs: dict) -> None:
+    """actions/checkout keeps github.token in the checkout's .git/config (an authorization
+    header): git's folder stays out of the dev image's sources."""
+    auth = runs["registry"]
+    token = base64.b64encode(f"x-access-token:{auth.password}".encode()).decode()
+    assert_sources_hold_no_secret(f"{auth.address}/{IMAGE}:latest-dev", [auth.password, token],
+                                  auth.auth)
 
 
 def test_pushed_run_image_runs(runs: dict) -> None:

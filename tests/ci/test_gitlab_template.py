@@ -15,6 +15,7 @@ from tests.ci.cihelp import (
     EXAMPLE_COMMAND,
     REPO,
     assert_pulled_image_runs,
+    assert_sources_hold_no_secret,
     docker_recorder,
     example_repository,
     forget_local,
@@ -169,6 +170,15 @@ def test_test_results_are_the_build_job_s_artifact(pipelines: dict) -> None:
 def test_pushed_run_image_runs(pipelines: dict) -> None:
     ref = f"{pipelines['registry'].address}/{IMAGE}:latest_feature-gitlab--test_ci"
     assert_pulled_image_runs(ref, pipelines["registry"].auth)
+
+
+def test_pushed_dev_image_holds_no_credential(pipelines: dict) -> None:
+    """gitlab-ci-local's variables file (REGISTRY_PASSWORD) and git's folder of the checkout
+    stay out of the dev image's sources."""
+    auth = pipelines["registry"]
+    assert auth.password in (pipelines["repo"] / ".gitlab-ci-local-variables.yml").read_text()
+    assert_sources_hold_no_secret(f"{auth.address}/{IMAGE}:latest-dev", [auth.password],
+                                  auth.auth)
 
 
 def test_pushed_slim_image_runs(pipelines: dict) -> None:

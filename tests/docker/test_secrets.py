@@ -270,7 +270,8 @@ def assert_upstream_built(built: Build) -> None:
     assert ran.stdout.strip().endswith(UPSTREAM), ran.stdout
     sources = sh(built.dev, f"ls -A src/target && ls src/upstream/{UPSTREAM}/package.xml")
     assert sources.returncode == 0, sources.stdout + sources.stderr
-    assert ".env" not in sources.stdout.split(), sources.stdout
+    for name in (".env", ".git", ".gitlab-ci-local-variables.yml"):
+        assert name not in sources.stdout.split(), sources.stdout
 
 
 def assert_failed_in_clone(built: Build, url: str) -> None:
@@ -329,8 +330,16 @@ def test_secrets_of_a_baked_build_stay_out(
 def test_https_password_from_dotenv(
     ros1_base_image: str, http_remote: str, material: Material, tmp_path: Path
 ) -> None:
+    """The repository is a git checkout whose origin URL holds the password (as GitLab runners
+    before 18.0 put CI_JOB_TOKEN there; actions/checkout keeps a header in .git/config), and
+    gitlab-ci-local's variables file names it too: neither reaches an image."""
     url = f"http://{http_remote}/{UPSTREAM}.git"
     repo = project(tmp_path, "https-dotenv", url)
+    subprocess.run(["git", "init", "-q", str(repo)], check=True)
+    subprocess.run(["git", "-C", str(repo), "remote", "add", "origin",
+                    f"http://{USER}:{material.password}@{http_remote}/project.git"], check=True)
+    (repo / ".gitlab-ci-local-variables.yml").write_text(
+        f"GIT_HTTPS_PASSWORD: {material.password}\n")
     built = build(repo, ros1_base_image, "https-dotenv", {},
                   GIT_HTTPS_PASSWORD=material.password, **https_settings(http_remote))
     assert material.password in (repo / ".env").read_text()

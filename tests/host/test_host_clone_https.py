@@ -1,15 +1,23 @@
 """clone from a password-protected git HTTP server on the loopback (git http-backend)."""
 
 import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
 from docker_ros.in_image.runtime.workspace import StepError
 from docker_ros.in_image.steps import clone
-from tests.rosfixtures import git_http_server, make_git_repo, write_repos
+from tests.rosfixtures import git_http_server, make_git_repo, make_package, write_repos
 
 pytestmark = pytest.mark.host
 USER, PASSWORD = "robot", "pa55-w0rd-never-logged"
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 
 @pytest.fixture
@@ -22,7 +30,13 @@ def private_remote(tmp_path):
     server.server_close()
 
 
-def test_https_credentials_clone_without_leaking(project, private_remote, caplog, capsys):
+def test_https_credentials_clone_without_leaking(project, private_remote, caplog, capsys,
+                                                 tmp_path, monkeypatch):
+    # a user whose git stores every password it gets (credential.helper store)
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / ".gitconfig").write_text("[credential]\n\thelper = store\n")
+    monkeypatch.setenv("HOME", str(home))
     url = f"http://{private_remote}/private_lib.git"
     write_repos(project.repo / ".repos", {"private_lib": {"url": url, "version": "main"}})
     caplog.set_level(logging.DEBUG)
@@ -39,9 +53,10 @@ def test_https_credentials_clone_without_leaking(project, private_remote, caplog
     assert (project.ws.upstream / "private_lib" / "README").read_text() == "private\n"
     captured = capsys.readouterr()
     assert PASSWORD not in caplog.text + captured.out + captured.err
-    for path in project.ws.root.rglob("*"):
+    for path in [*project.ws.root.rglob("*"), *home.rglob("*")]:
         if path.is_file() and not path.is_symlink():
             assert PASSWORD.encode() not in path.read_bytes(), path
+    assert not (home / ".git-credentials").exists()
 
 
 def test_https_password_from_buildkit_secret_file(project, private_remote, tmp_path, monkeypatch):
@@ -56,3 +71,33 @@ def test_https_password_from_buildkit_secret_file(project, private_remote, tmp_p
         assert env["GIT_ASKPASS"]
     clone.main(project.ws, settings)
     assert (project.ws.upstream / "private_lib" / "README").is_file()
+
+
+def test_a_terminated_clone_leaves_no_credential_behind(tmp_path):
+    """SIGTERM (a cancelled CI job, `timeout`) while git waits on a server that never answers:
+    the task ends as terminated (143) and its askpass folder is gone, with git."""
+    repo = tmp_path / "repo"
+    make_package(repo / "pkg_a", "pkg_a")
+    with socket.socket() as silent:  # accepts, never answers
+        silent.bind(("127.0.0.1", 0))
+        silent.listen()
+        server = f"127.0.0.1:{silent.getsockname()[1]}"
+        write_repos(repo / ".repos", {"lib": {"url": f"http://{server}/lib.git"}})
+        temp = tmp_path / "tmp"
+        temp.mkdir()
+        env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+        env.update(PYTHONPATH=str(SRC), TMPDIR=str(temp), WORKSPACE=str(tmp_path / "ws"),
+                   GIT_HTTPS_SERVER=server, GIT_HTTPS_USER=USER, GIT_HTTPS_PASSWORD=PASSWORD)
+        proc = subprocess.Popen([sys.executable, "-m", "docker_ros", "clone"], cwd=repo, env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 60
+        while not list(temp.glob("docker-ros-git-*")) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert list(temp.glob("docker-ros-git-*")), "the clone never started"
+        time.sleep(1)  # vcs and git are waiting on the server
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1] == "docker-ros clone: terminated (SIGTERM)"
+    assert list(temp.iterdir()) == []
+    assert PASSWORD not in out + err

@@ -123,6 +123,11 @@ def test_dockerignore_keeps_env_files_out_and_the_users_rules(tmp_path):
     ignore = (staged.parent / "Dockerfile.dockerignore").read_text().splitlines()
     assert ignore[0] == "build/" and ".env" in ignore and "**/.env" in ignore
     assert ".gitlab-ci-local" in ignore
+    # what may hold credentials: git's config (a CI job token, a checkout's header)
+    for name in (".git", "**/.git", ".gitlab-ci-local-variables.yml"):
+        assert name in ignore, name
+    assert build.left_out(".git/config") and build.left_out("sub/.git")
+    assert not build.left_out("pkg/.github/x.yml") and not build.left_out("pkg/a.gitignore")
     assert staged.read_text() == build.with_run_base(build.DOCKERFILE.read_text())
     assert (tmp_path / ".dockerignore").read_text() == "build/\n"
 

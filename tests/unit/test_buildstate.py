@@ -79,17 +79,19 @@ def test_the_fingerprint_follows_files_modes_and_parts_but_not_the_seed(tmp_path
     (tmp_path / ".env").write_text("GIT_HTTPS_PASSWORD=x\n")  # never sent
     (tmp_path / build.SCRATCH_FOLDER).mkdir()
     (tmp_path / build.SCRATCH_FOLDER / "copy.cpp").write_text("int b;\n")
+    (tmp_path / ".git").mkdir()  # never sent either (a commit or fetch changes no build)
+    (tmp_path / ".git" / "config").write_text("[remote]\n")
+    (tmp_path / "pkg" / ".gitlab-ci-local-variables.yml").write_text("X: y\n")
     assert fingerprint() == first
-    (tmp_path / ".git").mkdir()  # sent: part of the context
-    (tmp_path / ".git" / "HEAD").write_text("ref: refs/heads/main\n")
-    with_git = fingerprint()
-    assert with_git != first
+    (tmp_path / "pkg" / "b.cpp").write_text("int b;\n")
+    with_b = fingerprint()
+    assert with_b != first
     (tmp_path / "pkg" / "a.cpp").chmod(0o755)
-    assert fingerprint() != with_git
+    assert fingerprint() != with_b
     (tmp_path / "pkg" / "a.cpp").chmod(0o644)
-    assert fingerprint() == with_git
+    assert fingerprint() == with_b
     (tmp_path / "pkg" / "a.cpp").write_text("int a = 1;\n")
-    assert fingerprint() != with_git
+    assert fingerprint() != with_b
 
 
 def test_with_a_registry_cache_run_and_its_build_state_are_built_before_dev() -> None:

@@ -58,6 +58,12 @@ def test_the_login_never_goes_to_a_credential_store() -> None:
     assert private_config(config, "reg.example") == {
         "credsStore": "desktop", "credHelpers": {"reg.example": "", "gcr.io": "gcr"},
         "currentContext": "ci"}
+    # docker files a login by host name, and Docker Hub's under its index address
+    assert private_config({}, "https://reg.example/v2/")["credHelpers"] == {
+        "https://reg.example/v2/": "", "reg.example": ""}
+    for hub in ("docker.io", "", "index.docker.io"):
+        assert private_config({"credsStore": "desktop"}, hub)["credHelpers"][
+            "https://index.docker.io/v1/"] == "", hub
 
 
 def test_several_platforms_slim_the_runners_only() -> None:

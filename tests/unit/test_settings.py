@@ -253,3 +253,22 @@ def test_a_later_source_s_valid_value_clears_an_earlier_invalid_one():
     assert "target" not in settings.problems
     with pytest.raises(SettingsError, match="TARGET='bar'.*from .env"):
         load(invoke_config={"target": "dev"}, dotenv={"TARGET": "bar"})
+
+
+def test_a_secret_in_invoke_yaml_is_refused_without_showing_it():
+    """invoke.yaml is a committed file of the repository (and copied into the dev image)."""
+    with pytest.raises(SettingsError) as err:
+        load_settings(invoke_config={"git_https_password": "s3cr3t-yaml"}, environ={})
+    assert ("invoke.yaml: docker_ros.git_https_password: a secret is never kept in a committed "
+            "file; set it in the environment or .env") in str(err.value)
+    assert "s3cr3t-yaml" not in str(err.value)
+    shown = load_settings(invoke_config={"REGISTRY_PASSWORD": "s3cr3t-yaml"}, environ={},
+                          lenient=True)
+    assert shown.registry_password is None and "s3cr3t-yaml" not in repr(shown.problems)
+
+
+def test_the_settings_repr_holds_no_secret():
+    settings = load_settings(environ={"GIT_HTTPS_PASSWORD": "s3cr3t-a", "REGISTRY_PASSWORD":
+                                      "s3cr3t-b", "GIT_SSH_PRIVATE_KEY": "s3cr3t-c"})
+    assert settings.registry_password == "s3cr3t-b"
+    assert "s3cr3t" not in repr(settings) and "git_https_server" in repr(settings)

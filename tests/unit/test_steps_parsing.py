@@ -387,6 +387,12 @@ def test_https_askpass_answers_only_for_the_server(tmp_path):
         assert ask("Username for 'https://git.example.com': ").stdout == "robot\n"
         assert ask("Password for 'https://robot@git.example.com': ").stdout == "s3cr3t-value\n"
         assert ask("Password for 'https://other.org': ").returncode != 0
+        assert ask("Username for 'https://git.example.com:8443': ").stdout == "robot\n"
+        # a host that only starts with the server's name gets nothing
+        for prompt in ("Username for 'https://git.example.com.evil.org': ",
+                       "Password for 'https://robot@git.example.com.evil.org': ",
+                       "Password for 'https://robot@git.example.community': "):
+            assert ask(prompt).stdout == "" and ask(prompt).returncode != 0, prompt
         # The secret lives in the environment only, never in a file.
         for path in Path(askpass).parent.iterdir():
             assert "s3cr3t-value" not in path.read_text()

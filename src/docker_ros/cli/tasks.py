@@ -166,6 +166,8 @@ def settings_task(
                 with logged_in_job(settings, f"docker-ros {name}", required=login_required,
                                    dry_run=bool(kwargs.get("dry_run"))):
                     return func(c, settings, **kwargs)
+            except Terminated:
+                raise Exit(f"docker-ros {name}: terminated (SIGTERM)", code=143) from None
             except KeyboardInterrupt:
                 raise Exit(f"docker-ros {name}: interrupted", code=130) from None
             except (SettingsError, StepError, TaskError, LockError) as exc:
@@ -208,12 +210,23 @@ def logs_in_now(logs_in: Union[bool, str], flags: Mapping[str, object]) -> bool:
     return logs_in and not flags.get("host")
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a cancelled CI job, `timeout`, `kill`), handled as Ctrl-C is: what the task
+    made (a login's DOCKER_CONFIG, a key file, temporary folders) is removed on the way out."""
+
+
+def terminated(signum: int, frame: Any) -> None:
+    raise Terminated
+
+
 def hear_interrupts() -> None:
     """Ctrl-C raises KeyboardInterrupt (exit 130, "interrupted") even when we started with
     SIGINT ignored, as a background job of a script does: buildx and docker (Go) stop on it
-    anyway, and their failure must not be reported as a failed build."""
+    anyway, and their failure must not be reported as a failed build. SIGTERM raises
+    Terminated (exit 143), whose way out runs the same clean-ups."""
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, terminated)
 
 
 def setting_help(name: str) -> str:

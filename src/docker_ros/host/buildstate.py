@@ -63,7 +63,7 @@ def inputs_fingerprint(context: Path, parts: Mapping[str, str],
                        left_out: Callable[[str], bool]) -> str:
     """One digest of what a build starts from: parts (the build arguments but the seed, the
     platform, the Dockerfile, the base image's id) and every file of the build context that
-    left_out keeps (path, mode, content; `.git` too: it is sent). Equal fingerprints, the same
+    left_out keeps (path, mode, content). Equal fingerprints, the same
     build, as far as the registry cache is concerned: what the context's .dockerignore leaves
     out only makes the fingerprint change more often than the build."""
     digest = hashlib.sha256()

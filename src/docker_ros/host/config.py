@@ -38,6 +38,7 @@ _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
 IMAGE_NAME = re.compile(rf"^{_DOMAIN}?{_COMPONENT}(?:/{_COMPONENT})*$")
 IMAGE_TAG = re.compile(r"^[\w][\w.-]{0,127}$")
 ENV_NAMES = [env_name(n) for n in FIELDS]
+ASSIGNMENT = re.compile(r"\s*(?:export\s+)?([A-Za-z_][A-Za-z0-9_.]*)\s*=")
 
 
 def read_settings(
@@ -78,9 +79,15 @@ def read_settings(
 
 def dotenv_problems(text: str) -> List[str]:
     """The lines of a .env file python-dotenv cannot read (it would skip them with a warning,
-    and the variable would silently keep another value)."""
-    return [f"line {b.original.line}: cannot read {b.original.string.strip()!r}"
-            for b in parse_stream(io.StringIO(text)) if b.error]
+    and the variable would silently keep another value), by line and variable name: never
+    their text, which may be a secret's value (a key with an unclosed quote)."""
+    out = []
+    for binding in parse_stream(io.StringIO(text)):
+        if binding.error:
+            name = ASSIGNMENT.match(binding.original.string)
+            what = f"the value of {name.group(1)}" if name else "it (no NAME=VALUE)"
+            out.append(f"line {binding.original.line}: cannot read {what}")
+    return out
 
 
 def dotenv_warnings(dotenv: Mapping[str, object]) -> List[str]:

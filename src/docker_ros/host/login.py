@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -22,6 +23,9 @@ LOGGED_IN = "DOCKER_ROS_LOGGED_IN"
 # How long a login that is not required may take (a registry out of reach, e.g. behind a VPN,
 # must not hold up a build from local images for docker's own connection timeouts).
 OPTIONAL_LOGIN_SECONDS = 20.0
+
+
+DOCKER_HUB_INDEX = "https://index.docker.io/v1/"  # where docker files a Docker Hub login
 
 
 class LoginError(Exception):
@@ -40,7 +44,17 @@ def private_config(config: Mapping[str, Any], registry: str) -> Dict[str, Any]:
     """The user's config.json for the job: their logins, credential store and settings, but the
     registry's credentials in the file (an empty credential helper means the file to docker):
     `docker login` would put the password in the store, outside the job's folder."""
-    return {**config, "credHelpers": {**(config.get("credHelpers") or {}), registry: ""}}
+    helpers = {**(config.get("credHelpers") or {}), **{k: "" for k in credential_keys(registry)}}
+    return {**config, "credHelpers": helpers}
+
+
+def credential_keys(registry: str) -> List[str]:
+    """The names docker's CLI may file the registry's login under: as given, its host name
+    (scheme and path dropped), and Docker Hub's index address for Docker Hub."""
+    host = re.sub(r"^[a-z]+://", "", registry).split("/")[0]
+    hub = host in ("", "docker.io", "index.docker.io", "registry-1.docker.io")
+    keys = [registry, host] + ([DOCKER_HUB_INDEX] if hub else [])
+    return list(dict.fromkeys(k for k in keys if k))
 
 
 def mirror_docker_config(source: Path, target: Path, registry: str) -> None:

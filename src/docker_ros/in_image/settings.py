@@ -75,7 +75,7 @@ def setting(
         "build": build,
         "flags": flags,
     }
-    return field(default=default, metadata=meta)
+    return field(default=default, metadata=meta, repr=not secret)  # (a traceback, a diff)
 
 
 @dataclass(frozen=True)
@@ -539,6 +539,11 @@ def load_settings(
             hint = _did_you_mean(str(key), upper=str(key).isupper())
             errors.append(f"invoke.yaml: unknown key docker_ros.{key}{hint}")
             problems[f"invoke.yaml:{key}"] = (str(value), errors[-1])
+        elif is_secret(name):
+            # a file of the repository, committed and copied along: never a secret's place
+            errors.append(f"invoke.yaml: docker_ros.{key}: a secret is never kept in a "
+                          "committed file; set it in the environment or .env")
+            problems[f"invoke.yaml:{key}"] = ("****", errors[-1])
         else:
             yaml_values[name] = value
     layers.append(("invoke.yaml", yaml_values))

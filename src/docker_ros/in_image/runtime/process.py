@@ -163,15 +163,20 @@ def run_tee(
             step, f"command not found: {argv[0]} (needed for: {format_argv(argv)})"
             f"{host_tool_hint(argv[0])}", 127) from None
     assert proc.stdout is not None
-    with proc.stdout:
-        for line in proc.stdout:
-            sys.stdout.write(line)
-            sys.stdout.flush()
-            line = line.rstrip("\n")
-            lines.append(line)
-            if on_line and on_line(line):
-                proc.terminate()
-                break
+    try:
+        with proc.stdout:
+            for line in proc.stdout:
+                sys.stdout.write(line)
+                sys.stdout.flush()
+                line = line.rstrip("\n")
+                lines.append(line)
+                if on_line and on_line(line):
+                    proc.terminate()
+                    break
+    except BaseException:  # interrupted or terminated: the command does not outlive us
+        proc.terminate()
+        proc.wait()
+        raise
     return proc.wait(), lines
 
 

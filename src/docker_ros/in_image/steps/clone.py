@@ -44,9 +44,12 @@ LOG = logging.getLogger(__name__)
 
 # GIT_ASKPASS helper: answers git's prompts for the configured server only, from variables that
 # exist only in the environment of the vcs process (never in a file, never on a command line).
+# git asks "Username for 'https://host[:port]': " and "Password for 'https://user@host...': ":
+# the host must end where the URL's host ends (github.com is not github.com.evil.example).
 ASKPASS_SCRIPT = """#!/bin/sh
 case "$1" in
-  *"://$DOCKER_ROS_GIT_HTTPS_HOST"*|*"@$DOCKER_ROS_GIT_HTTPS_HOST"*) ;;
+  *"://$DOCKER_ROS_GIT_HTTPS_HOST'"*|*"://$DOCKER_ROS_GIT_HTTPS_HOST:"*) ;;
+  *"@$DOCKER_ROS_GIT_HTTPS_HOST'"*|*"@$DOCKER_ROS_GIT_HTTPS_HOST:"*) ;;
   *) exit 1 ;;
 esac
 case "$1" in
@@ -202,6 +205,7 @@ def git_credentials(
                 DOCKER_ROS_GIT_HTTPS_HOST=host,
                 DOCKER_ROS_GIT_HTTPS_USER=user or "",
                 DOCKER_ROS_GIT_HTTPS_PASSWORD=password,
+                **no_credential_helper(os.environ),
             )
             LOG.info("%s: HTTPS credentials for %s in use", STEP, host)
         if key:
@@ -219,6 +223,15 @@ def git_credentials(
         yield env
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def no_credential_helper(environ: Mapping[str, str]) -> Dict[str, str]:
+    """git configuration by environment (git >= 2.31; older git ignores it) that empties the
+    credential helper list for our clones: a user's helper (store, a keychain) would otherwise
+    save the password git got from our askpass. Added after entries the environment has."""
+    count = int(environ.get("GIT_CONFIG_COUNT", "0") or "0")
+    return {"GIT_CONFIG_COUNT": str(count + 1), f"GIT_CONFIG_KEY_{count}": "credential.helper",
+            f"GIT_CONFIG_VALUE_{count}": ""}
 
 
 # --- the step ---
