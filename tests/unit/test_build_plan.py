@@ -127,6 +127,7 @@ def test_dockerignore_keeps_env_files_out_and_the_users_rules(tmp_path):
     for name in (".git", "**/.git", ".gitlab-ci-local-variables.yml"):
         assert name in ignore, name
     assert build.left_out(".git/config") and build.left_out("sub/.git")
+    assert build.left_out("docker-ros-test-results/junit/a.xml")  # the CI template's artifact
     assert not build.left_out("pkg/.github/x.yml") and not build.left_out("pkg/a.gitignore")
     assert staged.read_text() == build.with_run_base(build.DOCKERFILE.read_text())
     assert (tmp_path / ".dockerignore").read_text() == "build/\n"

@@ -35,8 +35,9 @@ IMPORTS_LABEL = "docker-ros.imports-of"  # the repository (imports_owner) that m
 TOOLS_PATTERNS = ("__init__.py", "in_image/*.py", "in_image/*/*.py", "docker/*.sh")
 SECRETS = build_secrets()
 SCRATCH_FOLDER = ".gitlab-ci-local"  # gitlab-ci-local's copies of the repository
-# Names that never reach an image, wherever they are in the repository (see dockerignore).
-LEFT_OUT = (".env", ".git", ".gitlab-ci-local-variables.yml")
+# Names that never reach an image, wherever they are in the repository (see dockerignore);
+# the last, the GitLab template's copy of the tests' results, is an artifact of an earlier job.
+LEFT_OUT = (".env", ".git", ".gitlab-ci-local-variables.yml", "docker-ros-test-results")
 STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
 STEP_START = re.compile(r"Starting >>> (\w+)")
 STEP_END = re.compile(r"(Finished|Failed  ) <<< (\w+)")
@@ -562,8 +563,9 @@ def tools_tree(destination: Path) -> str:
 def dockerignore(context: Path) -> str:
     """The user's .dockerignore plus ours: what may hold credentials stays out of every image
     (`.env` files; git's folders, whose config may carry a CI job token or a checkout's
-    authorization header; gitlab-ci-local's variables file), and so does gitlab-ci-local's
-    scratch folder (copies of the repository made inside it). A build reads none of them."""
+    authorization header; gitlab-ci-local's variables file), and so do gitlab-ci-local's
+    scratch folder (copies of the repository made inside it) and the CI template's test
+    results (left in a checkout a shell runner reuses). A build reads none of them."""
     user = context / ".dockerignore"
     lines = user.read_text().splitlines() if user.is_file() else []
     ours = ["# added by docker-ros", *[f"{w}{name}" for name in LEFT_OUT for w in ("", "**/")],
