@@ -14,7 +14,7 @@ import shutil
 import subprocess
 import uuid
 from pathlib import Path
-from typing import Dict, Iterator
+from typing import Dict, Iterator, Optional
 
 import pytest
 
@@ -22,6 +22,7 @@ from docker_ros.host import engine
 from tests.ci.cihelp import (
     REPO,
     assert_pulled_image_runs,
+    assert_sources_hold_no_secret,
     example_repository,
     git,
     registry_get,
@@ -38,13 +39,15 @@ IMAGE = "docker-ros-test/engine26"
 REGISTRY_CACHE = "CACHE_TO: registry cache of every stage (mode=max)"
 
 
-def pipeline(repo: Path, registry: str, host: str, wheel: Path, **variables: str
+def pipeline(repo: Path, registry: str, host: str, wheel: Path,
+             secrets: Optional[Dict[str, str]] = None, **variables: str
              ) -> subprocess.CompletedProcess:
-    """The GitLab template's pipeline on main with every job's docker on the engine at host."""
+    """The GitLab template's pipeline on main with every job's docker on the engine at host
+    (secrets: from gitlab-ci-local's variables file, as from GitLab's settings)."""
     return gitlab_ci_local(repo, {
         "GITLAB_CI": "true", "IMAGE_NAME": f"{registry}/{IMAGE}",
         "DOCKER_ROS_PIP_SPEC": str(wheel), "DOCKER_HOST": host, "BUILD_NETWORK": "host",
-        **variables})
+        **variables}, secrets=secrets)
 
 
 def build_log(repo: Path) -> str:
@@ -67,7 +70,7 @@ def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
     git(repo, "commit", "-qm", "ci")
     secret = f"docker-ros-test-secret-{uuid.uuid4().hex}"
     result = pipeline(repo, local_registry, engine26, docker_ros_wheel, ENABLE_SLIM="true",
-                      ENABLE_INDUSTRIAL_CI="true", GIT_HTTPS_PASSWORD=secret)
+                      secrets={"GIT_HTTPS_PASSWORD": secret}, ENABLE_INDUSTRIAL_CI="true")
     yield {"repo": repo, "registry": local_registry, "result": result,
            "build": build_log(repo), "secret": secret, "host": engine26,
            "wheel": docker_ros_wheel, "base": ros1_base_image}
@@ -95,6 +98,8 @@ def test_ci_template_builds_tests_slims_and_pushes_on_engine26(first_pipeline: d
 
 
 def test_the_secret_stays_out_of_engine26_images_and_the_log(first_pipeline: dict) -> None:
+    """GIT_HTTPS_PASSWORD (from gitlab-ci-local's variables file, in the checkout): in no log,
+    history or image configuration, and no file of the dev image's sources holds it."""
     assert first_pipeline["result"].returncode == 0
     secret = first_pipeline["secret"]
     assert secret not in first_pipeline["build"]
@@ -105,6 +110,7 @@ def test_the_secret_stays_out_of_engine26_images_and_the_log(first_pipeline: dic
             shown = subprocess.run(argv, env=env, capture_output=True, text=True)
             assert shown.returncode == 0, shown.stderr
             assert secret not in shown.stdout, argv
+    assert_sources_hold_no_secret(f"{first_pipeline['registry']}/{IMAGE}:latest-dev", [secret])
 
 
 def test_images_pushed_from_engine26_run_on_the_shared_engine(first_pipeline: dict) -> None:

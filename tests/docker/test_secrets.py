@@ -1,7 +1,8 @@
 """Credentials never leak (issue 5): private upstream repositories cloned over HTTPS (Basic auth,
 a `git http-backend` server) and SSH (Debian's sshd) during a real `docker-ros build`, then the
 password and the private key are searched for in every layer of the dev and run images, their
-history and configuration, the build log and the command lines of every process during the build.
+history and configuration, the build log and the command lines of the processes seen during the
+build (/proc polled every 20 ms: a process shorter than that may be missed).
 
 Both servers listen on the host's loopback: the builds use BUILD_NETWORK=host."""
 
