@@ -106,16 +106,21 @@ def image_exists(ref: str) -> bool:
 
 
 def tags_labelled(labels: Mapping[str, str]) -> List[str]:
-    """The tags of the local images that carry all these labels."""
-    found = client().images.list(filters={"label": [f"{k}={v}" for k, v in labels.items()]})
-    return [tag for image in found for tag in image.tags]
+    """The tags of the local images that carry all these labels (none if the engine cannot
+    say: housekeeping)."""
+    with contextlib.suppress(DockerException):
+        found = client().images.list(filters={"label": [f"{k}={v}" for k, v in labels.items()]})
+        return [tag for image in found for tag in image.tags]
+    return []
 
 
 def tags_created(repository: str) -> Dict[str, str]:
-    """tag -> creation time (ISO 8601) of the local images of repository."""
-    return {tag: str(image.attrs.get("Created", "")) for image in
-            client().images.list(name=repository) for tag in image.tags
-            if tag.startswith(f"{repository}:")}
+    """tag -> creation time (ISO 8601) of the local images of repository (as tags_labelled)."""
+    with contextlib.suppress(DockerException):
+        return {tag: str(image.attrs.get("Created", "")) for image in
+                client().images.list(name=repository) for tag in image.tags
+                if tag.startswith(f"{repository}:")}
+    return {}
 
 
 def remove_quietly(refs: Iterable[str]) -> None:
