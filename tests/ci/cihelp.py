@@ -122,7 +122,8 @@ def assert_pulled_image_runs(ref: str, auth: Optional[Mapping[str, str]] = None)
 def assert_sources_hold_no_secret(ref: str, secrets: List[str],
                                   auth: Optional[Mapping[str, str]] = None) -> None:
     """The dev image ref (pulled afresh) has the repository's sources but no file that holds
-    one of secrets (given to grep on standard input, never on a command line), and no `.git`."""
+    one of secrets (given to grep on standard input, never on a command line), and no `.git`.
+    A control text that the sources hold proves the search reads them."""
     remove_image(ref)
     repository, tag = ref.rsplit(":", 1)
     docker.from_env().images.pull(repository, tag=tag, auth_config=dict(auth) if auth else None)
@@ -130,15 +131,18 @@ def assert_sources_hold_no_secret(ref: str, secrets: List[str],
         found = subprocess.run(
             ["docker", "run", "--rm", "-i", "--entrypoint", "sh", ref, "-c",
              "ls -A /docker-ros/ws/src/target; echo ---; "
-             "grep -rlF -f /dev/stdin /docker-ros/ws/src/target || true"],
-            input="".join(s + "\n" for s in secrets), capture_output=True, text=True,
-            timeout=120)
+             "grep -rhoF -f /dev/stdin /docker-ros/ws/src/target | sort -u"],
+            input="".join(s + "\n" for s in [*secrets, SOURCES_CONTROL]), capture_output=True,
+            text=True, timeout=120)
     finally:
         remove_image(ref)
-    listed, _, holding = found.stdout.partition("---")
+    listed, _, matched = found.stdout.partition("---")
     assert "docker_ros_example" in listed.split(), found.stdout + found.stderr
     assert ".git" not in listed.split(), listed
-    assert holding.strip() == "", holding
+    assert matched.split() == [SOURCES_CONTROL], (matched, found.stderr)
+
+
+SOURCES_CONTROL = "<name>docker_ros_example</name>"  # in the example's package.xml
 
 
 def include_gitlab_template(repo: Path, variables: Dict[str, str]) -> None:

@@ -218,7 +218,7 @@ QEMU_CASES = [
 
 
 @pytest.mark.parametrize("platform,handlers,said,docker_argv", QEMU_CASES)
-def test_gitlab_job_of_another_architecture_registers_qemu(
+def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
         tmp_path: Path, platform: str, handlers: list, said: str, docker_argv: object) -> None:
     """The build jobs' QEMU snippet, run by bash on this amd64 machine. Registering is recorded
     by a `docker` that only writes its command line: pulling multiarch/qemu-user-static needs

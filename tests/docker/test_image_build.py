@@ -9,10 +9,12 @@ from pathlib import Path
 import pytest
 
 from tests.docker.buildhelp import (
+    STAGE,
     cached_vertices,
     copy_example,
     docker_ros,
     image_exists,
+    not_from_cache,
     own_copy,
     remove_image,
     run_until,
@@ -113,8 +115,10 @@ def test_rebuild_after_source_edit_installs_nothing_and_ships_the_change(
 def test_no_change_rebuild_is_fully_cached(example: dict) -> None:
     result = docker_ros(example["project"], "build", "--target", "run")
     assert result.returncode == 0, result.stdout[-3000:]
-    # Every RUN came from cache: no step started.
+    # Every RUN came from cache: no step started, and the log does show the steps.
     assert "Starting >>>" not in result.stdout, result.stdout[-3000:]
+    steps = [n for n in cached_vertices(result.stdout) if STAGE.match(n) and " RUN " in n]
+    assert len(steps) >= 5 and not_from_cache(result.stdout) == [], result.stdout[-3000:]
 
 
 def test_host_user_mapping_owns_files_written_in_mounts(example: dict, tmp_path: Path) -> None:
@@ -172,7 +176,9 @@ def test_base_image_that_does_not_exist(tmp_path: Path) -> None:
               IMAGE="docker-ros-test/never:1")
     result = docker_ros(tmp_path, "build")
     assert result.returncode != 0
-    assert "docker-ros-test/no-such-image:1" in result.stdout and "BASE_IMAGE" in result.stdout
+    assert ("BASE_IMAGE 'docker-ros-test/no-such-image:1' is neither a local image nor "
+            "pullable") in result.stdout, result.stdout[-3000:]
+    assert "[internal]" not in result.stdout  # refused before BuildKit starts
     assert not image_exists("docker-ros-test/never:1")
 
 

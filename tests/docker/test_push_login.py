@@ -79,4 +79,7 @@ def test_push_without_credentials_cannot_pull_the_private_base(
     config, _, _ = docker_recorder(tmp_path)
     pushed = docker_ros(project, "push", env={"DOCKER_CONFIG": str(config)})
     assert pushed.returncode != 0
-    assert "BASE_IMAGE" in pushed.stdout, pushed.stdout[-3000:]
+    # the tool's own check, before any BuildKit step
+    assert f"BASE_IMAGE '{base}' is neither a local image nor pullable" in pushed.stdout, \
+        pushed.stdout[-3000:]
+    assert "==> docker-ros build" not in pushed.stdout and "[internal]" not in pushed.stdout

@@ -315,8 +315,9 @@ def test_https_password_from_environment(
 def test_secrets_of_a_baked_build_stay_out(
     ros1_base_image: str, material: Material, tmp_path: Path
 ) -> None:
-    """Without BUILD_NETWORK dev and run are one `docker buildx bake`: its definition file
-    names the secrets' variables only, and nothing reaches the images, logs or command lines."""
+    """Without BUILD_NETWORK dev and run are one `docker buildx bake` with both secrets as
+    secret mounts (the definition file names their variables only: a unit test of bake_file),
+    and nothing reaches the images, logs or command lines."""
     repo = tmp_path / "baked"
     repo.mkdir()
     (repo / "README.md").write_text("docker-ros secrets test: project baked\n")

@@ -183,7 +183,8 @@ def test_dry_run_prints_and_changes_nothing(project, remotes, capsys):
 
 
 def test_ssh_key_reaches_git_only_through_a_temporary_file(project, remotes, tmp_path):
-    """A real ssh run by git: GIT_SSH_COMMAND carries the key file; it is gone afterwards."""
+    """The environment the clone gives git: GIT_SSH_COMMAND carries a private key file (no ssh
+    runs here: test_host_clone_ssh clones over a real sshd); it is gone afterwards."""
     key = tmp_path / "id_test"
     subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(key)], check=True)
     settings = project.settings(

@@ -87,7 +87,7 @@ def test_the_console_script_reads_the_projects_invoke_yaml(tmp_path: Path) -> No
     assert row.split()[1:] == ["from-invoke-yaml/x:1", "invoke.yaml"], row
 
 
-def test_example_task_builds_the_repository_s_example_folder() -> None:
+def test_example_task_finds_the_repository_s_example_folder() -> None:
     """`inv example`, the README's first command, finds the bundled example (it looked in
     src/example after the command line moved into docker_ros/cli)."""
     assert Path(__file__).resolve().parents[2] / "example" == EXAMPLE

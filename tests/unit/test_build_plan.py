@@ -351,13 +351,3 @@ def test_a_new_imports_image_replaces_the_repository_s_others_of_its_platform():
     assert build.imports_owner(Path("a")) == build.imports_owner(Path("a").resolve())
     assert build.imports_owner(Path("a")) != build.imports_owner(Path("b"))
 
-
-def test_a_new_tools_image_leaves_the_newest_three_of_its_platform():
-    def tag(name: str) -> str:
-        return f"{build.TOOLS_REPOSITORY}:{name}"
-
-    created = {tag("a-amd64"): "2026-01-01T00:00:00Z", tag("b-amd64"): "2026-02-01T00:00:00Z",
-               tag("c-amd64"): "2026-03-01T00:00:00Z", tag("d-amd64"): "2026-04-01T00:00:00Z",
-               tag("a-arm64"): "2026-01-01T00:00:00Z", tag("new-amd64"): "2026-05-01T00:00:00Z"}
-    assert build.oldest_tools(created, tag("new-amd64")) == [tag("a-amd64"), tag("b-amd64")]
-    assert build.oldest_tools(created, tag("a-arm64")) == []

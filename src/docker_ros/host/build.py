@@ -30,7 +30,6 @@ PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
 TOOLS_REPOSITORY = "docker-ros-tools"
 IMPORTS_REPOSITORY = "docker-ros-imports"
-TOOLS_KEPT = 3  # tools images per platform (one per docker-ros version that built here)
 IMPORTS_LABEL = "docker-ros.imports-of"  # the repository (imports_owner) that made the image
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
 TOOLS_PATTERNS = ("__init__.py", "in_image/*.py", "in_image/*/*.py", "docker/*.sh")
@@ -600,25 +599,12 @@ def stage_dockerfile(context: Path, destination: Path) -> Path:
 
 
 def ensure_tools_image(platform: str, buildx: Sequence[str] = BUILDX) -> str:
-    """A FROM-scratch image with the step modules, tagged by their content hash; a new one
-    leaves the newest TOOLS_KEPT of its platform (several installed versions keep theirs)."""
+    """A FROM-scratch image with the step modules, tagged by their content hash (one per
+    docker-ros version that built here, shared by every repository: never removed by us)."""
     with tempfile.TemporaryDirectory(prefix="docker-ros-tools-") as tmp:
         digest = tools_tree(Path(tmp))
-        ref = f"{TOOLS_REPOSITORY}:{digest}-{platform}"
-        if image_exists(ref):
-            return ref
-        scratch_image(Path(tmp), "docker-ros", ref, platform, buildx=buildx)
-    engine.remove_quietly(oldest_tools(engine.tags_created(TOOLS_REPOSITORY), ref))
-    return ref
-
-
-def oldest_tools(created: Mapping[str, str], current: str) -> List[str]:
-    """The tools images of current's platform beyond the newest TOOLS_KEPT (tag -> creation
-    time, ISO 8601), current always kept."""
-    platform = current.rpartition("-")[2]
-    mine = sorted((t for t in created if t != current and t.rpartition("-")[2] == platform),
-                  key=lambda t: created[t], reverse=True)
-    return sorted(mine[TOOLS_KEPT - 1:])
+        return scratch_image(Path(tmp), "docker-ros", f"{TOOLS_REPOSITORY}:{digest}-{platform}",
+                             platform, buildx=buildx)
 
 
 # The time every file of a scratch image has (SOURCE_DATE_EPOCH's usual value)
@@ -737,10 +723,12 @@ def ensure_imports_image(settings: Settings, platform: str,
                 copy.write_bytes(content)
                 shutil.copymode(source, copy)  # hooks keep their executable bit
                 digest.update(f"{folder}/{rel}\0{copy.stat().st_mode:o}\0".encode() + content)
-        ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{platform}"
+        # the repository is part of the tag too: it removes only images no other one uses
+        mine = imports_owner(repository)
+        ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{mine[:8]}-{platform}"
         if image_exists(ref):
             return ref
-        owner = {IMPORTS_LABEL: imports_owner(repository)}
+        owner = {IMPORTS_LABEL: mine}
         scratch_image(Path(tmp), "context", ref, platform, into="/", buildx=buildx,
                       labels=owner)
     engine.remove_quietly(superseded_imports(engine.tags_labelled(owner), ref))

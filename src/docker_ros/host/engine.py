@@ -114,15 +114,6 @@ def tags_labelled(labels: Mapping[str, str]) -> List[str]:
     return []
 
 
-def tags_created(repository: str) -> Dict[str, str]:
-    """tag -> creation time (ISO 8601) of the local images of repository (as tags_labelled)."""
-    with contextlib.suppress(DockerException):
-        return {tag: str(image.attrs.get("Created", "")) for image in
-                client().images.list(name=repository) for tag in image.tags
-                if tag.startswith(f"{repository}:")}
-    return {}
-
-
 def remove_quietly(refs: Iterable[str]) -> None:
     """Remove tags this tool made, as housekeeping: whatever the engine says is not an error."""
     for ref in refs:
