@@ -12,6 +12,7 @@ import sys
 import tarfile
 import threading
 import time
+import uuid
 from pathlib import Path
 from typing import Dict, List, Optional
 
@@ -155,3 +156,10 @@ def not_from_cache(log: str) -> List[str]:
     hits = {(m.group(1), int(m.group(2))) for name, m in steps.items() if m and cached[name]}
     return sorted(name for name, m in steps.items() if m and not cached[name] and not any(
         stage == m.group(1) and step > int(m.group(2)) for stage, step in hits))
+
+
+def run_unique(source: Path) -> None:
+    """A comment only this run writes: the builds of a test are its own, not found in the
+    builder's cache from an earlier run at the same temporary path (pytest numbers them
+    afresh once its folder is removed), whose cache mounts they share."""
+    source.write_text(f"// test run {uuid.uuid4().hex}\n{source.read_text()}")

@@ -12,7 +12,7 @@ from typing import Dict, List
 
 import pytest
 
-from tests.docker.buildhelp import cached_vertices, docker_ros, write_env
+from tests.docker.buildhelp import cached_vertices, docker_ros, run_unique, write_env
 from tests.rosfixtures import make_package
 
 pytestmark = pytest.mark.docker
@@ -36,6 +36,7 @@ def compiled_objects(log: str) -> Dict[str, List[str]]:
 def test_one_file_change_recompiles_one_package(ros1_base_image: str, tmp_path: Path) -> None:
     for name in ("pkg_a", "pkg_b", "pkg_c"):
         make_package(tmp_path / name, name)
+    run_unique(tmp_path / "pkg_a" / "main.cpp")
     write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE="docker-ros-test/fast:1",
               COMMAND="pkg_a_node && pkg_b_node && pkg_c_node")
     first = docker_ros(tmp_path, "build", "--target", "run")

@@ -19,6 +19,7 @@ from tests.docker.buildhelp import (
     docker_ros,
     own_copy,
     remove_image,
+    run_unique,
     run_until,
     sh,
     write_env,
@@ -90,6 +91,7 @@ def lean(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iter
         (project / name).parent.mkdir(parents=True, exist_ok=True)
         (project / name).write_text(textwrap.dedent(text))
     (project / "lean_yaml/scripts/lean_cpus").chmod(0o755)
+    run_unique(project / "lean_yaml/src/main.cpp")  # the build below runs, in every run
     write_env(project, BASE_IMAGE=ros1_base_image, IMAGE=IMAGE, TARGET="run",
               COMMAND="roslaunch docker_ros_example talker_listener.launch",
               ENABLE_LEAN_RUN_IMAGE="true")
