@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import re
 import shutil
 import subprocess
 import sys
@@ -16,7 +15,7 @@ from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, MutableMapping, Optional
 
 from docker_ros.host.engine import docker_config_dir
-from docker_ros.in_image.settings import Settings
+from docker_ros.in_image.settings import Settings, server_host
 
 # Set while a job's login is in force: the registry and user it logged in as.
 LOGGED_IN = "DOCKER_ROS_LOGGED_IN"
@@ -51,7 +50,7 @@ def private_config(config: Mapping[str, Any], registry: str) -> Dict[str, Any]:
 def credential_keys(registry: str) -> List[str]:
     """The names docker's CLI may file the registry's login under: as given, its host name
     (scheme and path dropped), and Docker Hub's index address for Docker Hub."""
-    host = re.sub(r"^[a-z]+://", "", registry).split("/")[0]
+    host = server_host(registry)
     hub = host in ("", "docker.io", "index.docker.io", "registry-1.docker.io")
     keys = [registry, host] + ([DOCKER_HUB_INDEX] if hub else [])
     return list(dict.fromkeys(k for k in keys if k))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple, Union
@@ -23,6 +24,7 @@ SLIM_BUILD_ARGS_DEFAULT = (
     " --exclude-pattern /var/mail/dockerslimprobe"
 )
 TRUE_WORDS = ("true", "1", "yes")
+MASKED = "****"  # how a secret's value is shown
 FALSE_WORDS = ("false", "0", "no")
 TARGETS = ("dev", "run", "slim")
 # Commands that keep docker-ros's ENABLE_SLIM default (true) on a developer machine too: what
@@ -543,7 +545,7 @@ def load_settings(
             # a file of the repository, committed and copied along: never a secret's place
             errors.append(f"invoke.yaml: docker_ros.{key}: a secret is never kept in a "
                           "committed file; set it in the environment or .env")
-            problems[f"invoke.yaml:{key}"] = ("****", errors[-1])
+            problems[f"invoke.yaml:{key}"] = (MASKED, errors[-1])
         else:
             yaml_values[name] = value
     layers.append(("invoke.yaml", yaml_values))
@@ -813,12 +815,18 @@ def required_for_build(settings: Settings) -> List[str]:
     return ["base_image"] + (["command"] if "run" in settings.target else [])
 
 
+def server_host(address: str) -> str:
+    """The host[:port] of a server setting (GIT_HTTPS_SERVER, REGISTRY): scheme and path
+    dropped."""
+    return re.sub(r"^[a-z]+://", "", address).split("/")[0]
+
+
 def display_value(settings: Settings, name: str) -> str:
     value = getattr(settings, name)
     if value is None or value == "":
         return ""
     if is_secret(name):
-        return "****"
+        return MASKED
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, tuple):

@@ -35,7 +35,7 @@ from docker_ros.in_image.runtime.workspace import (
     phases,
     step_log,
 )
-from docker_ros.in_image.settings import Settings
+from docker_ros.in_image.settings import Settings, server_host
 
 STEP = "clone"
 STATE_FILE = "clone.json"
@@ -197,7 +197,7 @@ def git_credentials(
     tmp = tempfile.mkdtemp(prefix="docker-ros-git-")  # mode 0700
     try:
         if server and password:
-            host = re.sub(r"^[a-z]+://", "", server).split("/")[0]
+            host = server_host(server)
             askpass = _private_file(tmp, "askpass.sh", ASKPASS_SCRIPT)
             os.chmod(askpass, stat.S_IRWXU)
             env.update(
