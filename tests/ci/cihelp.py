@@ -24,6 +24,17 @@ EXAMPLE_COMMAND = "roslaunch docker_ros_example talker_listener.launch"
 HEARD = "I heard: hello from docker-ros"
 
 
+class GitLabLoader(yaml.SafeLoader):
+    """YAML with GitLab's `!reference` tag."""
+
+
+GitLabLoader.add_constructor("!reference", lambda loader, node: loader.construct_sequence(node))
+
+
+def load(path: Path) -> dict:
+    return yaml.load(path.read_text(), Loader=GitLabLoader)
+
+
 def git(cwd: Path, *args: str) -> str:
     return subprocess.run(["git", "-c", "user.name=ci", "-c", "user.email=ci@example.com",
                            *args], cwd=cwd, check=True, capture_output=True, text=True).stdout

@@ -13,6 +13,7 @@ import pytest
 import yaml
 
 from docker_ros.in_image.settings import FIELDS, SLIM_BUILD_ARGS_DEFAULT
+from tests.ci.cihelp import load
 
 REPO = Path(__file__).resolve().parents[2]
 ACTION = REPO / "action.yml"
@@ -26,17 +27,6 @@ NOT_INPUTS = {"workspace", "image"}
 # Deliberately not docker-ros's action defaults (README, Migrating from docker-ros): derived from
 # image-name (docker-ros's own ghcr.io default ignored a changed image-name).
 OUR_DEFAULTS = {"dev-image-name": None, "slim-image-name": None}
-
-
-class GitLabLoader(yaml.SafeLoader):
-    """YAML with GitLab's `!reference` tag."""
-
-
-GitLabLoader.add_constructor("!reference", lambda loader, node: loader.construct_sequence(node))
-
-
-def load(path: Path) -> dict:
-    return yaml.load(path.read_text(), Loader=GitLabLoader)
 
 
 def tool(name: str) -> str:
@@ -220,9 +210,10 @@ QEMU_CASES = [
 @pytest.mark.parametrize("platform,handlers,said,docker_argv", QEMU_CASES)
 def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
         tmp_path: Path, platform: str, handlers: list, said: str, docker_argv: object) -> None:
-    """The build jobs' QEMU snippet, run by bash on this amd64 machine. Registering is recorded
-    by a `docker` that only writes its command line: pulling multiarch/qemu-user-static needs
-    Docker Hub, which this machine cannot reach."""
+    """The build jobs' QEMU snippet's decision, run by bash on this amd64 machine with a
+    `docker` that only writes its command line: the default image's exact command. The
+    registration itself runs for real in tests/ci/test_multiarch.py, with an image standing in
+    for multiarch/qemu-user-static (Docker Hub, out of this machine's reach)."""
     template = load(TEMPLATE)
     snippet = template[".docker-ros-qemu"]["script"][0]
     binfmt = tmp_path / "binfmt"

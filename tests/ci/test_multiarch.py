@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import shutil
 import subprocess
 import textwrap
 import time
@@ -30,6 +31,7 @@ from tests.ci.cihelp import (
     gitlab_ci_local,
     include_gitlab_template,
     index_architectures,
+    load,
     manifest_architectures,
     registry_get,
     registry_tags,
@@ -43,6 +45,7 @@ from tests.docker.buildhelp import (
     run_until,
     sh,
 )
+from tests.engines import env_for
 
 pytestmark = pytest.mark.docker
 
@@ -264,3 +267,75 @@ def test_lock_resolves_each_platform_and_a_locked_arm64_build_installs_its_entry
     finally:
         remove_image(image)
         remove_image(local_base_tag(ros1_base_image, engine.inspect_image(arm64_base)["Id"]))
+
+
+BINFMT = Path("/proc/sys/fs/binfmt_misc")
+# What `multiarch/qemu-user-static --reset -p yes` does for arm64 (the image is on Docker Hub,
+# out of this machine's reach): replace the qemu-aarch64 handler by one whose interpreter is the
+# image's static QEMU, opened at registration (F, as `-p yes`), so it works in every container.
+QEMU_REGISTER = r"""#!/bin/sh -e
+[ "$*" = "--reset -p yes" ] || { echo "register: expected --reset -p yes, got: $*" >&2; exit 2; }
+b=/proc/sys/fs/binfmt_misc
+[ -e $b/register ] || mount -t binfmt_misc binfmt_misc $b
+[ ! -e $b/qemu-aarch64 ] || echo -1 > $b/qemu-aarch64
+printf '%s\n' '{rule}' > $b/register
+"""
+
+
+def binfmt_rule(name: str, status: str, interpreter: str = "", flags: str = "") -> str:
+    """The register line of a handler from its status file (`cat qemu-aarch64`): the same
+    magic and mask; interpreter and flags as given, else as in the status."""
+    fields = dict(line.split(" ", 1) for line in status.splitlines()[1:] if " " in line)
+
+    def escape(hexes: str) -> str:
+        return "".join(f"\\x{hexes[i:i + 2]}" for i in range(0, len(hexes), 2))
+
+    return (f":{name}:M:{fields['offset']}:{escape(fields['magic'])}:{escape(fields['mask'])}:"
+            f"{interpreter or fields['interpreter']}:{flags or fields['flags:'].strip()}")
+
+
+def test_gitlab_job_of_another_architecture_registers_qemu_then_runs_arm64(
+        engine26: str, ros1_base_image: str, ros1_arm64_base_image: str, tmp_path: Path) -> None:
+    """The GitLab build jobs' QEMU snippet, run for real on this amd64 machine with no arm64
+    handler: it runs DOCKER_ROS_QEMU_IMAGE privileged, as docker-ros does, and arm64 containers
+    then run. The image stands in for multiarch/qemu-user-static (Docker Hub): this machine's
+    static QEMU and a register script that does what that image's `--reset -p yes` does for
+    arm64. The job's engine is Engine 26, as GitLab's docker:27 service: Engine 20.10 cannot start
+    a privileged container on this machine ("unable to apply caps": it lacks CAP_SYS_RESOURCE);
+    Engine 26 can. This machine's handler is put back, byte for byte."""
+    assert host_arch() == "amd64", "the snippet is checked from an amd64 runner"
+    handler = BINFMT / "qemu-aarch64"
+    before = handler.read_text() if handler.exists() else None
+    assert before, "setup.sh registers qemu-aarch64 (the multi-arch tests need it)"
+    context = tmp_path / "qemu"
+    context.mkdir()
+    rule = binfmt_rule("qemu-aarch64", before, "/usr/bin/qemu-aarch64-static", "F")
+    (context / "register").write_text(QEMU_REGISTER.replace("{rule}", rule))
+    (context / "register").chmod(0o755)
+    shutil.copy(Path("/usr/bin/qemu-aarch64-static"), context / "qemu-aarch64-static")
+    (context / "Dockerfile").write_text(
+        f"FROM {ros1_base_image}\nCOPY qemu-aarch64-static /usr/bin/\nCOPY register /\n"
+        'ENTRYPOINT ["/register"]\n')
+    snippet = load(REPO / ".gitlab-ci" / "docker-ros.yml")[".docker-ros-qemu"]["script"][0]
+    image = f"docker-ros-test/qemu-user-static:{uuid.uuid4().hex[:12]}"
+    job_env = {**env_for(engine26), "_PLATFORM": "arm64", "DOCKER_ROS_QEMU_IMAGE": image}
+    subprocess.run(["docker", "build", "-q", "-t", image, str(context)], env=job_env,
+                   check=True, capture_output=True)
+    try:
+        handler.write_text("-1")  # a runner without arm64 emulation
+        assert sh(ros1_arm64_base_image, "uname -m").returncode != 0  # cannot run arm64 now
+        first = subprocess.run(["bash", "-ec", snippet], env=job_env, capture_output=True,
+                               text=True)
+        assert first.returncode == 0, first.stderr
+        assert f"registering QEMU ({image})" in first.stdout
+        assert "interpreter /usr/bin/qemu-aarch64-static" in handler.read_text()
+        assert sh(ros1_arm64_base_image, "uname -m").stdout.strip() == "aarch64"
+        again = subprocess.run(["bash", "-ec", snippet], env=job_env, capture_output=True,
+                               text=True)
+        assert "QEMU (qemu-aarch64) is registered" in again.stdout, again.stdout + again.stderr
+    finally:
+        if handler.exists():
+            handler.write_text("-1")
+        (BINFMT / "register").write_text(binfmt_rule("qemu-aarch64", before) + "\n")
+        subprocess.run(["docker", "image", "rm", image], env=job_env, capture_output=True)
+    assert handler.read_text() == before
