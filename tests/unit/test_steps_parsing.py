@@ -9,7 +9,7 @@ import pytest
 from docker_ros.in_image.runtime.files import read_list_file
 from docker_ros.in_image.runtime.lock import dump_repos
 from docker_ros.in_image.runtime.packages import Package
-from docker_ros.in_image.runtime.repos import interpreters, read_repos
+from docker_ros.in_image.runtime.repos import interpreters, read_repos, repos_problem
 from docker_ros.in_image.runtime.requirements import nested_file, read_requirement_file
 from docker_ros.in_image.runtime.rosenv import (
     parse_env0,
@@ -319,6 +319,34 @@ def test_unreadable_repos_names_the_file_and_line(tmp_path):
     assert str(path) in err.value.message and "line 3" in err.value.message
     with pytest.raises(StepError, match="not a .repos file vcstool can read"):
         read_repos(write(tmp_path, "just: text\n"), step="clone")
+
+
+@pytest.mark.parametrize("text,said", [
+    ("repositories:\n  good: {type: git, url: /x}\n  bad: {type: git, version: main}\n",
+     "repository 'bad' has no url"),
+    ("repositories:\n  bad: {url: /x}\n", "repository 'bad' has no type"),
+    ("- git: {local-name: ok, uri: /x}\n- git: {uri: /y}\n", "repository '#2' has no local-name"),
+    ("- git: {local-name: b}\n", "repository 'b' has no uri"),
+    ("repositories:\n  ../target/injected: {type: git, url: /x}\n",
+     "repository name '../target/injected' leaves src/upstream"),
+    ("repositories:\n  a/../../b: {type: git, url: /x}\n", "name 'a/../../b' leaves"),
+    ("- git: {local-name: /abs, uri: /x}\n", "repository name '/abs' leaves src/upstream"),
+])
+def test_repos_entries_vcstool_would_skip_or_clone_elsewhere_stop_the_step(tmp_path, text, said):
+    """vcstool skips an entry without url with a warning only, and clones a name with '..'
+    outside src/upstream: both stop the clone step, and the check before the build, on the
+    file's name."""
+    path = write(tmp_path, text)
+    with pytest.raises(StepError) as err:
+        read_repos(path, step="clone", shown="deps.repos")
+    assert said in err.value.message and err.value.message.startswith("deps.repos: ")
+    assert said in (repos_problem(path, "deps.repos") or "")
+
+
+def test_repos_names_with_dots_inside_stay_allowed(tmp_path):
+    text = "repositories:\n  a..b/c.d: {type: git, url: /x}\n  ./e: {type: git, url: /y}\n"
+    assert sorted(read_repos(write(tmp_path, text), step="clone")) == ["./e", "a..b/c.d"]
+    assert repos_problem(write(tmp_path, text), "x.repos") is None
 
 
 def test_dump_repos_reads_back(tmp_path):

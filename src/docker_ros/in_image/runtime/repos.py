@@ -8,8 +8,8 @@ import json
 import re
 import shutil
 import subprocess
-from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional
+from pathlib import Path, PurePosixPath
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple
 
 from docker_ros.in_image.runtime.process import tool_path
 from docker_ros.in_image.runtime.rosdeprules import yaml_problem
@@ -59,15 +59,54 @@ def read_repos(path: Path, *, step: str, shown: str = "") -> Repos:
     text = Path(path).read_text()
     if is_empty(text):
         return {}
+    problems: List[str] = []
     try:
         from vcstool.commands.import_ import get_repositories
     except ImportError:
-        return _read_elsewhere(Path(path), step=step, shown=shown)
-    try:
-        with open(str(path)) as handle:
-            return normalise(get_repositories(handle))
-    except RuntimeError as exc:
-        raise StepError(step, unreadable(shown or str(path), str(exc))) from None
+        repos = _read_elsewhere(Path(path), step=step, shown=shown)
+    else:
+        import yaml  # vcstool's own dependency
+
+        try:
+            with open(str(path)) as handle:
+                repos = normalise(get_repositories(handle))
+        except RuntimeError as exc:
+            raise StepError(step, unreadable(shown or str(path), str(exc))) from None
+        problems = entry_problems(yaml.safe_load(text))
+    problems = problems or name_problems(repos)
+    if problems:
+        raise StepError(step, f"{shown or path}: {'; '.join(problems)}: fix the file")
+    return repos
+
+
+def name_problems(names: Iterable[str]) -> List[str]:
+    """Repository names `vcs import` would clone outside the folder it imports into."""
+    return [f"repository name '{name}' leaves src/upstream (give a relative path without '..')"
+            for name in names
+            if not name.strip() or PurePosixPath(name).is_absolute()
+            or ".." in PurePosixPath(name).parts]
+
+
+def raw_entries(data: Any) -> List[Tuple[str, Mapping[str, Any], Tuple[str, str]]]:
+    """A .repos file's entries as YAML gives them: (name, attributes, required keys)."""
+    if isinstance(data, dict) and isinstance(data.get("repositories"), dict):
+        return [(str(name), spec, ("type", "url"))
+                for name, spec in data["repositories"].items() if isinstance(spec, Mapping)]
+    if isinstance(data, list):
+        specs = [next(iter(item.values())) if isinstance(item, dict) and len(item) == 1 else None
+                 for item in data]
+        return [(str(spec.get("local-name") or f"#{index + 1}"), spec, ("local-name", "uri"))
+                for index, spec in enumerate(specs) if isinstance(spec, Mapping)]
+    return []
+
+
+def entry_problems(data: Any) -> List[str]:
+    """What vcstool would skip with only a warning (an entry without type or url, or without
+    local-name or uri) or clone outside src/upstream (a name with '..')."""
+    entries = raw_entries(data)
+    return [f"repository '{name}' has no {key}" for name, spec, keys in entries
+            for key in keys if spec.get(key) in (None, "")] + name_problems(
+        name for name, _, _ in entries)
 
 
 def unreadable(shown: str, reason: str) -> str:
@@ -87,7 +126,8 @@ def repos_problem(path: Path, shown: str) -> Optional[str]:
         return f"{problem}: fix the file (vcstool cannot import it)"
     if data is None or isinstance(data, list) or (
             isinstance(data, dict) and isinstance(data.get("repositories"), dict)):
-        return None
+        problems = entry_problems(data)
+        return f"{shown}: {'; '.join(problems)}: fix the file" if problems else None
     return f"{shown}: not a .repos file: {EXPECTED}"
 
 
