@@ -250,3 +250,42 @@ def test_config_marks_what_a_build_misses_and_still_shows_the_table(repo: Path) 
     rows = {line.split()[0]: line for line in proc.stdout.splitlines()}
     assert rows["BASE_IMAGE"].endswith("<- MISSING (a build needs it)")
     assert rows["COMMAND"].endswith("<- MISSING (a build needs it)")
+
+
+@pytest.mark.parametrize("where,said", [
+    (".", "is inside the repository"),
+    ("pkg_a", "is inside the repository"),
+    ("..", "holds the repository"),
+    ("../user-folder", "holds other files (notes.txt) and is no docker-ros workspace"),
+    ("../colcon-ws", "holds other files (src) and is no docker-ros workspace"),
+])
+def test_workspace_of_the_users_files_is_refused_and_nothing_is_written(
+        repo: Path, tmp_path: Path, where: str, said: str) -> None:
+    """The host steps write src/, .docker-ros/ and additional-files/ into WORKSPACE: in the
+    repository, around it or in a folder of other files they would change the user's files
+    (measured: `files --workspace .` overwrote the repository's additional-files/)."""
+    (repo / "additional-files").mkdir()
+    (repo / "additional-files" / "config.yaml").write_text("the user's\n")
+    (repo / "docker" / "additional-files").mkdir(parents=True)
+    (repo / "docker" / "additional-files" / "config.yaml").write_text("the image's\n")
+    (tmp_path / "user-folder").mkdir()
+    (tmp_path / "user-folder" / "notes.txt").write_text("the user's\n")
+    make_package(tmp_path / "colcon-ws" / "src" / "theirs", "theirs")  # a colcon workspace
+    before, around = tree_snapshot(repo), tree_snapshot(tmp_path / "user-folder")
+    workspace = (repo / where).resolve()
+    for args in (["files"], ["clone", "--dry-run"]):
+        proc = run(["docker_ros", *args, "--workspace", str(workspace)], repo)
+        assert proc.returncode == 1, proc.stdout
+        assert f"WORKSPACE '{workspace}' {said}" in last_line(proc)
+    assert tree_snapshot(repo) == before
+    assert tree_snapshot(tmp_path / "user-folder") == around
+    assert not (tmp_path / "src").exists()
+
+
+def test_a_new_empty_or_docker_ros_workspace_is_used(repo: Path, tmp_path: Path) -> None:
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "tested" / "test-results").mkdir(parents=True)  # `inv test` made only these
+    for folder in ("new", "empty", "tested", "new"):  # "new" again: one of ours (src/target)
+        proc = run(["docker_ros", "files", "--workspace", str(tmp_path / folder)], repo)
+        assert proc.returncode == 0, proc.stderr
+        assert (tmp_path / folder / "src" / "target").resolve() == repo.resolve()

@@ -23,7 +23,7 @@ from docker_ros.host.login import LoginError, job_login, plan_login
 from docker_ros.host.push import plan_outputs, write_outputs
 from docker_ros.in_image import testing
 from docker_ros.in_image.ci import missing_tasks
-from docker_ros.in_image.runtime.workspace import Workspace, format_argv
+from docker_ros.in_image.runtime.workspace import STATE_DIR_NAME, Workspace, format_argv
 from docker_ros.in_image.settings import (
     FIELDS,
     Settings,
@@ -48,6 +48,31 @@ class TaskError(Exception):
         self.returncode = returncode
 
 
+# What the steps, colcon and `inv test` make in a workspace (src/ with the src/target link).
+WORKSPACE_ENTRIES = ("src", STATE_DIR_NAME, "additional-files", "build", "install", "log",
+                     "test-results")
+
+
+def workspace_problem(root: Path, repository: Path, entries: Sequence[str],
+                      linked: bool) -> Optional[str]:
+    """Why the folder at root (both paths resolved; its entries, and whether its src/target is
+    a link) cannot be the host workspace. The steps write src/, .docker-ros/ and
+    additional-files/ there: it must not be the repository, lie inside it or hold it, and must
+    be new, empty or one of ours (src/target)."""
+    if root == repository or repository in root.parents:
+        return (f"WORKSPACE '{root}' is inside the repository {repository}: the host steps "
+                "would write into it; give a folder outside it (unset: ~/.cache/docker-ros/ws/)")
+    if root in repository.parents:
+        return (f"WORKSPACE '{root}' holds the repository {repository}: give a folder of its "
+                "own (unset: ~/.cache/docker-ros/ws/)")
+    foreign = sorted(e for e in entries
+                     if e not in WORKSPACE_ENTRIES or (e == "src" and not linked))
+    if foreign:
+        return (f"WORKSPACE '{root}' holds other files ({', '.join(foreign[:3])}) and is no "
+                "docker-ros workspace (no src/target link): give a new or empty folder")
+    return None
+
+
 def link_repository(ws: Workspace, repository: Path) -> None:
     """src/target -> the repository (linked, never copied, moved or modified)."""
     if ws.target.is_symlink() or ws.target.exists():
@@ -68,6 +93,11 @@ def host_workspace(settings: Settings, *, dry_run: bool) -> Iterator[Workspace]:
     assert settings.workspace
     ws = Workspace(Path(settings.workspace).expanduser())
     repository = Path(settings.build_context).resolve()
+    root = ws.root.resolve()
+    problem = workspace_problem(root, repository, os.listdir(root) if root.is_dir() else [],
+                                ws.target.is_symlink())
+    if problem:
+        raise TaskError(problem)
     if dry_run and not ws.target.is_symlink():
         with tempfile.TemporaryDirectory(prefix="docker-ros-dry-run-") as tmp:
             print(f"[dry-run] would create {ws.root} with src/target -> {repository}"
