@@ -289,3 +289,24 @@ def test_a_new_empty_or_docker_ros_workspace_is_used(repo: Path, tmp_path: Path)
         proc = run(["docker_ros", "files", "--workspace", str(tmp_path / folder)], repo)
         assert proc.returncode == 0, proc.stderr
         assert (tmp_path / folder / "src" / "target").resolve() == repo.resolve()
+
+
+def test_a_folder_with_nothing_to_build_is_refused(tmp_path: Path) -> None:
+    """No package.xml, no .repos and no docker-ros input file: a wrong folder, refused before
+    anything runs (measured before: the build tagged an image whose COMMAND was not found)."""
+    folder = tmp_path / "notes"
+    folder.mkdir()
+    (folder / "README.txt").write_text("not a ROS repository\n")
+    env = {"BASE_IMAGE": "none:1", "COMMAND": "x", "WORKSPACE": str(tmp_path / "ws")}
+    for args in (["build", "--dry-run"], ["clone"]):
+        proc = run(["docker_ros", *args], folder, env)
+        assert proc.returncode == 1, proc.stdout
+        assert last_line(proc).strip() == (
+            f"BUILD_CONTEXT '{folder}' holds no ROS package (package.xml), no .repos file and "
+            "none of docker-ros's input files: run this in your ROS repository, or set "
+            "BUILD_CONTEXT to it")
+    # An image of apt packages alone (no ROS package) is docker-ros's to build.
+    (folder / "docker").mkdir()
+    (folder / "docker" / "additional-debs.txt").write_text("procps\n")
+    proc = run(["docker_ros", "build", "--dry-run"], folder, env)
+    assert proc.returncode == 0, proc.stderr

@@ -13,6 +13,7 @@ import pytest
 
 from docker_ros.cli.tasks import EXAMPLE, ns
 from docker_ros.in_image.steps import STEPS
+from tests.rosfixtures import make_package
 
 pytestmark = pytest.mark.host
 
@@ -63,6 +64,7 @@ def test_list_numbers_the_steps_in_pipeline_order(tmp_path: Path) -> None:
 
 
 def test_set_reaches_any_setting_and_refuses_secrets(tmp_path: Path) -> None:
+    make_package(tmp_path / "pkg", "pkg")
     shown = cli("config", "--set", "ENABLE_SLIM=false", "--set", "cmake-args=-DX=1", cwd=tmp_path)
     assert shown.returncode == 0, shown.stderr
     rows = {line.split()[0]: line.split()[1:] for line in shown.stdout.splitlines()[1:]}
@@ -80,6 +82,7 @@ def test_set_reaches_any_setting_and_refuses_secrets(tmp_path: Path) -> None:
 def test_the_console_script_reads_the_projects_invoke_yaml(tmp_path: Path) -> None:
     """`docker-ros` (a Program with its tasks bundled) reads invoke.yaml where it runs, as
     `inv` does next to tasks.py."""
+    make_package(tmp_path / "pkg", "pkg")
     (tmp_path / "invoke.yaml").write_text("docker_ros:\n  base_image: from-invoke-yaml/x:1\n")
     result = cli("config", cwd=tmp_path)
     assert result.returncode == 0, result.stderr

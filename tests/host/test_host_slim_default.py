@@ -14,6 +14,8 @@ from typing import Dict, Optional
 
 import pytest
 
+from tests.rosfixtures import make_package
+
 pytestmark = pytest.mark.host
 
 CI_VARIABLES = ("GITHUB_ACTIONS", "GITLAB_CI", "ENABLE_SLIM", "TARGET", "COMMAND", "IMAGE")
@@ -33,6 +35,7 @@ def cli(project: Path, *args: str, env: Optional[Dict[str, str]] = None, inv: bo
 @pytest.fixture
 def project(tmp_path: Path) -> Path:
     (tmp_path / ".env").write_text("BASE_IMAGE=docker-ros-test/none:1\nCOMMAND=true\n")
+    make_package(tmp_path / "pkg", "pkg")
     return tmp_path
 
 

@@ -16,7 +16,11 @@ from dotenv.parser import parse_stream
 
 from docker_ros.in_image.ci import github_default_branch
 from docker_ros.in_image.runtime.files import path_problem
-from docker_ros.in_image.runtime.packages import duplicates_message, repository_duplicates
+from docker_ros.in_image.runtime.packages import (
+    duplicates_message,
+    find_package_dirs,
+    repository_duplicates,
+)
 from docker_ros.in_image.runtime.repos import repos_problem
 from docker_ros.in_image.runtime.rosdeprules import rules_problem
 from docker_ros.in_image.settings import (
@@ -153,6 +157,12 @@ def content_problems(settings: Settings) -> Dict[str, str]:
     duplicates = repository_duplicates(repository)
     if duplicates:
         problems["packages"] = duplicates_message(duplicates)
+    inputs = [name for name in path_settings() if (repository / getattr(settings, name)).exists()]
+    if not inputs and not find_package_dirs(repository) and not any(repository.rglob("*.repos")):
+        problems["packages"] = (
+            f"BUILD_CONTEXT '{repository.resolve()}' holds no ROS package (package.xml), no "
+            ".repos file and none of docker-ros's input files: run this in your ROS repository, "
+            "or set BUILD_CONTEXT to it")
     return problems
 
 
