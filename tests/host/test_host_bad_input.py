@@ -250,3 +250,14 @@ def test_config_marks_what_a_build_misses_and_still_shows_the_table(repo: Path) 
     rows = {line.split()[0]: line for line in proc.stdout.splitlines()}
     assert rows["BASE_IMAGE"].endswith("<- MISSING (a build needs it)")
     assert rows["COMMAND"].endswith("<- MISSING (a build needs it)")
+
+
+def test_a_bare_set_and_an_empty_target_are_refused(repo: Path) -> None:
+    for args in (["build", "--dry-run", "--set"], ["build", "--set", "--dry-run"]):
+        proc = run(["docker_ros", *args], repo)
+        assert proc.returncode == 1, proc.stdout
+        assert last_line(proc).strip() == "--set without a value: use --set NAME=VALUE"
+    proc = run(["docker_ros", "build", "--dry-run", "--target", ","], repo)
+    assert proc.returncode == 1, proc.stdout
+    assert last_line(proc).strip() == ("TARGET=',' is empty: give one or more of dev, run, slim "
+                               "(comma-separated), or leave it unset (from flag)")

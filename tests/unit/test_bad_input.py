@@ -8,7 +8,7 @@ from docker_ros.host.config import config_table, dotenv_warnings, image_problems
 from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import Package, duplicate_packages
 from docker_ros.in_image.runtime.process import script_hint
-from docker_ros.in_image.settings import SettingsError, explicitly_set, load_settings
+from docker_ros.in_image.settings import SettingsError, explicitly_set, load_settings, parse_set
 from docker_ros.in_image.steps import clone, pip
 
 
@@ -143,3 +143,46 @@ def test_pip_tls_failure_is_recognised_with_the_hint() -> None:
 def test_crlf_scripts_get_a_hint() -> None:
     assert "CRLF" in script_hint(b"#!/bin/bash\r\necho hi\r\n")
     assert script_hint(b"#!/bin/bash\necho hi\n") == ""
+
+
+def load_error(**sources: object) -> str:
+    """The message load_settings stops with for these sources (e.g. environ={...})."""
+    with pytest.raises(SettingsError) as raised:
+        load_settings(**sources)  # type: ignore[arg-type]
+    return str(raised.value)
+
+
+def test_shell_split_settings_with_an_unclosed_quote_are_named_when_loaded() -> None:
+    for name in ("CMAKE_ARGS", "SLIM_BUILD_ARGS", "ADDITIONAL_SLIM_BUILD_ARGS"):
+        message = load_error(flags={name.lower(): "'-DFOO=unclosed"})
+        assert message.endswith(f"{name}=\"'-DFOO=unclosed\": No closing quotation: close or "
+                                "escape the quote (from flag)"), message
+    assert load_settings(environ={"CMAKE_ARGS": "-DA='x y'"}).cmake_args == "-DA='x y'"
+
+
+def test_empty_invoke_yaml_keys_are_unset_and_build_network_is_checked() -> None:
+    settings = load_settings(invoke_config={"cmake_args": None, "build_network": None,
+                                            "ros_distro": None, "image_tag": ""})
+    assert settings.cmake_args == "-DCMAKE_BUILD_TYPE=Release"
+    assert settings.build_network is None and settings.ros_distro is None
+    assert settings.image_tag == "latest" and settings.source_of("cmake_args") == "default"
+    assert load_error(flags={"build_network": "bogusnet"}) == (
+        "invalid configuration:\n  BUILD_NETWORK='bogusnet' not allowed; allowed values: host, "
+        "none, default (from flag)")
+    assert load_settings(environ={"BUILD_NETWORK": "host"}).build_network == "host"
+    assert not load_settings(flags={"build_network": ""}).build_network
+
+
+def test_an_empty_target_is_refused() -> None:
+    for raw in ("", ",", " , "):
+        assert load_error(flags={"target": raw}) == (
+            f"invalid configuration:\n  TARGET={raw!r} is empty: give one or more of dev, run, "
+            "slim (comma-separated), or leave it unset (from flag)")
+    assert "TARGET=',' is empty" in load_error(dotenv={"TARGET": ","})
+    assert load_settings(dotenv={"TARGET": ""}).target == ("run",)  # empty: unset
+    assert load_settings(flags={"platform": ","}).platform  # PLATFORM: this machine's
+
+
+def test_a_bare_set_is_refused() -> None:
+    with pytest.raises(SettingsError, match="--set without a value: use --set NAME=VALUE"):
+        parse_set([True])
