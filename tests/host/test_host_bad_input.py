@@ -261,3 +261,17 @@ def test_a_bare_set_and_an_empty_target_are_refused(repo: Path) -> None:
     assert proc.returncode == 1, proc.stdout
     assert last_line(proc).strip() == ("TARGET=',' is empty: give one or more of dev, run, slim "
                                "(comma-separated), or leave it unset (from flag)")
+
+
+def test_bad_base_image_and_slim_tag_stop_the_dry_run(repo: Path) -> None:
+    proc = run(["docker_ros", "build", "--dry-run", "--base-image", "UPPER/img:tag",
+                "--target", "dev"], repo)
+    assert proc.returncode == 1, proc.stdout
+    assert last_line(proc).strip() == (
+        "BASE_IMAGE (flag): 'UPPER/img:tag' is not a valid image reference: give "
+        "[registry/]name[:tag][@digest], the name in lower case")
+    proc = run(["docker_ros", "build", "--dry-run", "--target", "run", "--enable-slim", "--set",
+                "SLIM_IMAGE_TAG=bad tag!"], repo)
+    assert proc.returncode == 1, proc.stdout
+    assert last_line(proc).strip() == "SLIM_IMAGE_TAG: 'bad tag!' is not a valid image tag"
+    assert "[dry-run]" not in proc.stdout

@@ -1,10 +1,14 @@
 """Bad input caught before the build, one line naming the culprit (issue 11): the pure checks."""
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
+from docker.errors import APIError
 
+from docker_ros.host import engine
 from docker_ros.host.config import config_table, dotenv_warnings, image_problems, path_problems
+from docker_ros.host.pipeline import check_slim_options
 from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import Package, duplicate_packages
 from docker_ros.in_image.runtime.process import script_hint
@@ -186,3 +190,42 @@ def test_an_empty_target_is_refused() -> None:
 def test_a_bare_set_is_refused() -> None:
     with pytest.raises(SettingsError, match="--set without a value: use --set NAME=VALUE"):
         parse_set([True])
+
+
+def test_base_image_reference_is_checked_naming_its_source(tmp_path: Path) -> None:
+    for bad in ("UPPER/img:tag", "Bad Base::x", "ubuntu@sha256:abc", "ros:bad tag"):
+        problems = image_problems(settings_for(tmp_path, BASE_IMAGE=bad), ("dev",))
+        assert problems == {"base_image": (
+            f"BASE_IMAGE (environment): {bad!r} is not a valid image reference: give "
+            "[registry/]name[:tag][@digest], the name in lower case")}, bad
+    for good in ("ros:noetic", "localhost/x", "reg.io:5000/a/b:1", "Reg.IO/a", "host:5000/img",
+                 "docker-ros/ros1:bookworm-arm64", "ubuntu@sha256:" + "ab" * 32):
+        assert image_problems(settings_for(tmp_path, BASE_IMAGE=good), ("dev",)) == {}, good
+
+
+def test_slim_image_names_are_checked_when_slimmed(tmp_path: Path) -> None:
+    bad = settings_for(tmp_path, SLIM_IMAGE_TAG="bad tag!")
+    assert image_problems(bad, ("run",)) == {}
+    assert image_problems(bad, ("run", "slim")) == {
+        "slim_image_tag": "SLIM_IMAGE_TAG: 'bad tag!' is not a valid image tag"}
+    with pytest.raises(SettingsError, match="SLIM_IMAGE_TAG: 'bad tag!' is not a valid"):
+        check_slim_options(bad)
+
+
+def test_a_bad_image_postfix_is_named(tmp_path: Path) -> None:
+    bad = load_settings(environ={"BUILD_CONTEXT": str(tmp_path)}, project_dir=tmp_path,
+                        flags={"image_postfix": "bad/post", "image": "x:y"})
+    assert image_problems(bad, ("run",)) == {"image_tag": (
+        "IMAGE_TAG (from IMAGE) + IMAGE_POSTFIX (flag): 'ybad/post' is not a valid image tag")}
+
+
+def test_inspect_image_turns_a_refused_reference_into_an_engine_error(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    class Images:
+        def get(self, ref: str) -> None:
+            raise APIError("400 Client Error", explanation="invalid reference format")
+
+    monkeypatch.setattr(engine, "client", lambda: SimpleNamespace(images=Images()))
+    with pytest.raises(engine.EngineError, match="^docker image inspect UPPER/x: invalid "
+                       "reference format$"):
+        engine.inspect_image("UPPER/x")

@@ -179,7 +179,7 @@ def settings_task(
                 raise Exit(f"docker-ros {name}: terminated (SIGTERM)", code=143) from None
             except KeyboardInterrupt:
                 raise Exit(f"docker-ros {name}: interrupted", code=130) from None
-            except (SettingsError, StepError, TaskError, LockError) as exc:
+            except (SettingsError, StepError, TaskError, LockError, engine.EngineError) as exc:
                 code = getattr(exc, "returncode", 1) or 1
                 where = exc.step if isinstance(exc, StepError) else name
                 text = exc.message if isinstance(exc, StepError) else str(exc)
@@ -291,7 +291,7 @@ def make_step_task(step: str) -> Task:
     lenient=True,
 )
 def config(c: Context, settings: Settings) -> None:
-    problems = input_problems(settings, settings.target, images=True)
+    problems = input_problems(settings, made_images(settings), images=True)
     missing = [n for n in required_for_build(settings) if not getattr(settings, n)]
     print(config_table(settings, problems, missing))
     print(lock_status(settings))

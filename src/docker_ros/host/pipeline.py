@@ -13,11 +13,11 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable, Collection, Dict, Iterator, List, Optional, Sequence
+from typing import Any, Callable, Collection, Dict, Iterator, List, Mapping, Optional, Sequence
 
 from docker_ros.host import build, container, devshell, slim
 from docker_ros.host.build import BuiltImage
-from docker_ros.host.config import input_problems
+from docker_ros.host.config import image_problems, input_problems
 from docker_ros.host.lock import lock_status
 from docker_ros.host.login import LoginError, job_login, plan_login
 from docker_ros.host.push import plan_outputs, write_outputs
@@ -86,7 +86,11 @@ def host_options(step: str, ws: Workspace) -> Dict[str, str]:
 
 def check_inputs(settings: Settings, targets: Sequence[str] = ()) -> None:
     """Bad paths and image names, all at once, before anything runs."""
-    problems = input_problems(settings, targets, images=bool(targets))
+    stop_on(input_problems(settings, targets, images=bool(targets)))
+
+
+def stop_on(problems: Mapping[str, str]) -> None:
+    """One SettingsError listing every problem (setting name -> message), if there is one."""
     if problems:
         raise SettingsError("invalid configuration:\n  " + "\n  ".join(problems.values()))
 
@@ -198,8 +202,10 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
 
 
 def check_slim_options(settings: Settings) -> None:
-    """SLIM_BUILD_ARGS and ADDITIONAL_SLIM_BUILD_ARGS checked before anything is built."""
-
+    """SLIM_BUILD_ARGS, ADDITIONAL_SLIM_BUILD_ARGS and the slim image's name and tag checked
+    before anything is built."""
+    stop_on({name: problem for name, problem in image_problems(settings, ("slim",)).items()
+             if name.startswith("slim_")})
     try:
         slim.parse_slim_args(slim.slim_args(settings))
     except slim.SlimError as exc:
