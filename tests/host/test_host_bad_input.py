@@ -171,7 +171,7 @@ def test_bad_volume_and_slim_args_are_refused_before_any_build(repo: Path) -> No
         proc = run(["docker_ros", *args], repo, env=unknown)
         assert proc.returncode == 1, args
         assert last_line(proc).startswith(
-            f"docker-ros {args[0]}: SLIM_BUILD_ARGS/ADDITIONAL_SLIM_BUILD_ARGS: unknown "
+            f"docker-ros {args[0]}: ADDITIONAL_SLIM_BUILD_ARGS: unknown "
             "option(s) --unknown; supported: --include-path"), (args, proc.stderr)
     # checked only where the run image is slimmed
     unslimmed = run(["docker_ros", "build", "--dry-run"], repo, env={**unknown, "ENABLE_SLIM": "0"})

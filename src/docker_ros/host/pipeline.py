@@ -207,7 +207,7 @@ def check_slim_options(settings: Settings) -> None:
     stop_on({name: problem for name, problem in image_problems(settings, ("slim",)).items()
              if name.startswith("slim_")})
     try:
-        slim.parse_slim_args(slim.slim_args(settings))
+        slim.slim_options(settings)
     except slim.SlimError as exc:
         raise TaskError(str(exc)) from None
 
