@@ -275,3 +275,15 @@ def test_bad_base_image_and_slim_tag_stop_the_dry_run(repo: Path) -> None:
     assert proc.returncode == 1, proc.stdout
     assert last_line(proc).strip() == "SLIM_IMAGE_TAG: 'bad tag!' is not a valid image tag"
     assert "[dry-run]" not in proc.stdout
+
+
+def test_an_unusable_workspace_or_results_dir_is_one_line(repo: Path) -> None:
+    proc = run(["docker_ros", "clone", "--workspace", "/dev/null"], repo)
+    assert proc.returncode == 1
+    assert last_line(proc) == ("docker-ros clone: WORKSPACE '/dev/null' cannot be created/used: "
+                               "Not a directory; give a writable folder")
+    proc = run(["docker_ros", "test", "--dry-run", "--set", "TEST_RESULTS_DIR=/dev/null/res"],
+               repo)
+    assert proc.returncode == 1
+    assert last_line(proc) == ("docker-ros test: TEST_RESULTS_DIR (flag): /dev/null/res cannot be "
+                               "made: /dev/null is not a folder; give a writable folder")

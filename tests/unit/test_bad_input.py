@@ -8,7 +8,7 @@ from docker.errors import APIError
 
 from docker_ros.host import engine
 from docker_ros.host.config import config_table, dotenv_warnings, image_problems, path_problems
-from docker_ros.host.pipeline import check_slim_options
+from docker_ros.host.pipeline import TaskError, check_slim_options, host_workspace
 from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import Package, duplicate_packages
 from docker_ros.in_image.runtime.process import script_hint
@@ -229,3 +229,13 @@ def test_inspect_image_turns_a_refused_reference_into_an_engine_error(
     with pytest.raises(engine.EngineError, match="^docker image inspect UPPER/x: invalid "
                        "reference format$"):
         engine.inspect_image("UPPER/x")
+
+
+def test_a_workspace_that_cannot_be_made_is_one_line(tmp_path: Path) -> None:
+    for workspace, reason in (("/dev/null", "Not a directory"),
+                              ("/proc/nonexistent", "No such file or directory")):
+        settings = settings_for(tmp_path, WORKSPACE=workspace)
+        with pytest.raises(TaskError) as raised, host_workspace(settings, dry_run=False):
+            pass
+        assert str(raised.value) == (f"WORKSPACE '{workspace}' cannot be created/used: {reason}; "
+                                     "give a writable folder")

@@ -76,7 +76,11 @@ def host_workspace(settings: Settings, *, dry_run: bool) -> Iterator[Workspace]:
             link_repository(temporary, repository)
             yield temporary
         return
-    link_repository(ws, repository)
+    try:
+        link_repository(ws, repository)
+    except OSError as exc:
+        raise TaskError(f"WORKSPACE '{settings.workspace}' cannot be created/used: "
+                        f"{exc.strerror or exc}; give a writable folder") from None
     yield ws
 
 
@@ -241,18 +245,28 @@ def results_root(settings: Settings, results_dir: str) -> Path:
     return Path(settings.workspace).expanduser() / "test-results"
 
 
+def results_origin(settings: Settings, results_dir: str) -> str:
+    """The flag or variable results_root took the folder from, for messages."""
+    if results_dir:
+        return "--results-dir"
+    if settings.test_results_dir:
+        return f"TEST_RESULTS_DIR ({settings.source_of('test_results_dir')})"
+    return f"TEST_RESULTS_DIR (default: in WORKSPACE, {settings.source_of('workspace')})"
+
+
 def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
     """Build the test stage per platform, export its results; fail when a test failed.
     (The dev stage needs no COMMAND.)"""
 
     require(settings, ["base_image"])
     root = results_root(settings, results_dir)
+    origin = results_origin(settings, results_dir)
     failures = []
     for platform in settings.platform:
         dest = root if len(settings.platform) == 1 else root / platform
         problem = testing.check_results_dir(dest)
         if problem:
-            raise TaskError(f"--results-dir: {problem}")
+            raise TaskError(f"{origin}: {problem}")
         tag = build.platform_ref(build.image_ref(settings, "dev") + "-test", platform,
                                  settings.platform)
         run = {"DOCKER_ROS_TEST_RUN": str(time.time_ns())}
@@ -272,7 +286,11 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
             except (build.BuildError, FileNotFoundError) as exc:
                 raise TaskError(str(exc)) from None
             counts = testing.summarize(Path(tmp) / testing.JUNIT)
-            testing.install_results(Path(tmp), dest)
+            try:
+                testing.install_results(Path(tmp), dest)
+            except OSError as exc:
+                raise TaskError(f"{origin}: cannot copy the results to {dest}: "
+                                f"{exc.strerror or exc}; give a writable folder") from None
         print(f"docker-ros test ({platform}): {testing.format_summary(counts)} "
               f"(JUnit XML and logs in {dest})")
         failed = testing.verdict(outcome, counts)
