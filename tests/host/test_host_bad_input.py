@@ -287,3 +287,40 @@ def test_an_unusable_workspace_or_results_dir_is_one_line(repo: Path) -> None:
     assert proc.returncode == 1
     assert last_line(proc) == ("docker-ros test: TEST_RESULTS_DIR (flag): /dev/null/res cannot be "
                                "made: /dev/null is not a folder; give a writable folder")
+
+
+LATIN1 = "# café\n".encode("latin-1")
+
+
+@pytest.mark.parametrize("file, args", [
+    (".env", ["docker_ros", "config"]),
+    ("invoke.yaml", ["docker_ros", "build", "--dry-run"]),
+    ("invoke.yaml", ["invoke", "build", "--dry-run"]),
+    (".repos", ["docker_ros", "clone", "--dry-run"]),
+    ("docker/rosdep.yaml", ["docker_ros", "rosdep", "--dry-run"]),
+    ("docker/additional-debs.txt", ["docker_ros", "debs", "--dry-run"]),
+    ("docker/additional-pip-requirements.txt", ["docker_ros", "pip", "--dry-run"]),
+    ("docker/blacklisted-packages.txt", ["docker_ros", "blacklist", "--dry-run"]),
+])
+def test_a_file_that_is_not_utf8_is_named(repo: Path, file: str, args: list) -> None:
+    (repo / "tasks.py").write_text("from docker_ros.tasks import ns  # noqa: F401\n")
+    (repo / "docker").mkdir()
+    env = (repo / ".env").read_text()
+    content = (env + "# café\n").encode("utf-16") if file == ".env" else LATIN1  # (PowerShell)
+    (repo / file).write_bytes(content)
+    proc = run(args, repo)
+    assert proc.returncode in (1, 2), proc.stdout
+    reason = "invalid start byte at byte 0" if file == ".env" else "invalid continuation byte " \
+        "at byte 5"
+    assert f"{file} is not UTF-8 text ({reason}): save it as UTF-8" in last_line(proc)
+
+
+@pytest.mark.parametrize("args", [["docker_ros", "build", "--dry-run"],
+                                  ["invoke", "build", "--dry-run"]])
+def test_an_invoke_yaml_whose_top_level_is_a_list_is_one_line(repo: Path, args: list) -> None:
+    (repo / "tasks.py").write_text("from docker_ros.tasks import ns  # noqa: F401\n")
+    (repo / "invoke.yaml").write_text("- just\n")
+    proc = run(args, repo)
+    assert proc.returncode == 2
+    assert last_line(proc).endswith("invoke.yaml: the top level must be a mapping (key "
+                                    "docker_ros:)")

@@ -6,12 +6,13 @@ from types import SimpleNamespace
 import pytest
 from docker.errors import APIError
 
-from docker_ros.host import engine
+from docker_ros.host import build, engine
 from docker_ros.host.config import config_table, dotenv_warnings, image_problems, path_problems
 from docker_ros.host.pipeline import TaskError, check_slim_options, host_workspace
 from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import Package, duplicate_packages
 from docker_ros.in_image.runtime.process import script_hint
+from docker_ros.in_image.runtime.workspace import read_user_text
 from docker_ros.in_image.settings import SettingsError, explicitly_set, load_settings, parse_set
 from docker_ros.in_image.steps import clone, pip
 
@@ -239,3 +240,21 @@ def test_a_workspace_that_cannot_be_made_is_one_line(tmp_path: Path) -> None:
             pass
         assert str(raised.value) == (f"WORKSPACE '{workspace}' cannot be created/used: {reason}; "
                                      "give a writable folder")
+
+
+def test_read_user_text_raises_the_callers_error(tmp_path: Path) -> None:
+    path = tmp_path / "list.txt"
+    path.write_bytes("pkg # é\n".encode())
+    assert read_user_text(path, SettingsError) == "pkg # é\n"
+    path.write_bytes("pkg # é\n".encode("latin-1"))
+    with pytest.raises(SettingsError, match=r"^x.txt is not UTF-8 text \(invalid continuation "
+                       r"byte at byte 6\): save it as UTF-8$"):
+        read_user_text(path, SettingsError, "x.txt")
+
+
+def test_a_ca_bundle_with_a_latin1_comment_is_read(tmp_path: Path) -> None:
+    pem = "-----BEGIN CERTIFICATE-----\nMIIB\n-----END CERTIFICATE-----\n"
+    (tmp_path / "ca.pem").write_bytes("# Zertifikat für den Proxy\n".encode("latin-1")
+                                      + pem.encode())
+    bundle = build.ca_bundle(tmp_path / "ca.pem", tmp_path / "bundle.pem")
+    assert pem in bundle.read_text()

@@ -19,6 +19,7 @@ from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import duplicates_message, repository_duplicates
 from docker_ros.in_image.runtime.repos import repos_problem
 from docker_ros.in_image.runtime.rosdeprules import rules_problem
+from docker_ros.in_image.runtime.workspace import read_user_text
 from docker_ros.in_image.settings import (
     FIELDS,
     Settings,
@@ -57,12 +58,12 @@ def read_settings(
     `command`."""
     project = project_dir or Path.cwd()
     env_file = project / ".env"
-    if env_file.is_file():
-        unreadable = dotenv_problems(env_file.read_text(errors="replace"))
-        if unreadable:
-            raise SettingsError(f"{env_file}: " + "; ".join(unreadable) + ": write NAME=VALUE "
-                                "(quote a value with spaces or #, and close the quotes)")
-    dotenv = dotenv_values(env_file) if env_file.is_file() else {}
+    text = read_user_text(env_file, SettingsError) if env_file.is_file() else ""
+    unreadable = dotenv_problems(text)
+    if unreadable:
+        raise SettingsError(f"{env_file}: " + "; ".join(unreadable) + ": write NAME=VALUE "
+                            "(quote a value with spaces or #, and close the quotes)")
+    dotenv = dotenv_values(stream=io.StringIO(text)) if env_file.is_file() else {}
     environ = os.environ if environ is None else environ
     if environ.get("GITHUB_ACTIONS") == "true" and not environ.get("GITHUB_DEFAULT_BRANCH"):
         # GitHub has no variable for it; the event payload names it (CI tag postfix rules).
