@@ -171,7 +171,7 @@ def test_bad_volume_and_slim_args_are_refused_before_any_build(repo: Path) -> No
         proc = run(["docker_ros", *args], repo, env=unknown)
         assert proc.returncode == 1, args
         assert last_line(proc).startswith(
-            f"docker-ros {args[0]}: SLIM_BUILD_ARGS/ADDITIONAL_SLIM_BUILD_ARGS: unknown "
+            f"docker-ros {args[0]}: ADDITIONAL_SLIM_BUILD_ARGS: unknown "
             "option(s) --unknown; supported: --include-path"), (args, proc.stderr)
     # checked only where the run image is slimmed
     unslimmed = run(["docker_ros", "build", "--dry-run"], repo, env={**unknown, "ENABLE_SLIM": "0"})
@@ -310,3 +310,77 @@ def test_a_folder_with_nothing_to_build_is_refused(tmp_path: Path) -> None:
     (folder / "docker" / "additional-debs.txt").write_text("procps\n")
     proc = run(["docker_ros", "build", "--dry-run"], folder, env)
     assert proc.returncode == 0, proc.stderr
+
+
+def test_a_bare_set_and_an_empty_target_are_refused(repo: Path) -> None:
+    for args in (["build", "--dry-run", "--set"], ["build", "--set", "--dry-run"]):
+        proc = run(["docker_ros", *args], repo)
+        assert proc.returncode == 1, proc.stdout
+        assert last_line(proc).strip() == "--set without a value: use --set NAME=VALUE"
+    proc = run(["docker_ros", "build", "--dry-run", "--target", ","], repo)
+    assert proc.returncode == 1, proc.stdout
+    assert last_line(proc).strip() == ("TARGET=',' is empty: give one or more of dev, run, slim "
+                               "(comma-separated), or leave it unset (from flag)")
+
+
+def test_bad_base_image_and_slim_tag_stop_the_dry_run(repo: Path) -> None:
+    proc = run(["docker_ros", "build", "--dry-run", "--base-image", "UPPER/img:tag",
+                "--target", "dev"], repo)
+    assert proc.returncode == 1, proc.stdout
+    assert last_line(proc).strip() == (
+        "BASE_IMAGE (flag): 'UPPER/img:tag' is not a valid image reference: give "
+        "[registry/]name[:tag][@digest], the name in lower case")
+    proc = run(["docker_ros", "build", "--dry-run", "--target", "run", "--enable-slim", "--set",
+                "SLIM_IMAGE_TAG=bad tag!"], repo)
+    assert proc.returncode == 1, proc.stdout
+    assert last_line(proc).strip() == "SLIM_IMAGE_TAG: 'bad tag!' is not a valid image tag"
+    assert "[dry-run]" not in proc.stdout
+
+
+def test_an_unusable_workspace_or_results_dir_is_one_line(repo: Path) -> None:
+    proc = run(["docker_ros", "clone", "--workspace", "/dev/null"], repo)
+    assert proc.returncode == 1
+    assert last_line(proc) == ("docker-ros clone: WORKSPACE '/dev/null' cannot be created/used: "
+                               "Not a directory; give a writable folder")
+    proc = run(["docker_ros", "test", "--dry-run", "--set", "TEST_RESULTS_DIR=/dev/null/res"],
+               repo)
+    assert proc.returncode == 1
+    assert last_line(proc) == ("docker-ros test: TEST_RESULTS_DIR (flag): /dev/null/res cannot be "
+                               "made: /dev/null is not a folder; give a writable folder")
+
+
+LATIN1 = "# café\n".encode("latin-1")
+
+
+@pytest.mark.parametrize("file, args", [
+    (".env", ["docker_ros", "config"]),
+    ("invoke.yaml", ["docker_ros", "build", "--dry-run"]),
+    ("invoke.yaml", ["invoke", "build", "--dry-run"]),
+    (".repos", ["docker_ros", "clone", "--dry-run"]),
+    ("docker/rosdep.yaml", ["docker_ros", "rosdep", "--dry-run"]),
+    ("docker/additional-debs.txt", ["docker_ros", "debs", "--dry-run"]),
+    ("docker/additional-pip-requirements.txt", ["docker_ros", "pip", "--dry-run"]),
+    ("docker/blacklisted-packages.txt", ["docker_ros", "blacklist", "--dry-run"]),
+])
+def test_a_file_that_is_not_utf8_is_named(repo: Path, file: str, args: list) -> None:
+    (repo / "tasks.py").write_text("from docker_ros.tasks import ns  # noqa: F401\n")
+    (repo / "docker").mkdir()
+    env = (repo / ".env").read_text()
+    content = (env + "# café\n").encode("utf-16") if file == ".env" else LATIN1  # (PowerShell)
+    (repo / file).write_bytes(content)
+    proc = run(args, repo)
+    assert proc.returncode in (1, 2), proc.stdout
+    reason = "invalid start byte at byte 0" if file == ".env" else "invalid continuation byte " \
+        "at byte 5"
+    assert f"{file} is not UTF-8 text ({reason}): save it as UTF-8" in last_line(proc)
+
+
+@pytest.mark.parametrize("args", [["docker_ros", "build", "--dry-run"],
+                                  ["invoke", "build", "--dry-run"]])
+def test_an_invoke_yaml_whose_top_level_is_a_list_is_one_line(repo: Path, args: list) -> None:
+    (repo / "tasks.py").write_text("from docker_ros.tasks import ns  # noqa: F401\n")
+    (repo / "invoke.yaml").write_text("- just\n")
+    proc = run(args, repo)
+    assert proc.returncode == 2
+    assert last_line(proc).endswith("invoke.yaml: the top level must be a mapping (key "
+                                    "docker_ros:)")

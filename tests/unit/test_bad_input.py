@@ -1,14 +1,19 @@
 """Bad input caught before the build, one line naming the culprit (issue 11): the pure checks."""
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
+from docker.errors import APIError
 
+from docker_ros.host import build, engine
 from docker_ros.host.config import config_table, dotenv_warnings, image_problems, path_problems
+from docker_ros.host.pipeline import TaskError, check_slim_options, host_workspace
 from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import Package, duplicate_packages
 from docker_ros.in_image.runtime.process import script_hint
-from docker_ros.in_image.settings import SettingsError, explicitly_set, load_settings
+from docker_ros.in_image.runtime.workspace import read_user_text
+from docker_ros.in_image.settings import SettingsError, explicitly_set, load_settings, parse_set
 from docker_ros.in_image.steps import clone, pip
 
 
@@ -143,3 +148,113 @@ def test_pip_tls_failure_is_recognised_with_the_hint() -> None:
 def test_crlf_scripts_get_a_hint() -> None:
     assert "CRLF" in script_hint(b"#!/bin/bash\r\necho hi\r\n")
     assert script_hint(b"#!/bin/bash\necho hi\n") == ""
+
+
+def load_error(**sources: object) -> str:
+    """The message load_settings stops with for these sources (e.g. environ={...})."""
+    with pytest.raises(SettingsError) as raised:
+        load_settings(**sources)  # type: ignore[arg-type]
+    return str(raised.value)
+
+
+def test_shell_split_settings_with_an_unclosed_quote_are_named_when_loaded() -> None:
+    for name in ("CMAKE_ARGS", "SLIM_BUILD_ARGS", "ADDITIONAL_SLIM_BUILD_ARGS"):
+        message = load_error(flags={name.lower(): "'-DFOO=unclosed"})
+        assert message.endswith(f"{name}=\"'-DFOO=unclosed\": No closing quotation: close or "
+                                "escape the quote (from flag)"), message
+    assert load_settings(environ={"CMAKE_ARGS": "-DA='x y'"}).cmake_args == "-DA='x y'"
+
+
+def test_empty_invoke_yaml_keys_are_unset_and_build_network_is_checked() -> None:
+    settings = load_settings(invoke_config={"cmake_args": None, "build_network": None,
+                                            "ros_distro": None, "image_tag": ""})
+    assert settings.cmake_args == "-DCMAKE_BUILD_TYPE=Release"
+    assert settings.build_network is None and settings.ros_distro is None
+    assert settings.image_tag == "latest" and settings.source_of("cmake_args") == "default"
+    assert load_error(flags={"build_network": "bogusnet"}) == (
+        "invalid configuration:\n  BUILD_NETWORK='bogusnet' not allowed; allowed values: host, "
+        "none, default (from flag)")
+    assert load_settings(environ={"BUILD_NETWORK": "host"}).build_network == "host"
+    assert not load_settings(flags={"build_network": ""}).build_network
+
+
+def test_an_empty_target_is_refused() -> None:
+    for raw in ("", ",", " , "):
+        assert load_error(flags={"target": raw}) == (
+            f"invalid configuration:\n  TARGET={raw!r} is empty: give one or more of dev, run, "
+            "slim (comma-separated), or leave it unset (from flag)")
+    assert "TARGET=',' is empty" in load_error(dotenv={"TARGET": ","})
+    assert load_settings(dotenv={"TARGET": ""}).target == ("run",)  # empty: unset
+    assert load_settings(flags={"platform": ","}).platform  # PLATFORM: this machine's
+
+
+def test_a_bare_set_is_refused() -> None:
+    with pytest.raises(SettingsError, match="--set without a value: use --set NAME=VALUE"):
+        parse_set([True])
+
+
+def test_base_image_reference_is_checked_naming_its_source(tmp_path: Path) -> None:
+    for bad in ("UPPER/img:tag", "Bad Base::x", "ubuntu@sha256:abc", "ros:bad tag"):
+        problems = image_problems(settings_for(tmp_path, BASE_IMAGE=bad), ("dev",))
+        assert problems == {"base_image": (
+            f"BASE_IMAGE (environment): {bad!r} is not a valid image reference: give "
+            "[registry/]name[:tag][@digest], the name in lower case")}, bad
+    for good in ("ros:noetic", "localhost/x", "reg.io:5000/a/b:1", "Reg.IO/a", "host:5000/img",
+                 "docker-ros/ros1:bookworm-arm64", "ubuntu@sha256:" + "ab" * 32):
+        assert image_problems(settings_for(tmp_path, BASE_IMAGE=good), ("dev",)) == {}, good
+
+
+def test_slim_image_names_are_checked_when_slimmed(tmp_path: Path) -> None:
+    bad = settings_for(tmp_path, SLIM_IMAGE_TAG="bad tag!")
+    assert image_problems(bad, ("run",)) == {}
+    assert image_problems(bad, ("run", "slim")) == {
+        "slim_image_tag": "SLIM_IMAGE_TAG: 'bad tag!' is not a valid image tag"}
+    with pytest.raises(SettingsError, match="SLIM_IMAGE_TAG: 'bad tag!' is not a valid"):
+        check_slim_options(bad)
+
+
+def test_a_bad_image_postfix_is_named(tmp_path: Path) -> None:
+    bad = load_settings(environ={"BUILD_CONTEXT": str(tmp_path)}, project_dir=tmp_path,
+                        flags={"image_postfix": "bad/post", "image": "x:y"})
+    assert image_problems(bad, ("run",)) == {"image_tag": (
+        "IMAGE_TAG (from IMAGE) + IMAGE_POSTFIX (flag): 'ybad/post' is not a valid image tag")}
+
+
+def test_inspect_image_turns_a_refused_reference_into_an_engine_error(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    class Images:
+        def get(self, ref: str) -> None:
+            raise APIError("400 Client Error", explanation="invalid reference format")
+
+    monkeypatch.setattr(engine, "client", lambda: SimpleNamespace(images=Images()))
+    with pytest.raises(engine.EngineError, match="^docker image inspect UPPER/x: invalid "
+                       "reference format$"):
+        engine.inspect_image("UPPER/x")
+
+
+def test_a_workspace_that_cannot_be_made_is_one_line(tmp_path: Path) -> None:
+    for workspace, reason in (("/dev/null", "Not a directory"),
+                              ("/proc/nonexistent", "No such file or directory")):
+        settings = settings_for(tmp_path, WORKSPACE=workspace)
+        with pytest.raises(TaskError) as raised, host_workspace(settings, dry_run=False):
+            pass
+        assert str(raised.value) == (f"WORKSPACE '{workspace}' cannot be created/used: {reason}; "
+                                     "give a writable folder")
+
+
+def test_read_user_text_raises_the_callers_error(tmp_path: Path) -> None:
+    path = tmp_path / "list.txt"
+    path.write_bytes("pkg # é\n".encode())
+    assert read_user_text(path, SettingsError) == "pkg # é\n"
+    path.write_bytes("pkg # é\n".encode("latin-1"))
+    with pytest.raises(SettingsError, match=r"^x.txt is not UTF-8 text \(invalid continuation "
+                       r"byte at byte 6\): save it as UTF-8$"):
+        read_user_text(path, SettingsError, "x.txt")
+
+
+def test_a_ca_bundle_with_a_latin1_comment_is_read(tmp_path: Path) -> None:
+    pem = "-----BEGIN CERTIFICATE-----\nMIIB\n-----END CERTIFICATE-----\n"
+    (tmp_path / "ca.pem").write_bytes("# Zertifikat für den Proxy\n".encode("latin-1")
+                                      + pem.encode())
+    bundle = build.ca_bundle(tmp_path / "ca.pem", tmp_path / "bundle.pem")
+    assert pem in bundle.read_text()

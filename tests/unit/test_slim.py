@@ -84,6 +84,32 @@ def test_bad_args_are_errors_naming_them(text: str, message: str) -> None:
     assert message in str(raised.value)
 
 
+@pytest.mark.parametrize("text, additional, message", [
+    ("", "--continue-after abc", "ADDITIONAL_SLIM_BUILD_ARGS: --continue-after='abc': give a "
+     "number of seconds"),
+    ("--settle=1", "--settle=-1", "ADDITIONAL_SLIM_BUILD_ARGS: --settle='-1': give a number of "
+     "seconds, 0 or more"),
+    ("--settle -2", "", "SLIM_BUILD_ARGS: --settle='-2': give a number of seconds, 0 or more"),
+    ("--continue-after=-5", "", "SLIM_BUILD_ARGS: --continue-after='-5': give a number"),
+    ("--include-path /x", "--bogus", "ADDITIONAL_SLIM_BUILD_ARGS: unknown option(s) --bogus;"),
+    ("--bogus", "--frob", "SLIM_BUILD_ARGS/ADDITIONAL_SLIM_BUILD_ARGS: unknown option(s) "
+     "--bogus, --frob;"),
+    ("", "--env FOO", "ADDITIONAL_SLIM_BUILD_ARGS: --env 'FOO': use NAME=VALUE"),
+    ("", "--tag x", "ADDITIONAL_SLIM_BUILD_ARGS: --tag is set by docker-ros"),
+    ("", "--exec 'x", "ADDITIONAL_SLIM_BUILD_ARGS: No closing quotation"),
+])
+def test_errors_name_the_variable_the_option_is_in(text: str, additional: str,
+                                                   message: str) -> None:
+    with pytest.raises(SlimError) as raised:
+        parse_slim_args(text, additional)
+    assert str(raised.value).startswith(message), str(raised.value)
+
+
+def test_the_additional_args_come_after_the_others() -> None:
+    options = parse_slim_args("--settle 1 --exec", "'ros2 node list' --settle=0")
+    assert options.settle == 0 and options.execs == ("ros2 node list",)
+
+
 def test_exec_prefix_drops_the_init() -> None:
     assert exec_prefix(["/usr/bin/tini", "--", "/docker-ros/entrypoint.sh"]) == [
         "/docker-ros/entrypoint.sh"]

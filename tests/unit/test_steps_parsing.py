@@ -29,7 +29,7 @@ def test_read_list_file_comments_blanks_and_spaces(tmp_path):
         "# heading\n\n  pkg-a  \npkg-b # trailing comment\n\t\n"
         "git+https://host/x.git#egg=x\n   # indented comment\n"
     )
-    assert read_list_file(path) == ["pkg-a", "pkg-b", "git+https://host/x.git#egg=x"]
+    assert read_list_file(path, "debs") == ["pkg-a", "pkg-b", "git+https://host/x.git#egg=x"]
 
 
 def test_debs_plan_splits_words_sorts_and_dedupes():

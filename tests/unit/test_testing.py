@@ -1,6 +1,12 @@
 """`inv test`'s pure parts: JUnit counting, the verdict, the results folder, the build plan."""
 
+import errno
+import os
+import subprocess
 from pathlib import Path
+from typing import Iterator
+
+import pytest
 
 from docker_ros.host import build
 from docker_ros.in_image import testing
@@ -110,3 +116,58 @@ def test_results_go_to_the_flag_else_test_results_dir_else_the_workspace(tmp_pat
                           project_dir=tmp_path)
     assert results_root(named, "") == tmp_path / "ci"
     assert results_root(named, str(tmp_path / "flag")) == tmp_path / "flag"
+
+
+@pytest.fixture
+def read_only(tmp_path: Path) -> Iterator[Path]:
+    """A folder nobody may write to (root too: immutable, where chattr can make it so)."""
+    folder = tmp_path / "read-only"
+    folder.mkdir()
+    if os.geteuid() != 0:
+        folder.chmod(0o555)
+    elif subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode != 0:
+        pytest.skip("no chattr +i here: cannot make a folder read-only for root")
+    yield folder
+    if os.geteuid() == 0:
+        subprocess.run(["chattr", "-i", str(folder)], check=True)
+    folder.chmod(0o755)
+
+
+def test_a_results_dir_that_cannot_be_written_is_refused_up_front(read_only: Path) -> None:
+    assert testing.check_results_dir(read_only / "res") == (
+        f"{read_only / 'res'} cannot be written ({read_only} is read-only); give a writable "
+        "folder")
+    assert testing.check_results_dir(Path("/dev/null/res")) == (
+        "/dev/null/res cannot be made: /dev/null is not a folder; give a writable folder")
+
+
+def test_results_dir_errors_name_where_the_folder_came_from(tmp_path: Path) -> None:
+    from docker_ros.host.pipeline import results_origin
+
+    env = {"BASE_IMAGE": "base:1", "WORKSPACE": str(tmp_path / "ws")}
+    plain = load_settings(environ=env, project_dir=tmp_path)
+    assert results_origin(plain, "") == "TEST_RESULTS_DIR (default: in WORKSPACE, environment)"
+    named = load_settings(environ=env, flags={"test_results_dir": "x"}, project_dir=tmp_path)
+    assert results_origin(named, "") == "TEST_RESULTS_DIR (flag)"
+    assert results_origin(named, "y") == "--results-dir"
+
+
+def test_a_copy_that_fails_late_is_the_tasks_error(tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    from docker_ros.host import pipeline
+
+    def refuse(exported: Path, results: Path) -> None:
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(results))
+
+    monkeypatch.setattr(build, "check_engine", lambda settings: None)
+    monkeypatch.setattr(build, "build_image", lambda settings, **kwargs: None)
+    monkeypatch.setattr(testing, "read_outcome", lambda folder: {})
+    monkeypatch.setattr(testing, "install_results", refuse)
+    settings = load_settings(environ={"BASE_IMAGE": "base:1", "PLATFORM": "amd64",
+                                      "TEST_RESULTS_DIR": str(tmp_path / "res")},
+                             project_dir=tmp_path)
+    with pytest.raises(pipeline.TaskError) as raised:
+        pipeline.run_test_stage(settings, results_dir="", dry_run=False)
+    assert str(raised.value) == (
+        f"TEST_RESULTS_DIR (environment): cannot copy the results to {tmp_path / 'res'}: "
+        "Read-only file system; give a writable folder")

@@ -13,6 +13,7 @@ from invoke.config import yaml  # (the YAML module invoke reads its files with)
 
 from docker_ros import __version__
 from docker_ros.cli.tasks import ns
+from docker_ros.in_image.runtime.workspace import read_user_text
 
 
 class DockerRosProgram(Program):
@@ -25,8 +26,11 @@ class DockerRosProgram(Program):
         self.config.set_project_location(os.getcwd())
         try:
             self.config.load_project()
-        except yaml.YAMLError as exc:
-            raise Exit(yaml_problem(exc, "invoke.yaml"), code=2) from None
+        except Exception as exc:
+            problem = invoke_file_problem(exc, "invoke.yaml")
+            if problem is None:
+                raise
+            raise Exit(problem, code=2) from None
 
 
 def yaml_problem(exc: Exception, name: str) -> str:
@@ -37,19 +41,40 @@ def yaml_problem(exc: Exception, name: str) -> str:
     return f"docker-ros: {name}{line} is not valid YAML: {problem}: fix or remove it"
 
 
+def invoke_file_problem(exc: BaseException, name: str = "") -> Optional[str]:
+    """One line for an exception raised while invoke loads or merges a configuration file
+    (None for any other): not YAML, not UTF-8, a top level that is no mapping (invoke's
+    merge_dicts fails on it). `name`: the file as shown, else the one invoke was reading."""
+    frames = [frame for frame, _ in traceback.walk_tb(exc.__traceback__)
+              if Path(frame.f_code.co_filename).parts[-2:] == ("invoke", "config.py")]
+    if not frames:
+        return None
+    paths = [frame.f_locals.get("path") for frame in frames
+             if frame.f_code.co_name in ("_load_yaml", "_load_json", "_merge_file")]
+    name = name or str(paths[-1] if paths else "") or "invoke.yaml"
+    if isinstance(exc, yaml.YAMLError):
+        where = getattr(exc, "problem_mark", None)
+        return yaml_problem(exc, name if paths else getattr(where, "name", "") or name)
+    if isinstance(exc, UnicodeDecodeError):
+        try:
+            read_user_text(name, ValueError)
+        except ValueError as problem:
+            return f"docker-ros: {problem}"
+    if isinstance(exc, AttributeError) and any(f.f_code.co_name == "_merge_file" for f in frames):
+        return f"docker-ros: {name}: the top level must be a mapping (key docker_ros:)"
+    return None
+
+
 def one_line_for_broken_invoke_yaml() -> None:
-    """For `inv`, which reads invoke.yaml after importing tasks.py, outside any code of ours: a
-    YAML error raised while invoke loads its configuration files ends as yaml_problem's line
-    (exit code 2) instead of a traceback; every other exception keeps the hook it had."""
+    """For `inv`, which reads invoke.yaml after importing tasks.py, outside any code of ours: an
+    invoke configuration file invoke cannot load (invoke_file_problem) ends as one line (exit
+    code 2) instead of a traceback; every other exception keeps the hook it had."""
     previous = sys.excepthook
 
     def hook(kind: type, exc: BaseException, trace: Any) -> None:
-        files = [frame.f_code.co_filename for frame, _ in traceback.walk_tb(trace)]
-        if isinstance(exc, yaml.YAMLError) and any(
-                Path(f).parts[-2:] == ("invoke", "config.py") for f in files):
-            where = getattr(exc, "problem_mark", None)
-            name = getattr(where, "name", "") or "invoke.yaml"
-            print(yaml_problem(exc, name), file=sys.stderr, flush=True)
+        problem = invoke_file_problem(exc)
+        if problem is not None:
+            print(problem, file=sys.stderr, flush=True)
             sys.stdout.flush()
             os._exit(2)
         previous(kind, exc, trace)

@@ -15,9 +15,9 @@ import sys
 import textwrap
 import time
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Mapping, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
-from invoke import Collection, Context, Exit, Task
+from invoke import Argument, Collection, Context, Exit, Task
 
 import docker_ros
 from docker_ros.host import baseimage, build, container, devshell, engine
@@ -111,6 +111,15 @@ class SettingsTask(Task):
             opts["names"].append(self.shortflags[name])
         return opts
 
+    def get_arguments(self, ignore_unknown_help: Optional[bool] = None) -> List[Argument]:
+        """A repeatable flag with an optional value (--set) starts without a raw value, so that
+        invoke gives a bare one True (invoke would drop it silently): parse_set refuses it."""
+        args = super().get_arguments(ignore_unknown_help)
+        for arg in args:
+            if arg.kind is list and arg.optional:
+                arg.raw_value = None
+        return args
+
 
 def settings_task(
     name: str,
@@ -170,7 +179,7 @@ def settings_task(
                 raise Exit(f"docker-ros {name}: terminated (SIGTERM)", code=143) from None
             except KeyboardInterrupt:
                 raise Exit(f"docker-ros {name}: interrupted", code=130) from None
-            except (SettingsError, StepError, TaskError, LockError) as exc:
+            except (SettingsError, StepError, TaskError, LockError, engine.EngineError) as exc:
                 code = getattr(exc, "returncode", 1) or 1
                 where = exc.step if isinstance(exc, StepError) else name
                 text = exc.message if isinstance(exc, StepError) else str(exc)
@@ -195,7 +204,8 @@ def settings_task(
             help_map[n] = f"Refused (a secret): set {env_name(n)} in the env or .env"
         repeatable = ["set"] + [n for n, d, _ in flags if isinstance(d, list)]
         # `--enable-slim` alone means true; `--enable-slim=false` (or a value after it) too.
-        optional = [n for n in settings_flags if kind_of(n) == "bool"] + list(SECRETS)
+        # A bare --set gets True that way (invoke drops an empty one): parse_set refuses it.
+        optional = [n for n in settings_flags if kind_of(n) == "bool"] + list(SECRETS) + ["set"]
         return SettingsTask(body, name=name, help=help_map, auto_shortflags=False,
                             iterable=repeatable, optional=optional, shortflags=shortflags)
 
@@ -281,7 +291,7 @@ def make_step_task(step: str) -> Task:
     lenient=True,
 )
 def config(c: Context, settings: Settings) -> None:
-    problems = input_problems(settings, settings.target, images=True)
+    problems = input_problems(settings, made_images(settings), images=True)
     missing = [n for n in required_for_build(settings) if not getattr(settings, n)]
     print(config_table(settings, problems, missing))
     print(lock_status(settings))

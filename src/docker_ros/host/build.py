@@ -754,7 +754,9 @@ def ca_bundle(path: Path, destination: Path) -> Path:
     if not path.exists():
         raise BuildError(f"EXTRA_CA_CERTS '{path}' not found: give a PEM file or a folder of them")
     files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-    pems = [p.read_text() for p in files if "BEGIN CERTIFICATE" in p.read_text(errors="ignore")]
+    # (the PEM blocks are ASCII: a comment in another encoding stays out of the way)
+    texts = [p.read_text(errors="ignore") for p in files]
+    pems = [text for text in texts if "BEGIN CERTIFICATE" in text]
     if not pems:
         raise BuildError(f"EXTRA_CA_CERTS '{path}' holds no PEM certificate")
     destination.write_text("\n".join(pems))

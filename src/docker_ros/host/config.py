@@ -23,6 +23,7 @@ from docker_ros.in_image.runtime.packages import (
 )
 from docker_ros.in_image.runtime.repos import repos_problem
 from docker_ros.in_image.runtime.rosdeprules import rules_problem
+from docker_ros.in_image.runtime.workspace import read_user_text
 from docker_ros.in_image.settings import (
     FIELDS,
     Settings,
@@ -37,10 +38,13 @@ from docker_ros.in_image.settings import (
 LOG = logging.getLogger("docker_ros")
 # docker's reference grammar (distribution/reference): [domain[:port]/]component(/component)*
 _LABEL = r"[a-zA-Z0-9](?:[a-zA-Z0-9-]*[a-zA-Z0-9])?"
-_DOMAIN = rf"(?:{_LABEL}(?:\.{_LABEL})*(?::[0-9]+)?/)"
+# (a first component is a domain only with a '.' or a port, or as localhost: docker's rule)
+_DOMAIN = rf"(?:(?:{_LABEL}(?:\.{_LABEL})+|localhost)(?::[0-9]+)?/|{_LABEL}:[0-9]+/)"
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
 IMAGE_NAME = re.compile(rf"^{_DOMAIN}?{_COMPONENT}(?:/{_COMPONENT})*$")
 IMAGE_TAG = re.compile(r"^[\w][\w.-]{0,127}$")
+DIGEST = re.compile(r"^[a-z0-9]+(?:[.+_-][a-z0-9]+)*:[0-9a-fA-F]{32,}$")
+POSTFIXED = " + IMAGE_POSTFIX"  # the end of the source of a tag IMAGE_POSTFIX was appended to
 ENV_NAMES = [env_name(n) for n in FIELDS]
 ASSIGNMENT = re.compile(r"\s*(?:export\s+)?([A-Za-z_][A-Za-z0-9_.]*)\s*=")
 
@@ -58,12 +62,12 @@ def read_settings(
     `command`."""
     project = project_dir or Path.cwd()
     env_file = project / ".env"
-    if env_file.is_file():
-        unreadable = dotenv_problems(env_file.read_text(errors="replace"))
-        if unreadable:
-            raise SettingsError(f"{env_file}: " + "; ".join(unreadable) + ": write NAME=VALUE "
-                                "(quote a value with spaces or #, and close the quotes)")
-    dotenv = dotenv_values(env_file) if env_file.is_file() else {}
+    text = read_user_text(env_file, SettingsError) if env_file.is_file() else ""
+    unreadable = dotenv_problems(text)
+    if unreadable:
+        raise SettingsError(f"{env_file}: " + "; ".join(unreadable) + ": write NAME=VALUE "
+                            "(quote a value with spaces or #, and close the quotes)")
+    dotenv = dotenv_values(stream=io.StringIO(text)) if env_file.is_file() else {}
     environ = os.environ if environ is None else environ
     if environ.get("GITHUB_ACTIONS") == "true" and not environ.get("GITHUB_DEFAULT_BRANCH"):
         # GitHub has no variable for it; the event payload names it (CI tag postfix rules).
@@ -177,11 +181,17 @@ def input_problems(settings: Settings, targets: Sequence[str], *, images: bool) 
 
 
 def image_problems(settings: Settings, targets: Sequence[str]) -> Dict[str, str]:
-    """Image names and tags docker would refuse, named by the setting they come from."""
+    """Image names and tags docker would refuse, named by the setting they come from (a
+    `slim` target: the slim image's); BASE_IMAGE's reference."""
     refs = {"image_name": ("image_name", "image_tag")}
-    if "dev" in targets:
-        refs["dev_image_name"] = ("dev_image_name", "dev_image_tag")
+    for kind in ("dev", "slim"):
+        if kind in targets:
+            refs[f"{kind}_image_name"] = (f"{kind}_image_name", f"{kind}_image_tag")
     problems: Dict[str, str] = {}
+    if settings.base_image and not valid_reference(settings.base_image):
+        problems["base_image"] = (
+            f"BASE_IMAGE ({settings.source_of('base_image')}): {settings.base_image!r} is not a "
+            "valid image reference: give [registry/]name[:tag][@digest], the name in lower case")
     for name_field, tag_field in refs.values():
         for field, pattern in ((name_field, IMAGE_NAME), (tag_field, IMAGE_TAG)):
             value = str(getattr(settings, field))
@@ -191,9 +201,23 @@ def image_problems(settings: Settings, targets: Sequence[str]) -> Dict[str, str]
     return problems
 
 
-def origin_of(settings: Settings, name: str) -> str:
-    """The variable a (maybe derived) value comes from, for messages."""
-    source = settings.source_of(name)
+def valid_reference(ref: str) -> bool:
+    """Whether docker accepts ref as an image reference: name[:tag][@digest]."""
+    rest, at, digest = ref.partition("@")
+    name, colon, tag = rest.rpartition(":")
+    if not colon or "/" in tag:  # "host:5000/img" has no tag
+        name, tag = rest, "latest"
+    return (bool(IMAGE_NAME.match(name)) and bool(IMAGE_TAG.match(tag))
+            and (not at or bool(DIGEST.match(digest))))
+
+
+def origin_of(settings: Settings, name: str, source: str = "") -> str:
+    """The variable a (maybe derived) value comes from, for messages; a tag with
+    IMAGE_POSTFIX appended names it too, with its source."""
+    source = source or settings.source_of(name)
+    if source.endswith(POSTFIXED):
+        return (f"{origin_of(settings, name, source[:-len(POSTFIXED)])} + IMAGE_POSTFIX "
+                f"({settings.source_of('image_postfix')})")
     if "derived from IMAGE " in source or (source.startswith("derived from IMAGE_")
                                            and settings.image):
         return f"{env_name(name)} (from IMAGE)"

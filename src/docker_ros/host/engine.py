@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional
 
 import docker
-from docker.errors import DockerException, ImageNotFound, NotFound
+from docker.errors import APIError, DockerException, ImageNotFound, NotFound
 from docker.utils import parse_repository_tag
 
 
@@ -94,11 +94,14 @@ def client() -> docker.DockerClient:
 
 
 def inspect_image(ref: str) -> Optional[Dict[str, Any]]:
-    """`docker image inspect` of a local image, or None when there is none."""
+    """`docker image inspect` of a local image, or None when there is none; an EngineError
+    when the engine refuses (an invalid reference)."""
     try:
         return dict(client().images.get(ref).attrs)
     except (ImageNotFound, NotFound):
         return None
+    except APIError as exc:
+        raise EngineError(f"docker image inspect {ref}: {exc.explanation or exc}") from None
 
 
 def image_exists(ref: str) -> bool:

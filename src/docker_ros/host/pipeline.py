@@ -13,11 +13,11 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable, Collection, Dict, Iterator, List, Optional, Sequence
+from typing import Any, Callable, Collection, Dict, Iterator, List, Mapping, Optional, Sequence
 
 from docker_ros.host import build, container, devshell, slim
 from docker_ros.host.build import BuiltImage
-from docker_ros.host.config import input_problems
+from docker_ros.host.config import image_problems, input_problems
 from docker_ros.host.lock import lock_status
 from docker_ros.host.login import LoginError, job_login, plan_login
 from docker_ros.host.push import plan_outputs, write_outputs
@@ -106,7 +106,11 @@ def host_workspace(settings: Settings, *, dry_run: bool) -> Iterator[Workspace]:
             link_repository(temporary, repository)
             yield temporary
         return
-    link_repository(ws, repository)
+    try:
+        link_repository(ws, repository)
+    except OSError as exc:
+        raise TaskError(f"WORKSPACE '{settings.workspace}' cannot be created/used: "
+                        f"{exc.strerror or exc}; give a writable folder") from None
     yield ws
 
 
@@ -116,7 +120,11 @@ def host_options(step: str, ws: Workspace) -> Dict[str, str]:
 
 def check_inputs(settings: Settings, targets: Sequence[str] = ()) -> None:
     """Bad paths and image names, all at once, before anything runs."""
-    problems = input_problems(settings, targets, images=bool(targets))
+    stop_on(input_problems(settings, targets, images=bool(targets)))
+
+
+def stop_on(problems: Mapping[str, str]) -> None:
+    """One SettingsError listing every problem (setting name -> message), if there is one."""
     if problems:
         raise SettingsError("invalid configuration:\n  " + "\n  ".join(problems.values()))
 
@@ -228,10 +236,12 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
 
 
 def check_slim_options(settings: Settings) -> None:
-    """SLIM_BUILD_ARGS and ADDITIONAL_SLIM_BUILD_ARGS checked before anything is built."""
-
+    """SLIM_BUILD_ARGS, ADDITIONAL_SLIM_BUILD_ARGS and the slim image's name and tag checked
+    before anything is built."""
+    stop_on({name: problem for name, problem in image_problems(settings, ("slim",)).items()
+             if name.startswith("slim_")})
     try:
-        slim.parse_slim_args(slim.slim_args(settings))
+        slim.slim_options(settings)
     except slim.SlimError as exc:
         raise TaskError(str(exc)) from None
 
@@ -265,18 +275,28 @@ def results_root(settings: Settings, results_dir: str) -> Path:
     return Path(settings.workspace).expanduser() / "test-results"
 
 
+def results_origin(settings: Settings, results_dir: str) -> str:
+    """The flag or variable results_root took the folder from, for messages."""
+    if results_dir:
+        return "--results-dir"
+    if settings.test_results_dir:
+        return f"TEST_RESULTS_DIR ({settings.source_of('test_results_dir')})"
+    return f"TEST_RESULTS_DIR (default: in WORKSPACE, {settings.source_of('workspace')})"
+
+
 def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
     """Build the test stage per platform, export its results; fail when a test failed.
     (The dev stage needs no COMMAND.)"""
 
     require(settings, ["base_image"])
     root = results_root(settings, results_dir)
+    origin = results_origin(settings, results_dir)
     failures = []
     for platform in settings.platform:
         dest = root if len(settings.platform) == 1 else root / platform
         problem = testing.check_results_dir(dest)
         if problem:
-            raise TaskError(f"--results-dir: {problem}")
+            raise TaskError(f"{origin}: {problem}")
         tag = build.platform_ref(build.image_ref(settings, "dev") + "-test", platform,
                                  settings.platform)
         run = {"DOCKER_ROS_TEST_RUN": str(time.time_ns())}
@@ -296,7 +316,11 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
             except (build.BuildError, FileNotFoundError) as exc:
                 raise TaskError(str(exc)) from None
             counts = testing.summarize(Path(tmp) / testing.JUNIT)
-            testing.install_results(Path(tmp), dest)
+            try:
+                testing.install_results(Path(tmp), dest)
+            except OSError as exc:
+                raise TaskError(f"{origin}: cannot copy the results to {dest}: "
+                                f"{exc.strerror or exc}; give a writable folder") from None
         print(f"docker-ros test ({platform}): {testing.format_summary(counts)} "
               f"(JUnit XML and logs in {dest})")
         failed = testing.verdict(outcome, counts)

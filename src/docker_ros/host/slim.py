@@ -107,47 +107,52 @@ class SlimOptions:
     ignored: Tuple[str, ...] = ()
 
 
-def parse_slim_args(text: str) -> SlimOptions:
-    """SLIM_BUILD_ARGS + ADDITIONAL_SLIM_BUILD_ARGS (docker-slim syntax) -> options."""
-    try:
-        tokens = shlex.split(text)
-    except ValueError as exc:
-        raise SlimError(f"SLIM_BUILD_ARGS/ADDITIONAL_SLIM_BUILD_ARGS: {exc}") from None
-    values: Dict[str, List[str]] = {name: [] for name in OPTIONS}
+def parse_slim_args(text: str, additional: str = "") -> SlimOptions:
+    """SLIM_BUILD_ARGS (text) + ADDITIONAL_SLIM_BUILD_ARGS (additional), docker-slim syntax ->
+    options; an error names the variable the bad option is in."""
+    tokens: List[Tuple[str, str]] = []  # (variable, word)
+    for variable, words in (("SLIM_BUILD_ARGS", text), ("ADDITIONAL_SLIM_BUILD_ARGS", additional)):
+        try:
+            tokens += [(variable, word) for word in shlex.split(words)]
+        except ValueError as exc:
+            raise SlimError(f"{variable}: {exc}") from None
+    given: Dict[str, List[Tuple[str, str]]] = {name: [] for name in OPTIONS}
     ignored: List[str] = []
-    unknown: List[str] = []
+    unknown: List[Tuple[str, str]] = []
     index = 0
     while index < len(tokens):
-        token = tokens[index]
+        variable, token = tokens[index]
         index += 1
         name, equals, value = token.partition("=")
         if name in OPTIONS or name in IGNORED_WITH_VALUE:
             if not equals:
                 if index >= len(tokens):
-                    raise SlimError(f"SLIM_BUILD_ARGS: {name} needs a value")
-                value = tokens[index]
+                    raise SlimError(f"{variable}: {name} needs a value")
+                value = tokens[index][1]
                 index += 1
             if name in OPTIONS:
-                values[name].append(value)
+                given[name].append((variable, value))
             elif name not in ignored:
                 ignored.append(name)
         elif name in IGNORED_FLAGS:
             if name not in ignored:
                 ignored.append(name)
         elif name in ("--target", "--tag"):
-            raise SlimError(f"SLIM_BUILD_ARGS: {name} is set by docker-ros (IMAGE_NAME/IMAGE_TAG,"
+            raise SlimError(f"{variable}: {name} is set by docker-ros (IMAGE_NAME/IMAGE_TAG,"
                             " SLIM_IMAGE_NAME/SLIM_IMAGE_TAG); remove it")
         else:
-            unknown.append(token)
+            unknown.append((variable, token))
     if unknown:
         raise SlimError(
-            "SLIM_BUILD_ARGS/ADDITIONAL_SLIM_BUILD_ARGS: unknown option(s) " + ", ".join(unknown)
-            + "; supported: " + ", ".join(OPTIONS) + " (see the README's Slim images section)")
-    continue_after = seconds_option("--continue-after", values["--continue-after"], 10.0)
-    settle = seconds_option("--settle", values["--settle"], SETTLE_SECONDS)
-    for pair in values["--env"]:
+            "/".join(dict.fromkeys(v for v, _ in unknown)) + ": unknown option(s) "
+            + ", ".join(t for _, t in unknown) + "; supported: " + ", ".join(OPTIONS)
+            + " (see the README's Slim images section)")
+    continue_after = seconds_option("--continue-after", given["--continue-after"], 10.0)
+    settle = seconds_option("--settle", given["--settle"], SETTLE_SECONDS)
+    for variable, pair in given["--env"]:
         if "=" not in pair:
-            raise SlimError(f"SLIM_BUILD_ARGS: --env {pair!r}: use NAME=VALUE")
+            raise SlimError(f"{variable}: --env {pair!r}: use NAME=VALUE")
+    values = {name: [value for _, value in pairs] for name, pairs in given.items()}
     return SlimOptions(
         include=tuple(values["--include-path"] + values["--preserve-path"]
                       + values["--include-bin"]),
@@ -162,20 +167,23 @@ def parse_slim_args(text: str) -> SlimOptions:
     )
 
 
-def seconds_option(name: str, given: Sequence[str], default: float) -> float:
-    """The last value of a seconds option (docker-slim: the last one wins)."""
+def seconds_option(name: str, given: Sequence[Tuple[str, str]], default: float) -> float:
+    """The last value of a seconds option (docker-slim: the last one wins); given: (variable,
+    value) pairs."""
     seconds = default
-    for raw in given:
+    for variable, raw in given:
         try:
             seconds = float(raw)
         except ValueError:
-            raise SlimError(f"SLIM_BUILD_ARGS: {name}={raw!r}: give a number of seconds"
-                            " (docker-slim's enter/signal/probe modes do not apply)") from None
+            seconds = -1.0
+        if not seconds >= 0:  # (negative, or not a number at all: NaN too)
+            raise SlimError(f"{variable}: {name}={raw!r}: give a number of seconds, 0 or more"
+                            " (docker-slim's enter/signal/probe modes do not apply)")
     return seconds
 
 
-def slim_args(settings: Settings) -> str:
-    return f"{settings.slim_build_args} {settings.additional_slim_build_args}".strip()
+def slim_options(settings: Settings) -> SlimOptions:
+    return parse_slim_args(settings.slim_build_args, settings.additional_slim_build_args)
 
 
 # ------------------------------------------------------------------------------ pure plans
@@ -582,7 +590,7 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
     began = time.monotonic()
     run_ref = platform_ref(image_ref(settings, "run"), platform, settings.platform)
     slim_ref = platform_ref(image_ref(settings, "slim"), platform, settings.platform)
-    options = parse_slim_args(slim_args(settings))
+    options = slim_options(settings)
     if options.ignored:
         print("docker-ros slim: ignoring options that do not apply here: "
               + ", ".join(options.ignored), flush=True)

@@ -6,6 +6,7 @@ import dataclasses
 import difflib
 import os
 import re
+import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple, Union
@@ -58,13 +59,15 @@ def setting(
     recursive: str = "",
     build: str = "arg",
     flags: Tuple[str, ...] = (),
+    words: bool = False,
 ) -> Any:
     """Declare one configuration variable: its env name is the field name upper-cased.
     `path` ("file" or "dir"): a path relative to the repository, which must stay inside it;
     `recursive`: the setting that switches on recursive discovery of files of that name;
     `build`: how it reaches an image build: "arg" (a Dockerfile ARG of its name), "tool" (the
     tool turns it into tags, build arguments, secret mounts...), "none" (not a build input);
-    `flags`: the groups of tasks that take it as a flag (FLAG_GROUPS), besides --set."""
+    `flags`: the groups of tasks that take it as a flag (FLAG_GROUPS), besides --set;
+    `words`: split into words as a shell would (quotes keep spaces), checked when loaded."""
     assert build in BUILD_USES and set(flags) <= set(FLAG_GROUPS), (build, flags)
     meta = {
         "help": help,
@@ -76,6 +79,7 @@ def setting(
         "recursive": recursive,
         "build": build,
         "flags": flags,
+        "words": words,
     }
     return field(default=default, metadata=meta, repr=not secret)  # (a traceback, a diff)
 
@@ -133,7 +137,8 @@ class Settings:
         None, "Launch command of run image", default_doc="*required if `run` is a target*"
     )
     cmake_args: str = setting(
-        "-DCMAKE_BUILD_TYPE=Release", "CMake arguments to pass to `colcon build`", flags=("image",)
+        "-DCMAKE_BUILD_TYPE=Release", "CMake arguments to pass to `colcon build`", flags=("image",),
+        words=True,
     )
     dev_image_name: Optional[str] = setting(
         None, "Image name of dev image", default_doc="`<IMAGE_NAME>`", build="tool"
@@ -262,11 +267,11 @@ class Settings:
     slim_build_args: str = setting(
         SLIM_BUILD_ARGS_DEFAULT,
         "Arguments to the slimming step (except target and tag; docker-slim syntax, options"
-        " in Slim images)", build="none",
+        " in Slim images)", build="none", words=True,
     )
     additional_slim_build_args: str = setting(
         "", "Arguments appended to SLIM_BUILD_ARGS (e.g. `--exec 'rosnode list' --expect TEXT`)",
-        build="none"
+        build="none", words=True,
     )
     slim_image_name: Optional[str] = setting(
         None, "Image name of slim run image", default_doc="`<IMAGE_NAME>`", build="none"
@@ -357,7 +362,7 @@ class Settings:
         None,
         "Network of the build's RUN steps (`host` reaches services on this machine's loopback,"
         " e.g. a local git server)",
-        group="ours", build="tool", flags=("image",),
+        choices=("host", "none", "default"), group="ours", build="tool", flags=("image",),
     )
     ros_apt_source_version: str = setting(
         "1.1.0", "Pinned version of the ros-apt-source package used to install ROS", group="ours"
@@ -456,6 +461,11 @@ def parse_bool(name: str, raw: str) -> bool:
 def parse_list(name: str, raw: str) -> Tuple[str, ...]:
     items = tuple(item.strip() for item in raw.split(",") if item.strip())
     choices = FIELDS[name].metadata["choices"]
+    if not items and FIELDS[name].default:  # (TARGET: nothing to build; unset, it is `run`)
+        raise SettingsError(
+            f"{env_name(name)}={raw!r} is empty: give one or more of {', '.join(choices)} "
+            "(comma-separated), or leave it unset"
+        )
     bad = [item for item in items if choices and item not in choices]
     if bad:
         raise SettingsError(
@@ -478,10 +488,16 @@ def parse_value(name: str, raw: object) -> Value:
         return parse_list(name, str(raw))
     text = str(raw)
     choices = FIELDS[name].metadata["choices"]
-    if choices and text not in choices:
+    if choices and text and text not in choices:  # (empty: unset)
         raise SettingsError(
             f"{env_name(name)}={text!r} not allowed; allowed values: {', '.join(choices)}"
         )
+    if FIELDS[name].metadata["words"]:
+        try:
+            shlex.split(text)
+        except ValueError as exc:
+            raise SettingsError(f"{env_name(name)}={text!r}: {exc}: close or escape the quote"
+                                ) from None
     return text
 
 
@@ -494,13 +510,17 @@ def _did_you_mean(key: str, *, upper: bool = True) -> str:
     return f" (did you mean {env_name(close[0]) if upper else close[0]}?)"
 
 
-def parse_set(items: Iterable[str]) -> Dict[str, str]:
+def parse_set(items: Iterable[object]) -> Dict[str, str]:
     """`--set NAME=VALUE` (repeatable) -> {field name: raw value}; NAME as in .env
     (ENABLE_SLIM) or as the flag (enable-slim). Secrets are refused: a command line is
-    visible to every process on the machine."""
+    visible to every process on the machine. A bare `--set` reaches us as True (the flag
+    takes an optional value, so that it is not dropped silently)."""
     out: Dict[str, str] = {}
     errors: List[str] = []
     for item in items:
+        if not isinstance(item, str):
+            errors.append("--set without a value: use --set NAME=VALUE")
+            continue
         key, sep, value = item.partition("=")
         name = key.strip().lower().replace("-", "_")
         if not sep or not name:
@@ -546,7 +566,7 @@ def load_settings(
             errors.append(f"invoke.yaml: docker_ros.{key}: a secret is never kept in a "
                           "committed file; set it in the environment or .env")
             problems[f"invoke.yaml:{key}"] = (MASKED, errors[-1])
-        else:
+        elif value is not None and value != "":  # (`key:` alone, like an empty variable: unset)
             yaml_values[name] = value
     layers.append(("invoke.yaml", yaml_values))
     env_layers: Tuple[Tuple[str, Mapping[str, Optional[str]]], ...] = (

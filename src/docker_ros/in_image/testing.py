@@ -162,6 +162,11 @@ def check_results_dir(path: Path) -> Optional[str]:
         return f"{path} is a file; give a folder"
     if path.is_dir() and any(path.iterdir()) and not (path / MARKER).is_file():
         return f"{path} is not empty and was not made by docker-ros test; give another folder"
+    existing = next(p for p in (path, *path.parents) if p.exists())
+    if not existing.is_dir():
+        return f"{path} cannot be made: {existing} is not a folder; give a writable folder"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return f"{path} cannot be written ({existing} is read-only); give a writable folder"
     return None
 
 

@@ -2,6 +2,7 @@
 Standard library only, Python 3.8+ (runs inside images)."""
 
 import fnmatch
+import functools
 import hashlib
 import os
 import re
@@ -9,7 +10,14 @@ import shutil
 from pathlib import Path
 from typing import Callable, Iterator, List, Optional, Sequence, Tuple
 
-from docker_ros.in_image.runtime.workspace import LOG, SKIP_DIRS, StepError, Workspace, dry
+from docker_ros.in_image.runtime.workspace import (
+    LOG,
+    SKIP_DIRS,
+    StepError,
+    Workspace,
+    dry,
+    read_user_text,
+)
 from docker_ros.in_image.settings import Settings
 
 
@@ -97,10 +105,10 @@ def find_special_files(
     return found
 
 
-def read_list_file(path: Path) -> List[str]:
+def read_list_file(path: Path, step: str) -> List[str]:
     """Lines of a list file without comments (# ...), blank lines and surrounding spaces."""
     items = []
-    for line in path.read_text().splitlines():
+    for line in read_user_text(path, functools.partial(StepError, step)).splitlines():
         # As pip: a comment starts at a '#' at line start or after white space (not in URLs).
         line = re.sub(r"(^|\s)#.*$", "", line).strip()
         if line:
@@ -117,7 +125,7 @@ def collect_list_entries(
         LOG.info("%s: no %s found, nothing to do", step, getattr(settings, name))
     entries: List[str] = []
     for path in files:
-        items = read_list_file(path)
+        items = read_list_file(path, step)
         LOG.info("%s: %d entries in %s", step, len(items), path)
         entries.extend(items)
     return entries, files

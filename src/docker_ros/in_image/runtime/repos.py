@@ -4,6 +4,8 @@ format, `repositories: {name: {type, url, version}}`, and the rosinstall format,
 step runs (the image's prepare step installs it before); it is imported when a file is read,
 so that importing this module needs the standard library only (Python 3.8+, runs in images)."""
 
+import functools
+import io
 import json
 import re
 import shutil
@@ -13,7 +15,7 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple
 
 from docker_ros.in_image.runtime.process import tool_path
 from docker_ros.in_image.runtime.rosdeprules import yaml_problem
-from docker_ros.in_image.runtime.workspace import StepError
+from docker_ros.in_image.runtime.workspace import StepError, read_user_text
 
 Repos = Dict[str, Dict[str, str]]
 KEYS = ("type", "url", "version")
@@ -56,7 +58,7 @@ def read_repos(path: Path, *, step: str, shown: str = "") -> Repos:
     """The repositories `vcs import --input path` would import: name -> {type, url, version}.
     A file vcstool cannot read is a StepError naming the file (as `shown`) and vcstool's
     reason."""
-    text = Path(path).read_text()
+    text = read_user_text(path, functools.partial(StepError, step), shown)
     if is_empty(text):
         return {}
     problems: List[str] = []
@@ -68,8 +70,7 @@ def read_repos(path: Path, *, step: str, shown: str = "") -> Repos:
         import yaml  # vcstool's own dependency
 
         try:
-            with open(str(path)) as handle:
-                repos = normalise(get_repositories(handle))
+            repos = normalise(get_repositories(io.StringIO(text)))
         except RuntimeError as exc:
             raise StepError(step, unreadable(shown or str(path), str(exc))) from None
         problems = entry_problems(yaml.safe_load(text))

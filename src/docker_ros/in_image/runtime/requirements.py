@@ -5,13 +5,14 @@ pip to fetch), and so is a `--find-links` folder that exists there. Environment 
 (`${NAME}`) are left for pip to expand when it installs, so that no secret lands in the saved
 plan. Standard library only, Python 3.8+ (runs in images)."""
 
+import functools
 import os
 import re
 import shlex
 from pathlib import Path
 from typing import List, NamedTuple, Optional, Sequence, Tuple
 
-from docker_ros.in_image.runtime.workspace import StepError
+from docker_ros.in_image.runtime.workspace import StepError, read_user_text
 
 COMMENT = re.compile(r"(^|\s+)#.*$")
 SCHEME = re.compile(r"^\w+(\+\w+)?://")
@@ -107,7 +108,7 @@ def read_requirement_file(path: Path, *, step: str, missing_ok: bool = False) ->
 def _read(path: Path, constraint: bool, result: RequirementFile, *, step: str,
           missing_ok: bool, chain: Sequence[str]) -> None:
     result.files.append(path)
-    for number, line in logical_lines(path.read_text()):
+    for number, line in logical_lines(read_user_text(path, functools.partial(StepError, step))):
         nested = nested_file(line)
         if nested is None:
             line = find_links_line(line, os.path.dirname(str(path)))

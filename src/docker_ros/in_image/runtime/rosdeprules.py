@@ -10,6 +10,8 @@ import pickle
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
+from docker_ros.in_image.runtime.workspace import read_user_text
+
 Rules = Dict[str, Any]
 CACHE = Path("rosdep") / "sources.cache"  # below ROS_HOME
 
@@ -34,7 +36,9 @@ def yaml_problem(path: Path, shown: str) -> Tuple[Any, Optional[str]]:
     if yaml is None:
         return None, None
     try:
-        return yaml.safe_load(path.read_text()), None
+        return yaml.safe_load(read_user_text(path, ValueError, shown)), None
+    except ValueError as exc:  # (not UTF-8)
+        return None, str(exc)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{shown}:{mark.line + 1}:{mark.column + 1}" if mark else shown

@@ -42,6 +42,18 @@ class StepError(Exception):
         self.returncode = returncode
 
 
+def read_user_text(path: "os.PathLike[str] | str", error: Callable[[str], Exception],
+                   shown: str = "") -> str:
+    """A file of the user's as UTF-8 text; one that is not (Latin-1, the UTF-16 of Windows
+    PowerShell) raises error("<shown> is not UTF-8 text (<reason>): save it as UTF-8"), the
+    caller's usual error (e.g. functools.partial(StepError, step))."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(f"{shown or path} is not UTF-8 text ({exc.reason} at byte {exc.start}): "
+                    "save it as UTF-8") from None
+
+
 class Workspace:
     """A colcon workspace: <root>/src/target is the repository, <root>/src/upstream the imports."""
 
