@@ -66,7 +66,9 @@ def test_ci_and_push_keep_docker_ros_default(project: Path) -> None:
     assert sorted(names) == [image, f"{image}-slim"], pushed.stdout
     ci = cli(project, "ci", "--dry-run")
     assert ci.returncode == 0, ci.stderr
-    assert "docker-ros ci: docker-ros slim" in ci.stdout
+    assert "docker-ros ci: docker-ros slim --dry-run" in ci.stdout
+    # each task's own dry run: the job's image names as push would push them
+    assert re.findall(r"\[dry-run\] push: docker push (\S+)", ci.stdout) == names, ci.stdout
     assert not slims(cli(project, "push", "--dry-run", env={"ENABLE_SLIM": "false"}))
 
 

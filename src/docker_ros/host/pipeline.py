@@ -403,14 +403,14 @@ def require_tasks(plan: Sequence[Sequence[str]], task_names: Collection[str]) ->
 
 def run_ci_plan(settings: Settings, plan: Sequence[Sequence[str]], *, dry_run: bool) -> None:
     """A CI job's tasks, each a `docker-ros` process, in order; the first failure stops it. The
-    tasks re-read .env, invoke.yaml and the environment; flags given to `ci` go along."""
+    tasks re-read .env, invoke.yaml and the environment; flags given to `ci` go along (a dry
+    run: each task's dry run, which prints its commands and image names)."""
     given = [arg for n in FIELDS if settings.source_of(n) == "flag"
              for arg in ("--set", f"{env_name(n)}={display_value(settings, n)}")]
+    given += ["--dry-run"] if dry_run else []
     for argv in plan:
         command = [sys.executable, "-m", "docker_ros", *argv, *given]
         print(f"docker-ros ci: docker-ros {format_argv([*argv, *given])}", flush=True)
-        if dry_run:
-            continue
         code = subprocess.call(command)
         if code != 0:
             raise TaskError(f"`docker-ros {argv[0]}` failed with exit code {code}; "
