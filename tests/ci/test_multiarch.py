@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import re
 import shutil
 import subprocess
 import textwrap
@@ -149,6 +150,29 @@ def pulled_architecture(ref: str, platform: str) -> str:
                    check=True, capture_output=True)
     return subprocess.run(["docker", "image", "inspect", "-f", "{{.Architecture}}", ref],
                           check=True, capture_output=True, text=True).stdout.strip()
+
+
+def test_the_dry_run_shows_and_checks_each_platforms_base(repository: Path,
+                                                         ros1_base_image: str) -> None:
+    """The dry run's definitions name the base image the build FROMs for each platform
+    (`<BASE_IMAGE>-arm64` for arm64), and stop as the build would when a local BASE_IMAGE from
+    no registry has no image for a platform."""
+    shown = docker_ros(repository, "build", "--dry-run", env={"PLATFORM": "amd64,arm64"})
+    assert shown.returncode == 0, shown.stdout
+    assert re.findall(r'"BASE_IMAGE": "([^"]+)"', shown.stdout) == [
+        ros1_base_image, ros1_base_image, f"{ros1_base_image}-arm64",
+        f"{ros1_base_image}-arm64"], shown.stdout
+    alone = f"docker-ros-test/amd64-only:{uuid.uuid4().hex[:12]}"
+    subprocess.run(["docker", "tag", ros1_base_image, alone], check=True)
+    try:
+        refused = docker_ros(repository, "build", "--dry-run",
+                             env={"PLATFORM": "arm64", "BASE_IMAGE": alone})
+    finally:
+        remove_image(alone)
+    assert refused.returncode == 1
+    assert refused.stdout.strip().splitlines()[-1].startswith(
+        f"docker-ros build: BASE_IMAGE {alone} is a local amd64 image from no registry, and no "
+        f"arm64 image is tagged {alone}-arm64"), refused.stdout
 
 
 def test_two_platforms_push_both_images_and_one_manifest_list_per_image(

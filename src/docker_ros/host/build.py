@@ -180,6 +180,17 @@ def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:
     return choose_base(base, platform, local)
 
 
+def shown_base(settings: Settings, platform: str) -> str:
+    """platform_base as a dry run shows it: from what this engine holds, pulling nothing (a
+    BASE_IMAGE that is not local, or no engine, shows BASE_IMAGE)."""
+    base = settings.base_image or ""
+    try:
+        local = {name: local_base(name) for name in (base, arch_ref(base, platform))}
+    except engine.EngineError:
+        return base
+    return choose_base(base, platform, local)[0]
+
+
 def seed_builds(settings: Settings, specs: Dict[str, Dict[str, Any]], platform: str,
                 dockerfile: Path, base: str, registry_cache: bool, out: IO[str]) -> str:
     """Seed the builds of specs from BUILD_STATE_FROM (see buildstate): the run image's by the
@@ -407,7 +418,8 @@ def shown_definition(settings: Settings, *, target: str, platform: str, tag: str
     return definition(settings, target=target, platform=platform,
                       tools_image=f"{TOOLS_REPOSITORY}:<hash>", tag=tag,
                       secrets=plan_secrets(settings, None), output=output,
-                      extra_build_args=extra_build_args)
+                      extra_build_args=extra_build_args,
+                      base_image=shown_base(settings, platform))
 
 
 def plan_shown(settings: Settings, **options: Any) -> List[str]:

@@ -197,12 +197,11 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             build.check_engine(settings)
         except build.BuildError as exc:
             raise TaskError(str(exc)) from None
-    if not dry_run:
-        try:  # every platform's base before the first build (build_images says which)
-            for platform in settings.platform:
-                build.platform_base(settings, platform)
-        except build.BuildError as exc:
-            raise TaskError(str(exc)) from None
+    try:  # every platform's base before the first build (build_images says which)
+        for platform in settings.platform:
+            (build.shown_base if dry_run else build.platform_base)(settings, platform)
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
     built: List[BuiltImage] = []
     for platform in settings.platform:
         # BUILD_STATE_FROM: the run image's build state too, for the next job's `push`
