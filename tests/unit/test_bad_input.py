@@ -193,6 +193,15 @@ def test_a_bare_set_is_refused() -> None:
         parse_set([True])
 
 
+def test_a_setting_only_the_ci_integrations_read_is_refused_as_set() -> None:
+    """ENABLE_CHECKOUT and the like are inputs of the Action (docker-ros's too): a `--set` of
+    one would change nothing."""
+    with pytest.raises(SettingsError, match="--set ENABLE_CHECKOUT: read by the CI integrations "
+                                            "only"):
+        parse_set(["ENABLE_CHECKOUT=false"])
+    assert parse_set(["ENABLE_SLIM=false"]) == {"enable_slim": "false"}
+
+
 def test_base_image_reference_is_checked_naming_its_source(tmp_path: Path) -> None:
     for bad in ("UPPER/img:tag", "Bad Base::x", "ubuntu@sha256:abc", "ros:bad tag"):
         problems = image_problems(settings_for(tmp_path, BASE_IMAGE=bad), ("dev",))

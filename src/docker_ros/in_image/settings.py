@@ -150,21 +150,23 @@ class Settings:
         False, "Disable automatic installation of `ros-$ROS_DISTRO-ros-core` package"
     )
     docker_ros_git_ref: str = setting(
-        "main", "Git ref of docker-ros to run in CI", group="ci",
-        build="none"
+        "main", "Git ref of docker-ros to run in CI (GitLab template variable, Action input)",
+        default_doc="GitLab template: `main`; GitHub Action: the action's own ref",
+        group="ci", build="none"
     )
     enable_checkout: bool = setting(
-        True, "Enable checkout action to (re-)download the repository first", group="ci",
-        build="none"
+        True, "Enable checkout action to (re-)download the repository first (Action input only)",
+        group="ci", build="none"
     )
     enable_checkout_submodules: str = setting(
         "recursive",
-        "Enable submodules for the checkout action",
+        "Enable submodules for the checkout action; Action input only",
         choices=("false", "true", "recursive"),
         group="ci", build="none",
     )
     enable_checkout_lfs: bool = setting(
-        True, "Enable Git LFS support for the checkout action", group="ci", build="none"
+        True, "Enable Git LFS support for the checkout action (Action input only)", group="ci",
+        build="none"
     )
     enable_industrial_ci: bool = setting(
         False, "Enable tests (`colcon test` in the dev image; replaces industrial_ci)", build="none"
@@ -530,6 +532,9 @@ def parse_set(items: Iterable[object]) -> Dict[str, str]:
         elif is_secret(name):
             errors.append(f"--set {env_name(name)}: a secret is never given on a command line; "
                           "set it in the environment or .env")
+        elif FIELDS[name].metadata["group"] == "ci":
+            errors.append(f"--set {env_name(name)}: read by the CI integrations only (an input "
+                          "of the Action, a variable of the GitLab template); no task reads it")
         else:
             out[name] = value
     if errors:
@@ -897,6 +902,8 @@ def markdown_table(flag_tasks: Optional[Mapping[str, Iterable[str]]] = None) -> 
     for name, f in FIELDS.items():
         if is_secret(name):
             flag = "none: environment or `.env` only"
+        elif f.metadata["group"] == "ci":
+            flag = "none: read by the CI integrations only"
         elif flag_tasks.get(name):
             tasks = list(flag_tasks[name])
             flag = f"`{flag_name(name)}`" + (
@@ -909,8 +916,6 @@ def markdown_table(flag_tasks: Optional[Mapping[str, Iterable[str]]] = None) -> 
             extras.append("values: " + ", ".join(f"`{c}`" for c in f.metadata["choices"]))
         if f.metadata["secret"]:
             extras.append("secret (masked, never passed as build argument)")
-        if f.metadata["group"] == "ci":
-            extras.append("CI integrations only")
         if extras:
             help_text += " (" + "; ".join(extras) + ")"
         cells = [f"`{env_name(name)}`", flag, default_doc(name), help_text]
