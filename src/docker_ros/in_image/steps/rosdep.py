@@ -286,6 +286,11 @@ def prepare_rosdep(distro: Optional[str], *, dry_run: bool) -> bool:
     return True
 
 
+# A dry run where rosdep was never set up: the database its `rosdep init` and `rosdep update`
+# would make does not exist, so nothing is resolved.
+UNRESOLVED: Dict[str, str] = {"DOCKER_ROS_ROSDEP": "not set up"}
+
+
 @contextlib.contextmanager
 def rosdep_database(
     ws: Workspace, rules: Optional[Path], distro: Optional[str], *, dry_run: bool
@@ -293,7 +298,8 @@ def rosdep_database(
     """The environment rosdep resolves in. With the repository's own rules: a database of our
     own, in the host workspace (kept, updated when its inputs change) or, in images and dry
     runs, in a temporary folder (nothing of it in a layer). Without: rosdep's usual database,
-    made with `rosdep init`/`rosdep update` when missing (a dry run uses a temporary one)."""
+    made with `rosdep init`/`rosdep update` when missing (a dry run shows those and yields
+    UNRESOLVED, or uses a temporary one when rosdep has sources lists)."""
     temporary = dry_run or hook_context() == "image"
     # In an image with sources lists (the base's, or a hook's) but no database made from them:
     # a temporary one, which still resolves rules files' keys when the rosdistro index is out
@@ -306,6 +312,10 @@ def rosdep_database(
         return
     if not temporary:
         yield private_database(ws.state / "rosdep", rules, distro)
+        return
+    if dry_run and not own and not rosdep_ready()[0]:
+        prepare_rosdep(distro, dry_run=True)  # what a real run does first: init, update
+        yield UNRESOLVED
         return
     with tempfile.TemporaryDirectory(prefix="docker-ros-rosdep-") as tmp:
         if dry_run:
@@ -363,14 +373,19 @@ def collect(
     # No keys, no rosdep: a workspace without dependencies needs no rosdep database.
     resolved: Resolution = {}
     failed: Dict[str, str] = {}
+    shown_keys = sorted(all_keys)
     if all_keys:
         with rosdep_database(ws, rules, distro, dry_run=dry_run) as env:
-            if rules and env:
-                report_overrides(rules, settings.rosdep_rules_file, env)
-            resolved, failed = resolve(sorted(all_keys), distro, env=env)
+            if env is UNRESOLVED:
+                dry(STEP, f"resolve {len(all_keys)} keys in the database those commands make")
+                shown_keys = []
+            else:
+                if rules and env:
+                    report_overrides(rules, settings.rosdep_rules_file, env)
+                resolved, failed = resolve(sorted(all_keys), distro, env=env)
     if failed:
         raise StepError(STEP, format_failures(failed, all_keys))
-    for key in sorted(all_keys):
+    for key in shown_keys:
         shown = "; ".join(f"{i}: {' '.join(p)}" for i, p in sorted(resolved.get(key, {}).items()))
         LOG.info("%s: %s -> %s", STEP, key, shown or "(nothing to install)")
     plan = plan_rosdep(selected, resolved)
