@@ -203,14 +203,23 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
         cmake_package(tmp_path, "needs_missing", depends=("no_such_rosdep_key",))
     else:
         cmake_package(tmp_path, "broken_pkg", body="int main() { this is not C++; }\n")
-    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND="true", IMAGE=tag)
+    # colcon: the dev image (its stage ends before colcon) is built in the same BuildKit run
+    targets = "dev,run" if case == "colcon" else "run"
+    remove_image(f"{tag}-dev")
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND="true", IMAGE=tag, TARGET=targets)
     result = docker_ros(tmp_path, "build")
     assert result.returncode != 0
     last = result.stdout.strip().splitlines()[-1]
-    assert f"failed in step {step}" in last, result.stdout[-3000:]
+    # the dev image, when BuildKit finished it before the run image failed, is said to be built
+    dev_built = image_exists(f"{tag}-dev")
+    failed = "targets 'dev', 'run'" if case == "colcon" and not dev_built else "target 'run'"
+    assert f"building {failed} (amd64) failed in step {step}" in last, result.stdout[-3000:]
     for needle in needles:
         assert needle in last, last
     assert not image_exists(tag)
+    assert last.endswith(f"; 'dev' was built: {tag}-dev") == dev_built, last
+    remove_image(f"{tag}-dev")
+    print(f"dev image built before the failure: {dev_built}")
 
 
 def test_no_docker_daemon_is_one_clear_message(tmp_path: Path) -> None:

@@ -351,3 +351,13 @@ def test_a_new_imports_image_replaces_the_repository_s_others_of_its_platform():
     assert build.imports_owner(Path("a")) == build.imports_owner(Path("a").resolve())
     assert build.imports_owner(Path("a")) != build.imports_owner(Path("b"))
 
+
+
+def test_tagged_in_log_reads_buildkits_names() -> None:
+    lines = ["#41 naming to docker.io/library/robot:1-dev done",
+             "#42 naming to 127.0.0.1:5000/team/robot:1 done",
+             "#43 naming to docker.io/team/arm:1 0.0s"]
+    assert build.tagged_in_log(lines, "robot:1-dev")
+    assert build.tagged_in_log(lines, "127.0.0.1:5000/team/robot:1")
+    assert not build.tagged_in_log(lines, "robot:1")  # not `robot:1-dev`
+    assert not build.tagged_in_log(lines, "team/arm:1")  # started, not done

@@ -543,6 +543,16 @@ def cancelled(lines: Sequence[str]) -> bool:
     return bool(own) and "context canceled" in own[-1]
 
 
+def tagged_in_log(lines: Sequence[str], ref: str) -> bool:
+    """Whether BuildKit's log says it named an image ref (`naming to docker.io/library/x:1
+    done`: a name without registry as BuildKit writes it), e.g. the target of a bake run that
+    finished before another failed."""
+    first, slash, _ = ref.partition("/")
+    qualified = slash and ("." in first or ":" in first or first == "localhost")
+    full = ref if qualified else f"docker.io/{ref if slash else 'library/' + ref}"
+    return any(f"naming to {name} done" in line for line in lines for name in (full, ref))
+
+
 def failure_reason(lines: Sequence[str], errors: Sequence[str]) -> str:
     """How a failed buildx run ended, for the one-line message."""
     lost = engine_lost(lines)
@@ -867,8 +877,8 @@ def build_images(
             runs = [((t,), build_argv(specs[t], buildx))
                     for t in build_order(list(specs), export == "registry")]
         for names, argv in runs:
-            seconds = run_buildx(argv, names, platform, env=child_env, out=out, environ=environ,
-                                 header=", ".join(f"{t} -> {targets[t]}" for t in names))
+            seconds = run_buildx(argv, {t: targets[t] for t in names}, platform, env=child_env,
+                                 out=out, environ=environ)
             built += [BuiltImage(t, targets[t], platform, seconds) for t in names]
     return built
 
@@ -880,11 +890,12 @@ def build_image(settings: Settings, *, target: str, platform: str, tag: str,
                         **options)[0]
 
 
-def run_buildx(argv: Sequence[str], targets: Sequence[str], platform: str, *,
-               env: Mapping[str, str], out: IO[str], environ: Mapping[str, str],
-               header: str) -> float:
-    """Run one buildx command, its log folded into out; its seconds, or a BuildError."""
+def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *,
+               env: Mapping[str, str], out: IO[str], environ: Mapping[str, str]) -> float:
+    """Run one buildx command (targets: target -> tag), its log folded into out; its seconds,
+    or a BuildError."""
     # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
+    header = ", ".join(f"{t} -> {tag}" for t, tag in targets.items())
     out.write(f"==> docker-ros build ({platform}) {header}\n")
     began = time.monotonic()
     proc = subprocess.Popen(list(argv), env=dict(env), stdout=subprocess.PIPE,
@@ -904,9 +915,13 @@ def run_buildx(argv: Sequence[str], targets: Sequence[str], platform: str, *,
         raise KeyboardInterrupt  # as if we had seen the Ctrl-C that stopped buildx
     if code != 0:
         stage, step = failed_step(lines)
-        what = "target" if len(targets) == 1 else "targets"
-        raise BuildError(f"building {what} {', '.join(repr(t) for t in targets)} ({platform}) "
-                         f"{failure_reason(lines, errors)}", code, stage=stage, step=step)
+        done = [t for t, tag in targets.items() if tagged_in_log(lines, tag)]
+        failed = [t for t in targets if t not in done]
+        what = "target" if len(failed) == 1 else "targets"
+        raise BuildError(f"building {what} {', '.join(repr(t) for t in failed)} ({platform}) "
+                         f"{failure_reason(lines, errors)}"
+                         + "".join(f"; {t!r} was built: {targets[t]}" for t in done),
+                         code, stage=stage, step=step)
     return time.monotonic() - began
 
 
