@@ -188,6 +188,7 @@ def test_base_image_that_does_not_exist(tmp_path: Path) -> None:
         ("custom", "custom", ["docker/custom.sh", "exit code 3"]),
         ("rosdep", "rosdep", ["no_such_rosdep_key", "needs_missing"]),
         ("colcon", "colcon", ["broken_pkg"]),
+        ("debs", "debs", ["apt has no package no-such-deb-xyz (check the name"]),
     ],
 )
 def test_failing_step_names_step_and_cause_and_tags_nothing(
@@ -201,6 +202,10 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
         (tmp_path / "docker" / "custom.sh").write_text("echo failing on purpose\nexit 3\n")
     elif case == "rosdep":
         cmake_package(tmp_path, "needs_missing", depends=("no_such_rosdep_key",))
+    elif case == "debs":
+        cmake_package(tmp_path, "pkg")
+        (tmp_path / "docker").mkdir()
+        (tmp_path / "docker" / "additional-debs.txt").write_text("no-such-deb-xyz\njq\n")
     else:
         cmake_package(tmp_path, "broken_pkg", body="int main() { this is not C++; }\n")
     # colcon: the dev image (its stage ends before colcon) is built in the same BuildKit run

@@ -164,3 +164,15 @@ def test_every_in_image_entry_point_parses_its_arguments_with_one_parser(module,
     wrong = subprocess.run([sys.executable, "-I", "-S", "-c", code, "--no-such-option"],
                            capture_output=True, text=True, cwd=tmp_path)
     assert wrong.returncode == 2 and f"usage: python3 -m {module}" in wrong.stderr
+
+
+def test_apt_reason_names_the_packages_apt_does_not_know() -> None:
+    from docker_ros.in_image.runtime.apt import apt_reason
+    assert apt_reason(["Reading package lists...", "E: Unable to locate package no-such",
+                       "E: Package 'gone' has no installation candidate",
+                       "E: Version '9' for 'jq' was not found"]) == (
+        "; apt has no package no-such, gone, jq=9 (check the name, and the apt sources of the "
+        "base image)")
+    assert apt_reason(["E: Could not get lock /var/lib/dpkg/lock"]) == (
+        "; apt: Could not get lock /var/lib/dpkg/lock")
+    assert apt_reason(["done"]) == ""

@@ -3,12 +3,16 @@ Standard library only, Python 3.8+ (runs inside images)."""
 
 import glob
 import os
+import re
 from pathlib import Path
 from typing import Dict, List, Sequence
 
-from docker_ros.in_image.runtime.process import hook_context, is_root, run
-from docker_ros.in_image.runtime.workspace import LOG, StepError
+from docker_ros.in_image.runtime.process import hook_context, is_root, run, run_tee
+from docker_ros.in_image.runtime.workspace import LOG, StepError, format_argv
 
+# apt's words for a package it does not know (the name in one of the groups)
+MISSING = re.compile(r"^E: (?:Unable to locate package (\S+)|Package '([^']+)' has no "
+                     r"installation candidate|Version '([^']+)' for '([^']+)' was not found)")
 # dpkg's record of what is installed
 DPKG_STATUS = Path("/var/lib/dpkg/status")
 
@@ -56,12 +60,25 @@ def apt_install(packages: Sequence[str], *, step: str, dry_run: bool, what: str 
         return
     if not apt_lists_present():
         run(update, step=step, env=apt_env())
-    try:
-        run(install, step=step, env=apt_env(), what=what)
-    except StepError as exc:
-        if exc.returncode == 127:
-            raise
+    code, lines = run_tee(install, step=step, env=apt_env())
+    if code != 0:
         # Stale lists (host, or an apt cache mount) make apt miss packages: update once, retry.
         LOG.info("%s: apt-get install failed, updating package lists and retrying", step)
         run(update, step=step, env=apt_env())
-        run(install, step=step, env=apt_env(), what=what)
+        code, lines = run_tee(install, step=step, env=apt_env())
+    if code != 0:
+        raise StepError(step, f"{what + ' ' if what else ''}failed with exit code {code}: "
+                        f"{format_argv(install)}{apt_reason(lines)}", code)
+
+
+def apt_reason(lines: Sequence[str]) -> str:
+    """apt's own reason, for the one-line error: the packages it cannot find, else its last
+    `E:` line ('' when it gave none)."""
+    found = [m.groups() for m in map(MISSING.search, lines) if m]
+    missing = [name or candidate or f"{package}={version}"
+               for name, candidate, version, package in found]
+    if missing:
+        return (f"; apt has no package {', '.join(dict.fromkeys(missing))} (check the name, "
+                "and the apt sources of the base image)")
+    errors = [line[3:].strip() for line in lines if line.startswith("E: ")]
+    return f"; apt: {errors[-1]}" if errors else ""
