@@ -22,6 +22,7 @@ import pytest
 import yaml
 
 from docker_ros.host import baseimage
+from docker_ros.host.build import IMPORTS_LABEL, imports_owner
 from tests import engines
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"
@@ -47,10 +48,40 @@ def docker_client() -> Iterator[docker.DockerClient]:
 
 
 def pytest_collection_modifyitems(items: list) -> None:
-    """Every docker test runs after the foreign cache record exists."""
+    """Every docker test runs after the foreign cache record exists, and before the imports
+    images of the run's repositories are removed."""
     for item in items:
-        if item.get_closest_marker("docker") and "foreign_cache_record" not in item.fixturenames:
-            item.fixturenames.insert(0, "foreign_cache_record")
+        if item.get_closest_marker("docker"):
+            for name in ("this_runs_imports_images", "foreign_cache_record"):
+                if name not in item.fixturenames:
+                    item.fixturenames.insert(0, name)
+
+
+def folders(root: Path, depth: int) -> Iterator[Path]:
+    """root and the folders below it, at most depth levels down (links not followed)."""
+    yield root
+    if depth > 0:
+        for child in sorted(root.iterdir()) if root.is_dir() else []:
+            if child.is_dir() and not child.is_symlink():
+                yield from folders(child, depth - 1)
+
+
+@pytest.fixture(scope="session")
+def this_runs_imports_images(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """At the end of the run: the imports images of the repositories this run made (each image
+    is labelled with its repository's path, hashed; this run's are under pytest's temporary
+    folder), on the shared engine and on Engine 26. Another repository's stay."""
+    yield
+    root = tmp_path_factory.getbasetemp()
+    owners = {imports_owner(folder) for folder in folders(root, 4)}
+    for host in (None, engines.ENGINE26_HOST):
+        with contextlib.suppress(docker.errors.DockerException):
+            client = docker.DockerClient(base_url=host) if host else docker.from_env()
+            for image in client.images.list(filters={"label": IMPORTS_LABEL}):
+                if image.labels.get(IMPORTS_LABEL) in owners:
+                    for tag in image.tags:
+                        client.images.remove(tag, noprune=False)
+            client.close()
 
 
 @pytest.fixture(scope="session")
