@@ -74,6 +74,17 @@ def test_explicitly_set_files_must_exist_defaults_may_be_absent(tmp_path: Path) 
                                                                VCS_IMPORT_FILE="deps.repos"))
 
 
+def test_a_tag_from_a_flag_over_image_in_env_is_named_by_the_flags_variable(
+        tmp_path: Path) -> None:
+    """`--image-tag bad:tag` beats `IMAGE` of .env: the dev tag comes from IMAGE_TAG, not
+    IMAGE."""
+    settings = load_settings(dotenv={"IMAGE": "robot:v1"}, flags={"image_tag": "bad:tag"},
+                             environ={"BUILD_CONTEXT": str(tmp_path)}, project_dir=tmp_path)
+    assert image_problems(settings, ("dev", "run")) == {
+        "image_tag": "IMAGE_TAG: 'bad:tag' is not a valid image tag",
+        "dev_image_tag": "DEV_IMAGE_TAG (from IMAGE_TAG): 'bad:tag-dev' is not a valid image tag"}
+
+
 def test_invalid_image_names_name_the_setting(tmp_path: Path) -> None:
     bad = settings_for(tmp_path, IMAGE="my robot:v1")
     assert image_problems(bad, ("run",)) == {

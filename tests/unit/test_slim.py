@@ -375,3 +375,11 @@ def test_lines_logged_at_info_are_no_errors_but_errors_still_are():
     assert trouble_lines("[INFO] [1.2]: could not find a thing, retrying") == set()
     assert trouble_lines("ERROR: cannot create a symlink to latest log directory") != set()
     assert trouble_lines("[ERROR] [1.2]: listener has died") != set()
+
+
+def test_an_unknown_options_value_is_not_listed_as_an_option() -> None:
+    with pytest.raises(SlimError) as err:
+        parse_slim_args("", "--include-exe ls --foo 1 --bar")
+    assert "unknown option(s) --foo, --bar;" in str(err.value)
+    with pytest.raises(SlimError, match=r"unknown option\(s\) stray;"):
+        parse_slim_args("stray --include-exe ls")

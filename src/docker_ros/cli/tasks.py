@@ -419,8 +419,8 @@ def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str
     "push",
     "Build the TARGET images, then push them with docker-ros's tags\n\n"
     "Several platforms: one manifest list per image. REGISTRY_USER and REGISTRY_PASSWORD "
-    "(environment or .env only) log in first (a private BASE_IMAGE or CACHE_FROM), into a "
-    "DOCKER_CONFIG of the task's own that is removed at its end.",
+    "(the password: environment or .env only) log in first (a private BASE_IMAGE or "
+    "CACHE_FROM), into a DOCKER_CONFIG of the task's own that is removed at its end.",
     [DRY_RUN],
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
     logs_in=True,

@@ -211,6 +211,18 @@ def valid_reference(ref: str) -> bool:
             and (not at or bool(DIGEST.match(digest))))
 
 
+def root_variable(settings: Settings, name: str, source: str) -> str:
+    """The variable a value derived from IMAGE, IMAGE_NAME or IMAGE_TAG comes from in the end
+    (DEV_IMAGE_TAG <- IMAGE_TAG <- IMAGE), else the setting's own."""
+    if source.startswith("derived from IMAGE "):
+        return "IMAGE"
+    upstream = re.match(r"derived from (IMAGE_NAME|IMAGE_TAG) ", source)
+    if upstream:
+        name = upstream.group(1).lower()
+        return root_variable(settings, name, settings.source_of(name))
+    return env_name(name)
+
+
 def origin_of(settings: Settings, name: str, source: str = "") -> str:
     """The variable a (maybe derived) value comes from, for messages; a tag with
     IMAGE_POSTFIX appended names it too, with its source."""
@@ -218,9 +230,9 @@ def origin_of(settings: Settings, name: str, source: str = "") -> str:
     if source.endswith(POSTFIXED):
         return (f"{origin_of(settings, name, source[:-len(POSTFIXED)])} + IMAGE_POSTFIX "
                 f"({settings.source_of('image_postfix')})")
-    if "derived from IMAGE " in source or (source.startswith("derived from IMAGE_")
-                                           and settings.image):
-        return f"{env_name(name)} (from IMAGE)"
+    root = root_variable(settings, name, source)
+    if root != env_name(name):
+        return f"{env_name(name)} (from {root})"
     if source != "default" and not source.startswith("derived"):
         return env_name(name)
     if name == "image_name":

@@ -119,6 +119,7 @@ def parse_slim_args(text: str, additional: str = "") -> SlimOptions:
     given: Dict[str, List[Tuple[str, str]]] = {name: [] for name in OPTIONS}
     ignored: List[str] = []
     unknown: List[Tuple[str, str]] = []
+    after_unknown = -1
     index = 0
     while index < len(tokens):
         variable, token = tokens[index]
@@ -140,8 +141,9 @@ def parse_slim_args(text: str, additional: str = "") -> SlimOptions:
         elif name in ("--target", "--tag"):
             raise SlimError(f"{variable}: {name} is set by docker-ros (IMAGE_NAME/IMAGE_TAG,"
                             " SLIM_IMAGE_NAME/SLIM_IMAGE_TAG); remove it")
-        else:
+        elif token.startswith("-") or after_unknown != index - 1:
             unknown.append((variable, token))
+            after_unknown = index  # the next word, if no option, is the unknown option's value
     if unknown:
         raise SlimError(
             "/".join(dict.fromkeys(v for v, _ in unknown)) + ": unknown option(s) "
