@@ -319,7 +319,7 @@ def test_secrets_of_a_baked_build_stay_out(
     secret mounts (the definition file names their variables only: a unit test of bake_file),
     and nothing reaches the images, logs or command lines."""
     repo = tmp_path / "baked"
-    repo.mkdir()
+    make_package(repo / "baked_pkg", "baked_pkg")  # something to build
     (repo / "README.md").write_text("docker-ros secrets test: project baked\n")
     built = build(repo, ros1_base_image, "baked",
                   {"GIT_HTTPS_PASSWORD": material.password, "GIT_SSH_PRIVATE_KEY": material.key},
