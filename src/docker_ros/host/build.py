@@ -655,7 +655,11 @@ def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str
         return ref
     (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} {into or '/' + folder}\n")
     reproducible(context / folder)
-    argv = [*buildx, "build", "--quiet", "--load", "--platform", f"linux/{platform}",
+    # --no-cache: its few KB are made again, the same layer (reproducible). A cache record of
+    # an earlier image of the same content whose layer went with that image (a superseded
+    # imports image, removed) fails the build: "failed to solve: layer does not exist"
+    # (measured on Engine 20.10's docker driver).
+    argv = [*buildx, "build", "--quiet", "--load", "--no-cache", "--platform", f"linux/{platform}",
             *[a for k, v in labels.items() for a in ("--label", f"{k}={v}")],
             "--tag", ref, str(context)]
     proc = subprocess.run(argv, capture_output=True, text=True)
