@@ -655,14 +655,18 @@ def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str
         return ref
     (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} {into or '/' + folder}\n")
     reproducible(context / folder)
-    # --no-cache: its few KB are made again, the same layer (reproducible). A cache record of
-    # an earlier image of the same content whose layer went with that image (a superseded
-    # imports image, removed) fails the build: "failed to solve: layer does not exist"
-    # (measured on Engine 20.10's docker driver).
-    argv = [*buildx, "build", "--quiet", "--load", "--no-cache", "--platform", f"linux/{platform}",
+    argv = [*buildx, "build", "--quiet", "--load", "--platform", f"linux/{platform}",
             *[a for k, v in labels.items() for a in ("--label", f"{k}={v}")],
             "--tag", ref, str(context)]
     proc = subprocess.run(argv, capture_output=True, text=True)
+    if proc.returncode != 0 and "layer does not exist" in proc.stderr:
+        # A cache record of an earlier image of this content whose layer went with that image
+        # (a superseded imports image removed, then the build cache pruned in part; measured on
+        # Engine 20.10): the same layer again, made afresh. Only then: a cached build keeps the
+        # image's creation time, and with it its digest, which the containerd store's builds
+        # key a FROM by.
+        proc = subprocess.run([*argv[:-1], "--no-cache", argv[-1]], capture_output=True,
+                              text=True)
     if proc.returncode != 0:
         raise BuildError(f"building {ref} failed: {proc.stderr.strip()}")
     return ref
