@@ -655,18 +655,16 @@ def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str
         return ref
     (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} {into or '/' + folder}\n")
     reproducible(context / folder)
-    argv = [*buildx, "build", "--quiet", "--load", "--platform", f"linux/{platform}",
+    # The same content makes the same image, digest included (the containerd store keys a FROM
+    # by it): fixed times (SOURCE_DATE_EPOCH, Engine 26's BuildKit; 20.10 keys by the layers)
+    # and no provenance. So it is made afresh (--no-cache): a cache record of an earlier image
+    # of this content whose layer went with that image (a superseded imports image removed,
+    # then the cache pruned in part) failed the build ("layer does not exist", Engine 20.10).
+    argv = [*buildx, "build", "--quiet", "--load", "--no-cache", "--provenance=false",
+            "--build-arg", "SOURCE_DATE_EPOCH=0", "--platform", f"linux/{platform}",
             *[a for k, v in labels.items() for a in ("--label", f"{k}={v}")],
             "--tag", ref, str(context)]
     proc = subprocess.run(argv, capture_output=True, text=True)
-    if proc.returncode != 0 and "layer does not exist" in proc.stderr:
-        # A cache record of an earlier image of this content whose layer went with that image
-        # (a superseded imports image removed, then the build cache pruned in part; measured on
-        # Engine 20.10): the same layer again, made afresh. Only then: a cached build keeps the
-        # image's creation time, and with it its digest, which the containerd store's builds
-        # key a FROM by.
-        proc = subprocess.run([*argv[:-1], "--no-cache", argv[-1]], capture_output=True,
-                              text=True)
     if proc.returncode != 0:
         raise BuildError(f"building {ref} failed: {proc.stderr.strip()}")
     return ref
