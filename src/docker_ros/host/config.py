@@ -158,11 +158,12 @@ def content_problems(settings: Settings) -> Dict[str, str]:
     problem = repos_problem(repos, settings.vcs_import_file) if repos.is_file() else None
     if problem:
         problems["vcs_import_file"] = f"VCS_IMPORT_FILE {problem}"
-    duplicates = repository_duplicates(repository)
+    package_dirs = find_package_dirs(repository)  # (one walk of the repository for both checks)
+    duplicates = repository_duplicates(repository, package_dirs)
     if duplicates:
         problems["packages"] = duplicates_message(duplicates)
     inputs = [name for name in path_settings() if (repository / getattr(settings, name)).exists()]
-    if not inputs and not find_package_dirs(repository) and not any(repository.rglob("*.repos")):
+    if not inputs and not package_dirs and not any(repository.rglob("*.repos")):
         problems["packages"] = (
             f"BUILD_CONTEXT '{repository.resolve()}' holds no ROS package (package.xml), no "
             ".repos file and none of docker-ros's input files: run this in your ROS repository, "

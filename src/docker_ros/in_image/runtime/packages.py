@@ -166,12 +166,13 @@ def duplicates_message(duplicates: Mapping[str, Sequence[str]]) -> str:
             "or put a COLCON_IGNORE file in its folder)")
 
 
-def repository_duplicates(repository: Path) -> Dict[str, List[str]]:
-    """Package names found more than once in a repository (its own packages, before anything is
-    imported), with the folders relative to it; package.xml files that do not parse are left to
-    the steps, which name their error."""
+def repository_duplicates(repository: Path, package_dirs: Sequence[Path]
+                          ) -> Dict[str, List[str]]:
+    """Package names found more than once in a repository's package_dirs (find_package_dirs:
+    its own packages, before anything is imported), with the folders relative to it;
+    package.xml files that do not parse are left to the steps, which name their error."""
     paths: Dict[str, List[str]] = {}
-    for directory in find_package_dirs(repository):
+    for directory in package_dirs:
         try:
             name = ElementTree.parse(str(directory / "package.xml")).findtext("name")
         except (ElementTree.ParseError, OSError):
