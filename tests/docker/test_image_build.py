@@ -189,6 +189,8 @@ def test_base_image_that_does_not_exist(tmp_path: Path) -> None:
         ("rosdep", "rosdep", ["no_such_rosdep_key", "needs_missing"]),
         ("colcon", "colcon", ["broken_pkg"]),
         ("debs", "debs", ["apt has no package no-such-deb-xyz (check the name"]),
+        ("command", "command", ["`rosrun no_such_pkg node`: package no_such_pkg is not in the "
+                                "run image", "`pkg_typo` is not a program on PATH"]),
     ],
 )
 def test_failing_step_names_step_and_cause_and_tags_nothing(
@@ -196,6 +198,7 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
 ) -> None:
     tag = f"docker-ros-test/bad-{case}:1"
     remove_image(tag)
+    command = "true"
     if case == "custom":
         cmake_package(tmp_path, "pkg")
         (tmp_path / "docker").mkdir()
@@ -206,12 +209,16 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
         cmake_package(tmp_path, "pkg")
         (tmp_path / "docker").mkdir()
         (tmp_path / "docker" / "additional-debs.txt").write_text("no-such-deb-xyz\njq\n")
+    elif case == "command":
+        # the run image has pkg (a program on PATH) and rosrun, not the rest COMMAND names
+        cmake_package(tmp_path, "pkg")
+        command = "pkg && rosrun no_such_pkg node; pkg_typo --now"
     else:
         cmake_package(tmp_path, "broken_pkg", body="int main() { this is not C++; }\n")
     # colcon: the dev image (its stage ends before colcon) is built in the same BuildKit run
     targets = "dev,run" if case == "colcon" else "run"
     remove_image(f"{tag}-dev")
-    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND="true", IMAGE=tag, TARGET=targets)
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND=command, IMAGE=tag, TARGET=targets)
     result = docker_ros(tmp_path, "build")
     assert result.returncode != 0
     last = result.stdout.strip().splitlines()[-1]

@@ -47,6 +47,8 @@ OPTIONS = (
            "times)"),
     Option("mark_ignored", "blacklist: put a COLCON_IGNORE file into each blacklisted package "
            "(the image's copy of the sources; never the user's repository)"),
+    Option("check", "command: check that the programs, ROS packages, executables and launch "
+           "files COMMAND names are here; run nothing (the run image's build)"),
     Option("imports_only", "clone: import the .repos files present, no hook (the image's "
            "upstream stage)"),
 )
@@ -77,7 +79,7 @@ DECLARED = (
     Step("colcon", "Build the workspace with colcon (underlay: /opt/ws_base_image)",
          ("cmake_args", "ros_distro"), "build", options=("stamp_changed",)),
     Step("command", "Run COMMAND in the built workspace's environment", ("command",), "run",
-         phases=True),
+         options=("check",), phases=True),
 )
 # Image-only preparation of the base (not a pipeline step; no host task).
 PREPARE = Step("prepare", "Install python3, tini, git, vcstool, rosdep, colcon (and ROS)", (),

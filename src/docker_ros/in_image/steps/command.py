@@ -1,12 +1,14 @@
 """command: the run image's launch command (COMMAND); on the host, run it in the built
-workspace's environment. In an image build (phase collect) it only checks that COMMAND is set:
-the Dockerfile makes it the default command."""
+workspace's environment. In an image build (phase collect) it only logs COMMAND (the Dockerfile
+makes it the default command); the run stage then checks (--check) that what it names is
+there: its programs, and the packages, executables and launch files of its ROS launchers."""
 
 import logging
 from pathlib import Path
-from typing import List
+from typing import List, Optional
 
-from docker_ros.in_image.runtime.process import run
+from docker_ros.in_image.runtime.launch import command_problems, simple_commands
+from docker_ros.in_image.runtime.process import probe, run
 from docker_ros.in_image.runtime.rosenv import sourced_env, workspace_setup_files
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, dry, phases, step_log
 from docker_ros.in_image.settings import Settings
@@ -26,13 +28,18 @@ def main(
     *,
     phase: str = "all",
     dry_run: bool = False,
+    check: bool = False,
     **options: object,
 ) -> None:
-    """collect: validate COMMAND; apply/all: run it with `bash -c` in the sourced environment.
-    A failing command fails the step with the command's exit code."""
+    """collect: log COMMAND; apply/all: run it with `bash -c` in the sourced environment (a
+    failing command fails the step with the command's exit code); check: run nothing, fail
+    when what COMMAND names is missing here."""
     do_collect, do_apply = phases(STEP, phase)
     with step_log(STEP):
         command = settings.command
+        if check:
+            check_command(ws, settings, command, dry_run=dry_run)
+            return
         if do_collect:
             # A dev-only build needs no COMMAND (the tool requires it when run is a target).
             LOG.info("%s: COMMAND=%s", STEP, command or "(not set: no run image)")
@@ -48,3 +55,22 @@ def main(
             return
         env = sourced_env(files, step=STEP)
         run(["bash", "-c", command], step=STEP, cwd=ws.root, env=env, what="COMMAND")
+
+
+def check_command(ws: Workspace, settings: Settings, command: Optional[str], *,
+                  dry_run: bool) -> None:
+    """Stop when COMMAND names a program, package, executable or launch file that is not in
+    this environment (the run image's, with the install space in)."""
+    if not command:
+        return
+    if dry_run:
+        dry(STEP, f"check that what COMMAND names is here: {command}")
+        return
+    env = sourced_env(setup_files(ws, settings), step=STEP)
+    firsts = [words[0] for words in simple_commands(command)]
+    script = 'for w; do type -t -- "$w" >/dev/null && printf "%s\\0" "$w"; done; true'
+    known = probe(["bash", "-c", script, "bash", *firsts], step=STEP, env=env).stdout
+    problems = command_problems(command, env, known.split("\0"))
+    if problems:
+        raise StepError(STEP, "COMMAND cannot start in the run image: " + "; ".join(problems))
+    LOG.info("%s: what COMMAND names is in the image", STEP)
