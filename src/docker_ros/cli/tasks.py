@@ -241,11 +241,12 @@ def hear_interrupts() -> None:
 
 def setting_help(name: str) -> str:
     """A setting's flag help: its description and default (the flag names the variable).
-    A default with a word too long for the help column is left to `inv config`."""
+    A default with a word too long for the help column (which invoke would break) is left to
+    `inv config`."""
     default = default_doc(name).replace("`", "").replace("*", "")
     text = str(FIELDS[name].metadata["help"])
     # (the defaults of the CI integrations are not this machine's: the README lists them)
-    if (not default or max(len(word) for word in default.split()) > 24
+    if (not default or max(len(word) for word in default.split()) > 26
             or default.startswith("GitHub Action:")):
         return text
     return f"{text} (default: {default})"
