@@ -87,6 +87,7 @@ FOUND = ["ros2", "rosrun", "roslaunch"]
 @pytest.mark.parametrize("command", [
     "ros2 run talk talker",
     "ros2 launch talk both.launch.py use_sim_time:=true",
+    "ros2 launch talk launch/both.launch.py",
     "ros2 launch /volume/both.launch.py",
     "ros2 run --prefix 'valgrind' talk talker --ros-args -p a:=1",
     "/volume/start.sh --now",
@@ -100,6 +101,7 @@ def test_what_is_installed_passes_ros2(command, ros2_env):
     ("ros2 run talk listener", "package talk has no executable listener"),
     ("ros2 run talk notes.txt", "package talk has no executable notes.txt"),
     ("ros2 launch talk missing.launch.py", "package talk has no launch file missing.launch.py"),
+    ("ros2 launch talk both.launch.py/x", "package talk has no launch file both.launch.py/x"),
     ("ros2run talk talker", "`ros2run` is not a program on PATH"),
 ])
 def test_what_is_missing_is_named_ros2(command, problem, ros2_env):

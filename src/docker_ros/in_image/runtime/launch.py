@@ -148,14 +148,19 @@ def _paths(env: Mapping[str, str], name: str) -> List[Path]:
 
 def find_file(folders: Sequence[Path], name: str, *, executable: bool) -> bool:
     """Whether a file called name is anywhere below folders (an executable one if asked), as
-    `ros2 run` looks in lib/<package> and `ros2 launch`/`roslaunch`/`rosrun` in its share."""
+    `ros2 run` looks in lib/<package> and `ros2 launch`/`roslaunch`/`rosrun` in its share; a
+    name with a folder in it (`launch/x.launch.py`) is looked for there only."""
     for folder in folders:
+        if "/" in name:
+            path = folder / name
+            if path.is_file() and (not executable or os.access(path, os.X_OK)):
+                return True
+            continue
         for dirpath, dirnames, filenames in os.walk(folder, followlinks=True):
             dirnames[:] = [d for d in dirnames if not d.startswith(".")]
-            if name in filenames:
-                path = os.path.join(dirpath, name)
-                if not executable or os.access(path, os.X_OK):
-                    return True
+            if name in filenames and (not executable
+                                      or os.access(os.path.join(dirpath, name), os.X_OK)):
+                return True
     return False
 
 
