@@ -323,7 +323,7 @@ def test_secrets_of_a_baked_build_stay_out(
     (repo / "README.md").write_text("docker-ros secrets test: project baked\n")
     built = build(repo, ros1_base_image, "baked",
                   {"GIT_HTTPS_PASSWORD": material.password, "GIT_SSH_PRIVATE_KEY": material.key},
-                  BUILD_NETWORK="")
+                  BUILD_NETWORK="", COMMAND="baked_pkg_node")
     assert built.returncode == 0, built.log[-4000:]
     assert any(b"buildx\0bake" in c for c in built.cmdlines)
     assert_nothing_leaked(built, material)
