@@ -313,7 +313,8 @@ def test_a_folder_with_nothing_to_build_is_refused(tmp_path: Path) -> None:
 
 
 def test_a_bare_set_and_an_empty_target_are_refused(repo: Path) -> None:
-    for args in (["build", "--dry-run", "--set"], ["build", "--set", "--dry-run"]):
+    for args in (["build", "--dry-run", "--set"], ["build", "--set", "--dry-run"],
+                 ["build", "--dry-run", "--set", "ENABLE_SLIM=true", "--set"]):
         proc = run(["docker_ros", *args], repo)
         assert proc.returncode == 1, proc.stdout
         assert last_line(proc).strip() == "--set without a value: use --set NAME=VALUE"

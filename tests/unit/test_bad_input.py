@@ -13,7 +13,13 @@ from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import Package, duplicate_packages
 from docker_ros.in_image.runtime.process import script_hint
 from docker_ros.in_image.runtime.workspace import read_user_text
-from docker_ros.in_image.settings import SettingsError, explicitly_set, load_settings, parse_set
+from docker_ros.in_image.settings import (
+    SettingsError,
+    explicitly_set,
+    has_bare_set,
+    load_settings,
+    parse_set,
+)
 from docker_ros.in_image.steps import clone, pip
 
 
@@ -202,6 +208,16 @@ def test_an_empty_target_is_refused() -> None:
 def test_a_bare_set_is_refused() -> None:
     with pytest.raises(SettingsError, match="--set without a value: use --set NAME=VALUE"):
         parse_set([True])
+
+
+@pytest.mark.parametrize("argv, bare", [
+    (["config", "--set", "A=1", "--set"], True),  # invoke drops this one
+    (["config", "--set", "--dry-run"], True),
+    (["config", "--set", "A=1", "--set", "B=2"], False),
+    (["config", "--command", "--set=x"], False),
+])
+def test_a_bare_set_on_the_command_line_is_found(argv, bare) -> None:
+    assert has_bare_set(argv) is bare
 
 
 def test_a_setting_only_the_ci_integrations_read_is_refused_as_set() -> None:

@@ -51,6 +51,7 @@ from docker_ros.in_image.settings import (
     default_doc,
     env_name,
     flag_name,
+    has_bare_set,
     is_secret,
     kind_of,
     made_images,
@@ -160,7 +161,12 @@ def settings_task(
                 kwargs["dry_run"] = True
             try:
                 # A named flag beats a --set of the same setting.
-                overrides: Dict[str, object] = dict(parse_set(kwargs.pop("set") or ()))
+                given = list(kwargs.pop("set") or ())
+                # (a flag after a bare --set may have been taken as its value: refused already)
+                if has_bare_set(sys.argv[1:]) and not any(
+                        item is True or str(item).startswith("-") for item in given):
+                    given.append(True)
+                overrides: Dict[str, object] = dict(parse_set(given))
                 overrides.update({n: kwargs.pop(n) for n in settings_flags
                                   if kwargs[n] is not None})
                 for n in settings_flags:

@@ -9,7 +9,7 @@ import re
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple, Union
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Union
 
 from docker_ros.in_image.ci import NO_POSTFIX, detect_pipeline, push_also_as, tag_postfix
 
@@ -510,6 +510,14 @@ def _did_you_mean(key: str, *, upper: bool = True) -> str:
     if not close:
         return ""
     return f" (did you mean {env_name(close[0]) if upper else close[0]}?)"
+
+
+def has_bare_set(argv: Sequence[str]) -> bool:
+    """Whether a `--set` on the command line has no value (the last word, or a flag follows):
+    invoke passes a bare `--set` on as True only when it is the first one, and drops one that
+    comes after a `--set NAME=VALUE`."""
+    return any(word == "--set" and (i + 1 == len(argv) or argv[i + 1].startswith("-"))
+               for i, word in enumerate(argv))
 
 
 def parse_set(items: Iterable[object]) -> Dict[str, str]:
