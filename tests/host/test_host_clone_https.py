@@ -37,6 +37,9 @@ def test_https_credentials_clone_without_leaking(project, private_remote, caplog
     home.mkdir()
     (home / ".gitconfig").write_text("[credential]\n\thelper = store\n")
     monkeypatch.setenv("HOME", str(home))
+    # and one given by a parent `git -c` (GIT_CONFIG_PARAMETERS, which every git reads; ours
+    # comes after it)
+    monkeypatch.setenv("GIT_CONFIG_PARAMETERS", "'credential.helper'='store' 'user.name'='x'")
     url = f"http://{private_remote}/private_lib.git"
     write_repos(project.repo / ".repos", {"private_lib": {"url": url, "version": "main"}})
     caplog.set_level(logging.DEBUG)

@@ -226,12 +226,13 @@ def git_credentials(
 
 
 def no_credential_helper(environ: Mapping[str, str]) -> Dict[str, str]:
-    """git configuration by environment (git >= 2.31; older git ignores it) that empties the
-    credential helper list for our clones: a user's helper (store, a keychain) would otherwise
-    save the password git got from our askpass. Added after entries the environment has."""
-    count = int(environ.get("GIT_CONFIG_COUNT", "0") or "0")
-    return {"GIT_CONFIG_COUNT": str(count + 1), f"GIT_CONFIG_KEY_{count}": "credential.helper",
-            f"GIT_CONFIG_VALUE_{count}": ""}
+    """git configuration by environment that empties the credential helper list for our
+    clones: a user's helper (store, a keychain) would otherwise save the password git got from
+    our askpass. GIT_CONFIG_PARAMETERS (what `git -c` hands to git's children) is read by every
+    git in use (GIT_CONFIG_COUNT needs git >= 2.31: Ubuntu 20.04 has 2.25); added after the
+    entries the environment has."""
+    existing = environ.get("GIT_CONFIG_PARAMETERS", "")
+    return {"GIT_CONFIG_PARAMETERS": f"{existing} 'credential.helper='".lstrip()}
 
 
 # --- the step ---
