@@ -234,6 +234,21 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
     print(f"dev image built before the failure: {dev_built}")
 
 
+def test_command_check_can_be_turned_off(ros1_base_image: str, tmp_path: Path) -> None:
+    """ENABLE_COMMAND_CHECK=false: the run image of a COMMAND the check refuses is built and
+    tagged, as docker-ros would (the way out should the check be wrong about an image)."""
+    tag = "docker-ros-test/unchecked:1"
+    remove_image(tag)
+    cmake_package(tmp_path, "pkg")
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND="pkg && rosrun no_such_pkg node",
+              IMAGE=tag, ENABLE_COMMAND_CHECK="false")
+    result = docker_ros(tmp_path, "build")
+    assert result.returncode == 0, result.stdout[-3000:]
+    assert "command: not checked (ENABLE_COMMAND_CHECK=false)" in result.stdout
+    assert image_exists(tag)
+    remove_image(tag)
+
+
 def test_no_docker_daemon_is_one_clear_message(tmp_path: Path) -> None:
     cmake_package(tmp_path, "pkg")
     write_env(tmp_path, BASE_IMAGE="any:1", COMMAND="pkg", IMAGE="docker-ros-test/never:1")

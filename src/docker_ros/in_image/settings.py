@@ -313,6 +313,12 @@ class Settings:
         "`docker-ros-test-results/` (the job's artifact)",
         group="ours", build="none",
     )
+    enable_command_check: bool = setting(
+        True,
+        "Stop the run image's build when COMMAND names a program, ROS package, executable or"
+        " launch file the image lacks (false: build it anyway)",
+        group="ours",
+    )
     extra_ca_certs: Optional[str] = setting(
         None,
         "PEM file or directory of PEM files trusted during the build (never left in the image)",
