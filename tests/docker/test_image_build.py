@@ -4,6 +4,7 @@ user mapping, underlaying a docker-ros base image, and bad input (issue: contain
 from __future__ import annotations
 
 import subprocess
+import uuid
 from pathlib import Path
 
 import pytest
@@ -240,8 +241,10 @@ def test_command_check_can_be_turned_off(ros1_base_image: str, tmp_path: Path) -
     tag = "docker-ros-test/unchecked:1"
     remove_image(tag)
     cmake_package(tmp_path, "pkg")
-    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND="pkg && rosrun no_such_pkg node",
-              IMAGE=tag, ENABLE_COMMAND_CHECK="false")
+    # (a COMMAND of its own: the RUN of the check never comes from an earlier run's cache)
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image,
+              COMMAND=f"pkg && rosrun no_such_pkg node {uuid.uuid4().hex}", IMAGE=tag,
+              ENABLE_COMMAND_CHECK="false")
     result = docker_ros(tmp_path, "build")
     assert result.returncode == 0, result.stdout[-3000:]
     assert "command: not checked (ENABLE_COMMAND_CHECK=false)" in result.stdout
