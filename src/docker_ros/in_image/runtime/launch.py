@@ -77,8 +77,6 @@ def _segments(tokens: Sequence[str]) -> Iterator[List[str]]:
             words = []
         elif token and set(token) <= REDIRECT:
             skip = True  # the redirection's target follows
-        elif token in ("(", ")"):
-            words.append(token)
         elif skip:
             skip = False
         else:
@@ -177,16 +175,13 @@ def launcher_problem(name: str, positional: Sequence[str], env: Mapping[str, str
                 "nor installed (check the name; a package of another repository needs an "
                 "<exec_depend> on it in a package.xml, or an entry in the .repos file)")
     share, lib = found_dirs
-    if name == "ros2 run":
-        where, found = [lib], find_file([lib], item, executable=True)
-    elif name == "rosrun":
-        where = list(dict.fromkeys([lib, share]))
-        found = find_file(where, item, executable=True)
-    else:
-        where, found = [share], find_file([share, lib], item, executable=False)
-    if found:
+    # (a ROS 1 source folder is both share and lib: looked in once)
+    where = list(dict.fromkeys({"ros2 run": [lib], "rosrun": [lib, share]}.get(name,
+                                                                            [share, lib])))
+    runs = name.endswith("run")
+    if find_file(where, item, executable=runs):
         return ""
-    kind = "executable" if name.endswith("run") else "launch file"
+    kind = "executable" if runs else "launch file"
     return (f"package {package} has no {kind} {item} (looked in "
             f"{', '.join(str(w) for w in where)}; check the name, and that the package "
             "installs it)")
