@@ -63,7 +63,8 @@ def test_custom_failure_names_original_script_and_exit_code(project):
 
 
 def test_apply_runs_from_state_without_sources(project, tmp_path, environ):
-    """The image's install stage: collect copied the hook; the sources are gone."""
+    """The image's install stage: collect copied the hook; the sources are gone. It runs in
+    the workspace root, docker-ros's WORKDIR (the state directory is not in the run image)."""
     out = tmp_path / "cwd.txt"
     environ({"HOOK_OUT": str(out)})
     write(project.repo / "docker" / "custom.sh", 'pwd > "$HOOK_OUT"\n')
@@ -72,7 +73,7 @@ def test_apply_runs_from_state_without_sources(project, tmp_path, environ):
 
     custom.main(project.ws, project.settings(), phase="apply")
 
-    assert out.read_text().strip() == str(project.ws.state)
+    assert out.read_text().strip() == str(project.ws.root)
 
 
 def test_apply_without_collect_says_what_to_do(project):

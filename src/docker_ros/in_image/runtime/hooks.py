@@ -53,8 +53,9 @@ def collect(ws: Workspace, step: str, settings: Settings, name: str, *, dry_run:
 
 def apply(ws: Workspace, step: str, plan: Dict[str, Any], *, dry_run: bool) -> None:
     """Run each hook with `bash -e` (docker-ros ran them under `set -e`), in the directory the
-    script came from when that still exists (host, dev stage), else in the state directory
-    (image install stage, which has no sources)."""
+    script came from when that still exists (host), else in the workspace root (image install
+    stages, which have no sources): docker-ros's WORKDIR, so that what a hook writes relative
+    to it stays in the image (the state directory is not part of the run image)."""
     hooks = plan.get("hooks") or []
     if not hooks:
         LOG.info("%s: no scripts to run", step)
@@ -65,7 +66,7 @@ def apply(ws: Workspace, step: str, plan: Dict[str, Any], *, dry_run: bool) -> N
     for hook in hooks:
         script = ws.state / hook["file"]
         source = ws.root / hook["source"]
-        cwd = source.parent if source.parent.is_dir() else ws.state
+        cwd = source.parent if source.parent.is_dir() else ws.root
         if not dry_run and not script.is_file():
             raise StepError(step, f"{script} missing: run `{step}` with phase collect first")
         run_script(["bash", "-e", str(script)], script, step=step, dry_run=dry_run, cwd=cwd,
