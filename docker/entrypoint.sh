@@ -45,8 +45,15 @@ map_user() {
         fi
         local primary=(--gid "$gid")
         getent group "$gid" >/dev/null || primary=(--no-user-group)
-        useradd --uid "$uid" "${primary[@]}" --create-home --shell /bin/bash "$user" \
-            >/dev/null 2>&1 || warn "could not create user $user ($uid:$gid); running unnamed"
+        # docker-ros's groups: sudo, and video for cameras and GPUs (/dev/video*, /dev/dri)
+        local extra=() group_name
+        for group_name in sudo video; do
+            getent group "$group_name" >/dev/null && extra+=("$group_name")
+        done
+        local groups=()
+        if [[ ${#extra[@]} -gt 0 ]]; then groups=(--groups "$(IFS=,; echo "${extra[*]}")"); fi
+        useradd --uid "$uid" "${primary[@]}" "${groups[@]}" --create-home --shell /bin/bash \
+            "$user" >/dev/null 2>&1 || warn "could not create user $user ($uid:$gid); running unnamed"
     fi
     if getent passwd "$uid" >/dev/null; then
         echo "$user:$user" | chpasswd 2>/dev/null || true
@@ -61,6 +68,13 @@ map_user() {
 }
 
 source_ros
+
+# Sourced (from /etc/bash.bashrc: interactive shells such as `docker exec -it <container> bash`):
+# the ROS environment only, as docker-ros's ~/.bashrc gave it; no user mapping, no exec.
+if [[ "${BASH_SOURCE[0]}" != "$0" ]]; then
+    unset -f source_if_exists source_ros warn map_user
+    return 0
+fi
 
 if [[ $# -eq 0 ]]; then
     set -- bash

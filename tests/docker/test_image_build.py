@@ -133,6 +133,18 @@ def test_host_user_mapping_owns_files_written_in_mounts(example: dict, tmp_path:
     assert (made.st_uid, made.st_gid) == (4321, 4322)
 
 
+def test_interactive_shell_has_the_workspace_environment(example: dict) -> None:
+    """`docker exec -it <container> bash` starts no entrypoint: /etc/bash.bashrc sources ROS
+    and the workspace, as docker-ros's ~/.bashrc did (bash -i: what docker exec -it runs)."""
+    result = subprocess.run(
+        ["docker", "run", "--rm", "--entrypoint", "bash", example["run"], "-ic",
+         "rospack find docker_ros_example"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.strip().endswith("/install/docker_ros_example/share/docker_ros_example")
+
+
 def test_user_mapping_collision_warns_and_goes_on(example: dict) -> None:
     result = sh(example["run"], "id -u", "-e", "DOCKER_UID=0", "-e", "DOCKER_GID=0")
     assert result.returncode == 0

@@ -74,3 +74,31 @@ def test_renamed_user_owns_the_files_it_writes_in_a_mount(
     assert result.returncode == 0, result.stderr
     made = (tmp_path / "made").stat()
     assert (made.st_uid, made.st_gid) == (1241, 1241)
+
+
+def test_mapped_user_is_in_the_sudo_and_video_groups(ros1_base_image: str) -> None:
+    """As docker-ros's `useradd --groups sudo,video`: cameras and GPUs (/dev/video*, /dev/dri,
+    group video) work for the mapped user."""
+    result = mapped(ros1_base_image, "robot", 1242, 1242, script="id -nG")
+    assert result.returncode == 0, result.stderr
+    assert set(result.stdout.split()) == {"robot", "sudo", "video"}, result.stdout
+
+
+def test_sourced_entrypoint_only_sets_up_the_environment(
+    ros1_base_image: str, tmp_path: Path
+) -> None:
+    """/etc/bash.bashrc sources the entrypoint (interactive shells, `docker exec`): it sources
+    the workspace and returns, without mapping a user or running a command."""
+    setup = tmp_path / "setup.bash"
+    setup.write_text("export WORKSPACE_SOURCED=yes\n")
+    result = subprocess.run(
+        ["docker", "run", "--rm", "--network", "none",
+         "-v", f"{ENTRYPOINT}:/docker-ros/entrypoint.sh:ro",
+         "-v", f"{setup}:/docker-ros/ws/install/setup.bash:ro", "-e", "DOCKER_UID=1243",
+         "--entrypoint", "bash", ros1_base_image, "-c",
+         'source /docker-ros/entrypoint.sh; echo "$WORKSPACE_SOURCED $(id -u)"; '
+         'if type map_user >/dev/null 2>&1; then echo functions-left; fi'],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "yes 0", result.stdout + result.stderr
