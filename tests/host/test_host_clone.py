@@ -163,6 +163,18 @@ def test_before_dependency_identification_hook_runs_first(project, remotes):
     assert (project.ws.upstream / "lib_c" / "README").is_file()
 
 
+def test_before_dependency_identification_hook_runs_with_its_interpreter(project):
+    """docker-ros executed the hook (chmod +x): a `#!` line other than bash's is honoured."""
+    (project.repo / "docker").mkdir()
+    hook = project.repo / "docker" / "before_dependency_identification.sh"
+    hook.write_text("#!/usr/bin/env python3\nimport pathlib\n"
+                    "pathlib.Path('from-python').write_text('yes')\n")
+    mode = hook.stat().st_mode
+    clone.main(project.ws, project.settings())
+    assert (project.ws.root / "from-python").read_text() == "yes"
+    assert hook.stat().st_mode == mode  # the repository's file is not made executable
+
+
 def test_failing_hook_names_script_and_exit_code(project):
     (project.repo / "docker").mkdir()
     hook = project.repo / "docker" / "before_dependency_identification.sh"

@@ -238,6 +238,18 @@ def no_credential_helper(environ: Mapping[str, str]) -> Dict[str, str]:
 # --- the step ---
 
 
+def hook_argv(script: Path) -> List[str]:
+    """How docker-ros ran this hook (`chmod +x` and execute it): by its `#!` line's interpreter
+    (and its one optional argument, as the kernel reads it), else with bash. The script's mode
+    is left alone (on the host it is a file of the repository)."""
+    first = script.read_bytes().split(b"\n", 1)[0]
+    if first.startswith(b"#!"):
+        interpreter, _, argument = first[2:].decode("utf-8", "replace").strip().partition(" ")
+        if interpreter:
+            return [interpreter, *([argument.strip()] if argument.strip() else []), str(script)]
+    return ["bash", str(script)]
+
+
 def run_hook(ws: Workspace, settings: Settings, *, dry_run: bool) -> None:
     script = repository_path(ws, settings, "before_dependency_identification_script", step=STEP)
     if not script.is_file():
@@ -249,7 +261,7 @@ def run_hook(ws: Workspace, settings: Settings, *, dry_run: bool) -> None:
     # stages (runtime.system), as in docker-ros, where the hook and the installs share a stage.
     in_image = hook_context() == "image" and not dry_run
     since = system.mark()
-    run_script(["bash", str(script)], script, step=STEP, dry_run=dry_run, cwd=ws.root,
+    run_script(hook_argv(script), script, step=STEP, dry_run=dry_run, cwd=ws.root,
                what=str(script))
     if in_image:
         system.report(STEP, system.capture(since))
