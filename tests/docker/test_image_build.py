@@ -145,6 +145,17 @@ def test_interactive_shell_has_the_workspace_environment(example: dict) -> None:
     assert result.stdout.strip().endswith("/install/docker_ros_example/share/docker_ros_example")
 
 
+def test_docker_ros_entrypoint_paths_still_work(example: dict) -> None:
+    """An ENTRYPOINT of docker-ros's (`/tini -- /entrypoint.sh`, in images derived from ours)."""
+    result = subprocess.run(
+        ["docker", "run", "--rm", "--entrypoint", "/tini", example["run"], "--",
+         "/entrypoint.sh", "rospack", "find", "docker_ros_example"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.strip().endswith("/share/docker_ros_example")
+
+
 def test_user_mapping_collision_warns_and_goes_on(example: dict) -> None:
     result = sh(example["run"], "id -u", "-e", "DOCKER_UID=0", "-e", "DOCKER_GID=0")
     assert result.returncode == 0
