@@ -3,6 +3,7 @@
 import pytest
 
 from docker_ros.in_image.runtime.prepare import (
+    plan_rmw_installation,
     plan_ros_installation,
     plan_tool_packages,
     ros_package_names,
@@ -137,3 +138,25 @@ def test_a_locked_prepare_installs_under_the_pins_and_stops_on_a_difference(
         status.write_text("")
         with prepare.held_to_lock("all", dry_run=False):
             status.write_text("Package: tini\nStatus: install ok installed\nVersion: 2\n")
+
+
+def rmw_plan(**kw):
+    args = {"ros_installed": True, "disabled": False, "distro": "jazzy",
+            "rmw_implementation": "rmw_zenoh_cpp", "chosen": True, "installed": []}
+    args.update(kw)
+    return plan_rmw_installation(**args)
+
+
+def test_chosen_rmw_is_installed_on_a_ros2_base_that_lacks_it():
+    """docker-ros installed RMW_IMPLEMENTATION's package on bases with ROS too."""
+    assert rmw_plan()[-1][-1] == "ros-jazzy-rmw-zenoh-cpp"
+    assert rmw_plan()[0] == ["apt-get", "update"]
+
+
+def test_rmw_installs_nothing_when_not_needed():
+    assert rmw_plan(installed=["ros-jazzy-rmw-zenoh-cpp"]) == []
+    assert rmw_plan(chosen=False) == []  # the default keeps the base image's middleware
+    assert rmw_plan(disabled=True) == []
+    assert rmw_plan(distro=None) == []  # the package cannot be named (prepare warns)
+    assert rmw_plan(distro="noetic") == []  # ROS 1 has no RMW
+    assert rmw_plan(ros_installed=False) == []  # installed with ROS (plan_ros_installation)

@@ -19,7 +19,7 @@ from docker_ros.in_image.runtime.lock import (
 from docker_ros.in_image.runtime.process import run
 from docker_ros.in_image.runtime.rosenv import BASE_IMAGE_WS, ROS1_DISTROS
 from docker_ros.in_image.runtime.workspace import LOG, StepError, Workspace, step_log
-from docker_ros.in_image.settings import Settings
+from docker_ros.in_image.settings import Settings, explicitly_set
 
 # prepare runs in image builds only
 IMAGE_INSTALL = install_options("image")
@@ -101,6 +101,26 @@ def plan_ros_installation(
         ["apt-get", "install", *IMAGE_INSTALL,
          *ros_package_names(distro, rmw_implementation)],
     ]
+
+
+def plan_rmw_installation(
+    *,
+    ros_installed: bool,
+    disabled: bool,
+    distro: Optional[str],
+    rmw_implementation: str,
+    chosen: bool,
+    installed: Sequence[str],
+) -> List[List[str]]:
+    """A chosen RMW_IMPLEMENTATION's package on a ROS 2 base image that has ROS but lacks it
+    (docker-ros installed it on every base unless DISABLE_ROS_INSTALLATION; a base without
+    ROS gets it with ROS, plan_ros_installation). The default (unchosen) installs nothing."""
+    if not ros_installed or disabled or not chosen or not distro or is_ros1(distro):
+        return []
+    package = ros_package_names(distro, rmw_implementation)[-1]
+    if package in installed:
+        return []
+    return [["apt-get", "update"], ["apt-get", "install", *IMAGE_INSTALL, package]]
 
 
 def plan_tool_packages(missing: Sequence[str], available: Sequence[str]) -> List[str]:
@@ -228,8 +248,31 @@ def main(
             apt_source_version=settings.ros_apt_source_version,
             os_codename=os_release().get("VERSION_CODENAME", ""),
         )
+        chosen = explicitly_set(settings, "rmw_implementation")
+        if chosen and not distro and not settings.disable_ros_installation and ros_present():
+            LOG.warning("prepare: RMW_IMPLEMENTATION=%s is set, but the ROS distribution is "
+                        "unknown (no ROS_DISTRO): its package is not installed; set ROS_DISTRO "
+                        "or install it in the base image", settings.rmw_implementation)
         for argv in commands:
             run(argv, step="prepare", dry_run=dry_run, env=apt_env())
+        rmw_commands = [] if commands else plan_rmw_installation(
+            ros_installed=ros_present(distro=distro),
+            disabled=settings.disable_ros_installation,
+            distro=distro,
+            rmw_implementation=settings.rmw_implementation,
+            chosen=chosen,
+            installed=list(read_dpkg_status()),
+        )
+        try:
+            for argv in rmw_commands:
+                run(argv, step="prepare", dry_run=dry_run, env=apt_env())
+        except StepError as exc:
+            rmw = settings.rmw_implementation
+            raise StepError("prepare", f"{exc.message}: the package of RMW_IMPLEMENTATION={rmw} "
+                            f"could not be installed: check RMW_IMPLEMENTATION and ROS_DISTRO "
+                            f"({distro}), and that the base image's apt sources have ROS "
+                            "packages (or set DISABLE_ROS_INSTALLATION=true)",
+                            exc.returncode) from None
         if options.get("dependency_types") == "all":
             # dependencies-dev stage: the base is prepared already; add the build toolchain.
             if shutil.which("g++") is None:
