@@ -73,6 +73,17 @@ def test_run_image_runs_the_node(example: dict) -> None:
     assert "I heard: hello from docker-ros" in out, out[-3000:]
 
 
+def test_default_cmd_replaces_the_command_as_in_docker_ros(example: dict) -> None:
+    """`docker run -e DEFAULT_CMD=... <image>` (docker-ros's variable) runs that, sourced."""
+    result = subprocess.run(
+        ["docker", "run", "--rm", "-e", "DEFAULT_CMD=rospack find docker_ros_example",
+         example["run"]],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.strip().endswith("/share/docker_ros_example")
+
+
 def test_run_image_has_no_compiler_and_no_sources(example: dict) -> None:
     probe = "command -v gcc g++ cc c++ || true; ls /docker-ros/ws"
     base = sh(example["base"], probe, "--entrypoint", "")

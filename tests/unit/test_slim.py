@@ -119,9 +119,9 @@ def test_exec_prefix_drops_the_init() -> None:
 
 
 CONFIG = {
-    "Env": ["PATH=/usr/bin:/bin", 'DOCKER_ROS_COMMAND=roslaunch a "b" $HOME'],
+    "Env": ["PATH=/usr/bin:/bin", 'DEFAULT_CMD=roslaunch a "b" $HOME'],
     "Entrypoint": ["/usr/bin/tini", "--", "/docker-ros/entrypoint.sh"],
-    "Cmd": ["bash", "-c", 'eval "$DOCKER_ROS_COMMAND"'],
+    "Cmd": ["bash", "-c", 'eval "$DEFAULT_CMD"'],
     "WorkingDir": "/docker-ros/ws",
     "Labels": {"org.example": "a b"},
 }
@@ -131,9 +131,9 @@ def test_changes_carry_the_config_quoted() -> None:
     changes = plan_changes(CONFIG, {"io.docker-ros.slim.source": "sha256:1"})
     assert changes == [
         'ENV PATH="/usr/bin:/bin"',
-        'ENV DOCKER_ROS_COMMAND="roslaunch a \\"b\\" \\$HOME"',
+        'ENV DEFAULT_CMD="roslaunch a \\"b\\" \\$HOME"',
         'ENTRYPOINT ["/usr/bin/tini", "--", "/docker-ros/entrypoint.sh"]',
-        'CMD ["bash", "-c", "eval \\"$DOCKER_ROS_COMMAND\\""]',
+        'CMD ["bash", "-c", "eval \\"$DEFAULT_CMD\\""]',
         "WORKDIR /docker-ros/ws",
         'LABEL "io.docker-ros.slim.source"="sha256:1"',
         'LABEL "org.example"="a b"',
