@@ -153,6 +153,23 @@ def test_git_errors_keep_their_cause_and_loopback_hint() -> None:
         assert clone.url_host(url) == host
 
 
+def test_a_local_repository_url_in_an_image_build_gets_a_hint() -> None:
+    """A .repos URL to a folder of this machine cannot be cloned in an image build: the
+    failure says why and what to do (git only says it is no git repository)."""
+    lines = ["=== /ws/src/upstream/x (git) ===",
+             "Could not determine ref type of version: fatal: '/srv/x' does not appear to be "
+             "a git repository", "fatal: Could not read from remote repository."]
+    reason = clone.parse_vcs_failures(lines, Path("/ws/src/upstream"), ["x"])["x"]
+    for url in ("file:///srv/x", "/srv/x", "../x"):
+        hint = clone.failure_hint(url, reason, in_image=True)
+        assert "not on this machine" in hint and "BUILD_NETWORK=host" in hint, url
+        assert clone.failure_hint(url, reason, in_image=False) == ""
+    for url in ("https://example.com/x.git", "git@example.com:x.git"):
+        assert clone.failure_hint(url, reason, in_image=True) == ""
+    assert clone.failure_hint("file:///srv/x", "fatal: invalid reference: v9",
+                              in_image=True) == ""
+
+
 def test_pip_tls_failure_is_recognised_with_the_hint() -> None:
     line = ("WARNING: Retrying (Retry(total=4, connect=None, read=None, redirect=None, "
             "status=None)) after connection broken by 'SSLError(SSLCertVerificationError(1, "
