@@ -126,6 +126,19 @@ def test_lenient_load_keeps_bad_values_for_config() -> None:
     assert rows["IMAGE_TAG"][1:] == ["v2", "environment"]
 
 
+def test_config_shows_where_the_tests_results_go_by_default(tmp_path: Path) -> None:
+    """TEST_RESULTS_DIR unset: `inv config` shows the folder `inv test` writes to (in
+    WORKSPACE), as it shows the other derived defaults; set, its value and source."""
+    plain = load_settings(environ={"WORKSPACE": str(tmp_path / "ws")})
+    rows = {line.split()[0]: line.split() for line in config_table(plain).splitlines()}
+    assert rows["TEST_RESULTS_DIR"][1:4] == [str(tmp_path / "ws" / "test-results"), "derived",
+                                             "from"]
+    named = load_settings(environ={"WORKSPACE": str(tmp_path / "ws"),
+                                   "TEST_RESULTS_DIR": str(tmp_path / "r")})
+    rows = {line.split()[0]: line.split() for line in config_table(named).splitlines()}
+    assert rows["TEST_RESULTS_DIR"][1:] == [str(tmp_path / "r"), "environment"]
+
+
 def test_duplicate_packages_name_every_path() -> None:
     def package(name: str, path: str) -> Package:
         return Package(name, Path(path), 3, "cmake", {})
