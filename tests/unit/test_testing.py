@@ -171,3 +171,20 @@ def test_a_copy_that_fails_late_is_the_tasks_error(tmp_path: Path,
     assert str(raised.value) == (
         f"TEST_RESULTS_DIR (environment): cannot copy the results to {tmp_path / 'res'}: "
         "Read-only file system; give a writable folder")
+
+
+def test_a_results_folder_in_the_build_context_is_warned_about(tmp_path: Path) -> None:
+    """Results written into the repository change the next build's context (a full colcon
+    build, the dev image's sources): `inv test` says so; a folder outside stays silent."""
+    from docker_ros.host.pipeline import results_in_context
+
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    warning = results_in_context(repo / "test-results", repo, "--results-dir")
+    assert warning is not None
+    assert warning.startswith(f"docker-ros test: warning: --results-dir: {repo / 'test-results'}"
+                              f" is in the build context ({repo})")
+    assert "outside the repository" in warning
+    assert results_in_context(repo, repo, "--results-dir") is not None
+    assert results_in_context(tmp_path / "results", repo, "--results-dir") is None
+    assert results_in_context(tmp_path / "repo-results", repo, "--results-dir") is None

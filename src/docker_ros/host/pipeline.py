@@ -283,6 +283,18 @@ def results_origin(settings: Settings, results_dir: str) -> str:
     return f"TEST_RESULTS_DIR (default: in WORKSPACE, {settings.source_of('workspace')})"
 
 
+def results_in_context(results: Path, context: Path, origin: str) -> Optional[str]:
+    """A warning when the results folder lies in the build context: every run then changes
+    the context (the dev image's sources, and a full colcon build: a file outside every
+    package changed). None when it lies outside."""
+    context = context.expanduser().resolve()
+    if results != context and context not in results.parents:
+        return None
+    return (f"docker-ros test: warning: {origin}: {results} is in the build context "
+            f"({context}): the next build sees the results as changed sources (copied into the "
+            "dev image, a full colcon build); give a folder outside the repository")
+
+
 def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
     """Build the test stage per platform, export its results; fail when a test failed.
     (The dev stage needs no COMMAND.)"""
@@ -290,6 +302,9 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
     require(settings, ["base_image"])
     root = results_root(settings, results_dir)
     origin = results_origin(settings, results_dir)
+    warning = results_in_context(root, Path(settings.build_context), origin)
+    if warning:
+        print(warning)
     failures = []
     for platform in settings.platform:
         dest = root if len(settings.platform) == 1 else root / platform
