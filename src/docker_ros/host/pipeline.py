@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Collection, Dict, Iterator, List, Mapping, Optional, Sequence
 
-from docker_ros.host import build, container, devshell, slim
+from docker_ros.host import build, builder, container, devshell, engine, slim
 from docker_ros.host.build import BuiltImage
 from docker_ros.host.config import image_problems, input_problems
 from docker_ros.host.lock import lock_status
@@ -455,6 +455,24 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
         if dry_run:
             print(format_argv(argv))
             return 0
+        check_shell_engine(settings)
         if rebuild or not build.image_exists(ref):
             build_targets(settings, ("dev",), dry_run=False)
         return subprocess.call(argv)
+
+
+def check_shell_engine(settings: Settings) -> None:
+    """The dev shell's `docker run` uses the CLI's engine: a BUILDER whose engine keeps the
+    images elsewhere (a docker context's docker driver) would build the dev image there and
+    then have `docker run` look for it on a registry. Stop first, saying what to do."""
+    try:
+        chosen = build.selected_builder(settings)
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
+    elsewhere = builder.images_host(chosen, engine.cli_host(os.environ))
+    if elsewhere:
+        raise TaskError(
+            f"BUILDER '{chosen.name}' keeps its images in the engine at {elsewhere}, but the "
+            f"shell's `docker run` uses the local engine ({engine.cli_host(os.environ)}): run "
+            f"`DOCKER_CONTEXT={chosen.name} inv dev-shell` instead (without BUILDER; the "
+            "repository is mounted from that engine's machine)")
