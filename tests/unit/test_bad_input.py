@@ -158,6 +158,9 @@ def test_git_errors_keep_their_cause_and_loopback_hint() -> None:
                            "errno=Connection refused")
     url = "git://127.0.0.1:9418/x.git"
     assert "BUILD_NETWORK=host" in clone.failure_hint(url, reason, in_image=True)
+    # the step cannot know whether BUILD_NETWORK=host is set: the hint also covers a build
+    # that has it (where only a server that is down refuses)
+    assert "is the server running?" in clone.failure_hint(url, reason, in_image=True)
     assert clone.failure_hint(url, reason, in_image=False) == ""
     assert clone.failure_hint("https://example.com/x.git", reason, in_image=True) == ""
     assert clone.failure_hint(url, "fatal: invalid reference: main", in_image=True) == ""
