@@ -182,3 +182,30 @@ def test_a_builder_keeping_images_in_another_engine_stops_the_shell_first(tmp_pa
     local = builder.Builder("default", "docker", "default", "unix:///var/run/docker.sock", False)
     monkeypatch.setattr(build, "selected_builder", lambda settings: local)
     pipeline.check_shell_engine(settings(tmp_path))  # the CLI's own engine: no objection
+
+
+def test_blacklisted_packages_stay_out_of_colcon_in_the_shell(tmp_path):
+    """The mounted repository hides the COLCON_IGNORE files the dev image's copies of the
+    blacklisted packages have: the shell gets colcon defaults that ignore them (before the
+    user's --env, so that a COLCON_DEFAULTS_FILE of theirs wins)."""
+    import json
+
+    (tmp_path / "docker").mkdir()
+    (tmp_path / "docker" / "blacklisted-packages.txt").write_text(
+        "# not built\nmy_robot_py\nbad_a bad_b  # two on a line\nmy_robot_py\n")
+    names = devshell.blacklisted_names(settings(tmp_path))
+    assert names == ["my_robot_py", "bad_a", "bad_b"]
+    defaults = devshell.write_colcon_defaults(names, tmp_path / "defaults.yaml")
+    written = json.loads((tmp_path / "defaults.yaml").read_text())
+    assert set(written) == {"build", "test", "list", "graph"}
+    assert written["build"] == {"packages-ignore": ["my_robot_py", "bad_a", "bad_b"]}
+    args = argv(tmp_path, colcon_defaults=defaults, env=("COLCON_DEFAULTS_FILE=/mine.yaml",))
+    envs = [e for e in pairs(args, "-e") if e.startswith("COLCON_DEFAULTS_FILE=")]
+    assert envs == [f"COLCON_DEFAULTS_FILE={devshell.COLCON_DEFAULTS_IN_CONTAINER}",
+                    "COLCON_DEFAULTS_FILE=/mine.yaml"]
+    assert f"{defaults}:{devshell.COLCON_DEFAULTS_IN_CONTAINER}:ro" in pairs(args, "-v")
+    # no blacklist: nothing written, nothing mounted
+    (tmp_path / "docker" / "blacklisted-packages.txt").unlink()
+    assert devshell.blacklisted_names(settings(tmp_path)) == []
+    assert devshell.write_colcon_defaults([], tmp_path / "none.yaml") == ""
+    assert "COLCON_DEFAULTS_FILE" not in " ".join(argv(tmp_path))

@@ -440,6 +440,7 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
     ref = build.image_ref(settings, "dev")
     try:
         devshell.check_volumes(options.volumes)
+        blacklisted = devshell.blacklisted_names(settings)
         display = os.environ.get("DISPLAY", "")
         display = display if devshell.select_x11(x11, display) else ""
         runtimes = devshell.docker_runtimes() if options.gpus == "auto" else []
@@ -450,8 +451,10 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
                              tty=sys.stdin.isatty() and sys.stdout.isatty())
     with tempfile.TemporaryDirectory(prefix="docker-ros-dev-shell-") as tmp:
         cookie = devshell.write_cookie(display, os.environ, Path(tmp) / "xauth") if display else ""
+        defaults = devshell.write_colcon_defaults(blacklisted, Path(tmp) / "colcon-defaults.yaml")
         argv = devshell.dev_shell_argv(settings, ref, dataclasses.replace(
-            options, gpus=gpus, x11_display=display, xauthority=cookie), user)
+            options, gpus=gpus, x11_display=display, xauthority=cookie,
+            colcon_defaults=defaults), user)
         if dry_run:
             print(format_argv(argv))
             return 0
