@@ -30,7 +30,7 @@ def test_loopback_clone_in_an_image_build_points_at_build_network(
     assert result.returncode != 0
     last = result.stdout.strip().splitlines()[-1]
     assert "failed in step clone" in last and "repository 'dep'" in last, last
-    assert "set BUILD_NETWORK=host to reach a server on this machine" in last, last
+    assert "unless BUILD_NETWORK=host: set it to reach a server on this machine" in last, last
     assert not image_exists("docker-ros-test/repos-loop:1-until-clone")
 
 

@@ -126,6 +126,19 @@ def test_lenient_load_keeps_bad_values_for_config() -> None:
     assert rows["IMAGE_TAG"][1:] == ["v2", "environment"]
 
 
+def test_config_shows_where_the_tests_results_go_by_default(tmp_path: Path) -> None:
+    """TEST_RESULTS_DIR unset: `inv config` shows the folder `inv test` writes to (in
+    WORKSPACE), as it shows the other derived defaults; set, its value and source."""
+    plain = load_settings(environ={"WORKSPACE": str(tmp_path / "ws")})
+    rows = {line.split()[0]: line.split() for line in config_table(plain).splitlines()}
+    assert rows["TEST_RESULTS_DIR"][1:4] == [str(tmp_path / "ws" / "test-results"), "derived",
+                                             "from"]
+    named = load_settings(environ={"WORKSPACE": str(tmp_path / "ws"),
+                                   "TEST_RESULTS_DIR": str(tmp_path / "r")})
+    rows = {line.split()[0]: line.split() for line in config_table(named).splitlines()}
+    assert rows["TEST_RESULTS_DIR"][1:] == [str(tmp_path / "r"), "environment"]
+
+
 def test_duplicate_packages_name_every_path() -> None:
     def package(name: str, path: str) -> Package:
         return Package(name, Path(path), 3, "cmake", {})
@@ -145,12 +158,32 @@ def test_git_errors_keep_their_cause_and_loopback_hint() -> None:
                            "errno=Connection refused")
     url = "git://127.0.0.1:9418/x.git"
     assert "BUILD_NETWORK=host" in clone.failure_hint(url, reason, in_image=True)
+    # the step cannot know whether BUILD_NETWORK=host is set: the hint also covers a build
+    # that has it (where only a server that is down refuses)
+    assert "is the server running?" in clone.failure_hint(url, reason, in_image=True)
     assert clone.failure_hint(url, reason, in_image=False) == ""
     assert clone.failure_hint("https://example.com/x.git", reason, in_image=True) == ""
     assert clone.failure_hint(url, "fatal: invalid reference: main", in_image=True) == ""
     for url, host in (("http://u@localhost:8080/x", "localhost"), ("git@127.0.0.1:x.git",
                       "127.0.0.1"), ("ssh://[::1]:22/x", "[::1]"), ("/srv/x.git", "")):
         assert clone.url_host(url) == host
+
+
+def test_a_local_repository_url_in_an_image_build_gets_a_hint() -> None:
+    """A .repos URL to a folder of this machine cannot be cloned in an image build: the
+    failure says why and what to do (git only says it is no git repository)."""
+    lines = ["=== /ws/src/upstream/x (git) ===",
+             "Could not determine ref type of version: fatal: '/srv/x' does not appear to be "
+             "a git repository", "fatal: Could not read from remote repository."]
+    reason = clone.parse_vcs_failures(lines, Path("/ws/src/upstream"), ["x"])["x"]
+    for url in ("file:///srv/x", "/srv/x", "../x"):
+        hint = clone.failure_hint(url, reason, in_image=True)
+        assert "not on this machine" in hint and "BUILD_NETWORK=host" in hint, url
+        assert clone.failure_hint(url, reason, in_image=False) == ""
+    for url in ("https://example.com/x.git", "git@example.com:x.git"):
+        assert clone.failure_hint(url, reason, in_image=True) == ""
+    assert clone.failure_hint("file:///srv/x", "fatal: invalid reference: v9",
+                              in_image=True) == ""
 
 
 def test_pip_tls_failure_is_recognised_with_the_hint() -> None:

@@ -361,3 +361,35 @@ def test_tagged_in_log_reads_buildkits_names() -> None:
     assert build.tagged_in_log(lines, "127.0.0.1:5000/team/robot:1")
     assert not build.tagged_in_log(lines, "robot:1")  # not `robot:1-dev`
     assert not build.tagged_in_log(lines, "team/arm:1")  # started, not done
+
+
+def test_a_target_failing_after_another_was_built_alone_names_the_built_one(
+        monkeypatch, tmp_path):
+    """With one buildx run per target (BUILD_NETWORK), run failing after dev was built and
+    tagged names dev as built, as a failing bake run does."""
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "package.xml").write_text("<package/>")
+    s = load_settings(environ={"BASE_IMAGE": "base:1", "COMMAND": "run me",
+                               "BUILD_NETWORK": "host"}, project_dir=tmp_path)
+    monkeypatch.setattr(build, "selected_builder", lambda settings: None)
+    monkeypatch.setattr(build.builder, "cache_export", lambda chosen: "inline")
+    monkeypatch.setattr(build.builder, "buildx_command", lambda chosen, name: ["buildx"])
+    monkeypatch.setattr(build, "ensure_tools_image", lambda platform, buildx: "tools:x")
+    monkeypatch.setattr(build, "ensure_imports_image", lambda settings, platform, buildx: "")
+    monkeypatch.setattr(build, "tag_local_base", lambda settings, platform: None)
+    monkeypatch.setattr(build, "platform_base", lambda settings, platform: ("base:1", ""))
+
+    def run_buildx(argv, targets, platform, **kw):
+        if "run" in targets:
+            raise build.BuildError("building target 'run' (amd64) failed in step colcon: x",
+                                   2, stage="build", step="colcon")
+        return 1.0
+
+    monkeypatch.setattr(build, "run_buildx", run_buildx)
+    with pytest.raises(build.BuildError) as failed:
+        build.build_images(s, targets={"dev": "img:t-dev", "run": "img:t"}, platform="amd64",
+                           out=io.StringIO(), environ={})
+    assert str(failed.value) == ("building target 'run' (amd64) failed in step colcon: x; "
+                                 "'dev' was built: img:t-dev")
+    assert (failed.value.returncode, failed.value.stage, failed.value.step) == (
+        2, "build", "colcon")

@@ -158,3 +158,54 @@ def test_volume_specs_are_checked_in_our_words():
     assert "unknown mode 'rx'" in devshell.volume_problem("./d:/d:ro,rx")
     with pytest.raises(devshell.DevShellError, match="'x:y'.*; --volume 'bad:::'"):
         devshell.check_volumes(["./ok:/ok", "x:y", "bad:::"])
+
+
+def test_a_builder_keeping_images_in_another_engine_stops_the_shell_first(tmp_path,
+                                                                          monkeypatch):
+    """BUILDER=<docker context of another engine>: the dev image would be built there and
+    `docker run` (the CLI's engine) would try to pull it from Docker Hub. The task stops before
+    building, naming the way that works (DOCKER_CONTEXT)."""
+    from docker_ros.host import build, builder, engine, pipeline
+    from docker_ros.host.pipeline import TaskError
+
+    other = builder.Builder("e26", "docker", "e26", "unix:///run/e26.sock", True)
+    monkeypatch.setattr(build, "selected_builder", lambda settings: other)
+    monkeypatch.setattr(engine, "cli_host", lambda environ: "unix:///var/run/docker.sock")
+    monkeypatch.setattr(pipeline, "build_targets", lambda *a, **k: pytest.fail("built"))
+    monkeypatch.setattr(pipeline.subprocess, "call", lambda argv: pytest.fail("ran"))
+    with pytest.raises(TaskError) as stopped:
+        pipeline.run_dev_shell(settings(tmp_path), ShellOptions(command="true"), x11="false",
+                               rebuild=False, dry_run=False)
+    assert "BUILDER 'e26' keeps its images in the engine at unix:///run/e26.sock" in str(
+        stopped.value)
+    assert "DOCKER_CONTEXT=e26 inv dev-shell" in str(stopped.value)
+    local = builder.Builder("default", "docker", "default", "unix:///var/run/docker.sock", False)
+    monkeypatch.setattr(build, "selected_builder", lambda settings: local)
+    pipeline.check_shell_engine(settings(tmp_path))  # the CLI's own engine: no objection
+
+
+def test_blacklisted_packages_stay_out_of_colcon_in_the_shell(tmp_path):
+    """The mounted repository hides the COLCON_IGNORE files the dev image's copies of the
+    blacklisted packages have: the shell gets colcon defaults that ignore them (before the
+    user's --env, so that a COLCON_DEFAULTS_FILE of theirs wins)."""
+    import json
+
+    (tmp_path / "docker").mkdir()
+    (tmp_path / "docker" / "blacklisted-packages.txt").write_text(
+        "# not built\nmy_robot_py\nbad_a bad_b  # two on a line\nmy_robot_py\n")
+    names = devshell.blacklisted_names(settings(tmp_path))
+    assert names == ["my_robot_py", "bad_a", "bad_b"]
+    defaults = devshell.write_colcon_defaults(names, tmp_path / "defaults.yaml")
+    written = json.loads((tmp_path / "defaults.yaml").read_text())
+    assert set(written) == {"build", "test", "list", "graph"}
+    assert written["build"] == {"packages-ignore": ["my_robot_py", "bad_a", "bad_b"]}
+    args = argv(tmp_path, colcon_defaults=defaults, env=("COLCON_DEFAULTS_FILE=/mine.yaml",))
+    envs = [e for e in pairs(args, "-e") if e.startswith("COLCON_DEFAULTS_FILE=")]
+    assert envs == [f"COLCON_DEFAULTS_FILE={devshell.COLCON_DEFAULTS_IN_CONTAINER}",
+                    "COLCON_DEFAULTS_FILE=/mine.yaml"]
+    assert f"{defaults}:{devshell.COLCON_DEFAULTS_IN_CONTAINER}:ro" in pairs(args, "-v")
+    # no blacklist: nothing written, nothing mounted
+    (tmp_path / "docker" / "blacklisted-packages.txt").unlink()
+    assert devshell.blacklisted_names(settings(tmp_path)) == []
+    assert devshell.write_colcon_defaults([], tmp_path / "none.yaml") == ""
+    assert "COLCON_DEFAULTS_FILE" not in " ".join(argv(tmp_path))

@@ -15,6 +15,7 @@ from docker_ros.in_image.runtime.lean import (
     lean_packages,
     lean_resolution,
     local_names,
+    optional_modules,
     owners,
     parse_ldd,
     providers,
@@ -135,3 +136,51 @@ def test_the_resolution_changes_only_with_the_packages(tmp_path: Path) -> None:
     (script.parent / "other.py").write_text("import json\n")
     lean_resolution(ws, settings, resolved, tmp_path / "lean")
     assert (tmp_path / "lean" / "rosdep.json").read_text() == before
+
+
+# setuptools' console-script wrapper, as colcon installs every ament_python entry point
+CONSOLE_SCRIPT = """import re
+import sys
+try:
+    from importlib.metadata import distribution
+except ImportError:
+    try:
+        from importlib_metadata import distribution
+    except ImportError:
+        from pkg_resources import load_entry_point
+"""
+
+
+def test_imports_in_a_try_catching_import_error_are_optional() -> None:
+    assert optional_modules(CONSOLE_SCRIPT) == {"importlib", "importlib_metadata",
+                                                "pkg_resources"}
+    assert optional_modules("try:\n    import yaml\nexcept (OSError, ModuleNotFoundError):\n"
+                            "    yaml = None\n") == {"yaml"}
+    # imported plainly too, caught by another exception, or in the try's else: required
+    assert optional_modules("import yaml\ntry:\n    import yaml\nexcept ImportError:\n"
+                            "    pass\n") == set()
+    assert optional_modules("try:\n    import yaml\nexcept KeyError:\n    pass\n") == set()
+    assert optional_modules("try:\n    pass\nexcept ImportError:\n    pass\nelse:\n"
+                            "    import yaml\n") == set()
+
+
+def test_a_missing_optional_import_is_no_warning(tmp_path: Path, caplog) -> None:
+    """A console script's fallback import (importlib_metadata, absent on Python >= 3.8) is not
+    reported as missing; a plain import of a missing module still is."""
+    ws = Workspace(tmp_path / "ws")
+    script = ws.install / "pkg" / "lib" / "pkg" / "py_node"
+    script.parent.mkdir(parents=True)
+    script.write_text("#!/usr/bin/python3\n" + CONSOLE_SCRIPT.replace(
+        "importlib_metadata", "no_such_fallback_module") + "import no_such_module_anywhere\n")
+    resolved = tmp_path / "resolved"
+    resolved.mkdir()
+    (resolved / "rosdep.json").write_text(json.dumps(
+        {"all": {"apt": [], "pip": []}, "exec": {"apt": [], "pip": []}}))
+    settings = load_settings(environ={"BASE_IMAGE": "b"}, project_dir=tmp_path)
+    with caplog.at_level("INFO"):
+        report = lean_resolution(ws, settings, resolved, tmp_path / "lean")
+    assert report["not_found"] == ["no_such_module_anywhere (imported by pkg/lib/pkg/py_node)"]
+    assert report["optional_not_found"] == [
+        "no_such_fallback_module (imported by pkg/lib/pkg/py_node)"]
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert not any("no_such_fallback_module" in line for line in warned), warned

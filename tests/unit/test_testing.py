@@ -171,3 +171,48 @@ def test_a_copy_that_fails_late_is_the_tasks_error(tmp_path: Path,
     assert str(raised.value) == (
         f"TEST_RESULTS_DIR (environment): cannot copy the results to {tmp_path / 'res'}: "
         "Read-only file system; give a writable folder")
+
+
+def test_a_results_folder_in_the_build_context_is_warned_about(tmp_path: Path) -> None:
+    """Results written into the repository change the next build's context (a full colcon
+    build, the dev image's sources): `inv test` says so; a folder outside stays silent."""
+    from docker_ros.host.pipeline import results_in_context
+
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    warning = results_in_context(repo / "test-results", repo, "--results-dir")
+    assert warning is not None
+    assert warning.startswith(f"docker-ros test: warning: --results-dir: {repo / 'test-results'}"
+                              f" is in the build context ({repo})")
+    assert "outside the repository" in warning
+    assert results_in_context(repo, repo, "--results-dir") is not None
+    assert results_in_context(tmp_path / "results", repo, "--results-dir") is None
+    assert results_in_context(tmp_path / "repo-results", repo, "--results-dir") is None
+
+
+def test_a_failed_build_reports_no_earlier_runs_tests(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """colcon build fails in the test stage: no test ran, so the JUnit reports an earlier run
+    left in the build/ cache mount are neither copied out nor counted (they said
+    '3 passed' next to 'no tests ran'); the build log still is."""
+    from docker_ros.in_image.runtime.workspace import StepError
+    from docker_ros.in_image.steps import colcon
+
+    ws = tmp_path / "ws"
+    (ws / "build" / "pkg" / "test_results").mkdir(parents=True)
+    (ws / "build" / "pkg" / "test_results" / "pytest.xml").write_text(PYTEST_XML)
+    (ws / "log" / "build_1").mkdir(parents=True)
+    (ws / "log" / "build_1" / "events.log").write_text("failed\n")
+    (ws / "log" / "latest_build").symlink_to("build_1")
+    (ws / "src" / "target").mkdir(parents=True)
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise StepError("colcon", "package pkg failed to build (exit code 2)", 2)
+
+    monkeypatch.setattr(colcon, "main", fail)
+    results = tmp_path / "results"
+    outcome = testing.run_in_image(ws, results, {})
+    assert outcome == {"colcon_build": 2, "colcon_test": 0, "colcon_test_result": 0}
+    assert testing.summarize(results / testing.JUNIT) == Counts(0, 0, 0)
+    assert not (results / testing.JUNIT).exists()
+    assert (results / "log" / "build" / "events.log").is_file()

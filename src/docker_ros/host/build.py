@@ -883,10 +883,23 @@ def build_images(
             runs = [((t,), build_argv(specs[t], buildx))
                     for t in build_order(list(specs), export == "registry")]
         for names, argv in runs:
-            seconds = run_buildx(argv, {t: targets[t] for t in names}, platform, env=child_env,
-                                 out=out, environ=environ)
+            try:
+                seconds = run_buildx(argv, {t: targets[t] for t in names}, platform,
+                                     env=child_env, out=out, environ=environ)
+            except BuildError as exc:
+                raise with_built(exc, built) from None
             built += [BuiltImage(t, targets[t], platform, seconds) for t in names]
     return built
+
+
+def with_built(error: BuildError, built: Sequence[BuiltImage]) -> BuildError:
+    """error, naming also the images that earlier buildx runs of the same build tagged (one
+    run per target: BUILD_NETWORK, CACHE_FROM), as run_buildx names those of its own run."""
+    if not built:
+        return error
+    return BuildError(str(error) + "".join(f"; {image.target!r} was built: {image.ref}"
+                                          for image in built),
+                      error.returncode, stage=error.stage, step=error.step)
 
 
 def build_image(settings: Settings, *, target: str, platform: str, tag: str,

@@ -251,9 +251,14 @@ def config_table(settings: Settings, problems: Optional[Mapping[str, str]] = Non
         value = display_value(settings, n)
         mark = ("  <- INVALID" if n in bad
                 else "  <- MISSING (a build needs it)" if n in missing else "")
+        source = settings.source_of(n)
         if n in settings.problems and not FIELDS[n].metadata["secret"]:
             value = settings.problems[n][0]
-        rows.append((env_name(n), value, settings.source_of(n) + mark))
+        elif n == "test_results_dir" and not value and settings.workspace:
+            # where `inv test` writes when nothing names a folder (pipeline.results_root)
+            value = str(Path(settings.workspace).expanduser() / "test-results")
+            source = "derived from WORKSPACE (the tests' results stay out of the repository)"
+        rows.append((env_name(n), value, source + mark))
     width = max(len(r[0]) for r in rows)
     value_width = min(60, max(len(r[1]) for r in rows))
     lines = [f"{'VARIABLE'.ljust(width)}  {'VALUE'.ljust(value_width)}  SOURCE"]

@@ -12,11 +12,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, List, Mapping, Optional, Sequence, Tuple
 
+from docker_ros.in_image.runtime.files import read_list_file, unique
+from docker_ros.in_image.runtime.workspace import StepError
 from docker_ros.in_image.settings import FALSE_WORDS, TRUE_WORDS, Settings
 
 TARGET = "/docker-ros/ws/src/target"
 X11_SOCKETS = Path("/tmp/.X11-unix")
 XAUTH_IN_CONTAINER = "/tmp/.docker-ros.xauth"
+COLCON_DEFAULTS_IN_CONTAINER = "/tmp/.docker-ros.colcon-defaults.yaml"
+# colcon verbs that take --packages-ignore
+COLCON_SELECTING_VERBS = ("build", "test", "list", "graph")
 FAMILY_WILD = 0xFFFF  # an X authority entry valid for any host name (the container's too)
 
 
@@ -36,6 +41,7 @@ class ShellOptions:
     gpus: str = ""  # a `docker run --gpus` value; empty: none
     x11_display: str = ""  # DISPLAY to forward; empty: no X11
     xauthority: str = ""  # host file with the cookie for x11_display (may be empty)
+    colcon_defaults: str = ""  # host file of colcon defaults ignoring blacklisted packages
 
 
 @dataclass(frozen=True)
@@ -183,6 +189,9 @@ def dev_shell_argv(
     if user.uid != 0:
         argv += ["-e", f"DOCKER_UID={user.uid}", "-e", f"DOCKER_GID={user.gid}",
                  "-e", f"DOCKER_USER={user.name}"]
+    if options.colcon_defaults:  # before --env: a COLCON_DEFAULTS_FILE of the user's wins
+        argv += ["-e", f"COLCON_DEFAULTS_FILE={COLCON_DEFAULTS_IN_CONTAINER}",
+                 "-v", f"{options.colcon_defaults}:{COLCON_DEFAULTS_IN_CONTAINER}:ro"]
     for volume in options.volumes:
         argv += ["-v", host_path(volume, user.cwd)]
     for variable in options.env:
@@ -206,6 +215,30 @@ def dev_shell_argv(
         argv += ["--gpus", options.gpus, "-e", "NVIDIA_DRIVER_CAPABILITIES=all"]
     argv.append(ref)
     return argv + (["bash", "-c", options.command] if options.command else ["bash"])
+
+
+def blacklisted_names(settings: Settings) -> List[str]:
+    """The package names the repository's BLACKLISTED_PACKAGES_FILE lists (its top-level file).
+    The dev image's copies of those packages carry a COLCON_IGNORE file, which the repository
+    mounted over them in the shell lacks."""
+    path = Path(settings.build_context).resolve() / str(settings.blacklisted_packages_file)
+    if not path.is_file():
+        return []
+    try:
+        lines = read_list_file(path, "dev-shell")
+    except StepError as exc:
+        raise DevShellError(exc.message) from None
+    return unique([word for line in lines for word in line.split()])
+
+
+def write_colcon_defaults(names: Sequence[str], destination: Path) -> str:
+    """A colcon defaults file (JSON is YAML) that leaves names out of every verb selecting
+    packages; its path, or '' when there is nothing to leave out."""
+    if not names:
+        return ""
+    ignore = {"packages-ignore": list(names)}
+    destination.write_text(json.dumps({verb: ignore for verb in COLCON_SELECTING_VERBS}) + "\n")
+    return str(destination)
 
 
 def write_cookie(display: str, environ: Mapping[str, str], destination: Path) -> str:

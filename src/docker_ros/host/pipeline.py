@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Collection, Dict, Iterator, List, Mapping, Optional, Sequence
 
-from docker_ros.host import build, container, devshell, slim
+from docker_ros.host import build, builder, container, devshell, engine, slim
 from docker_ros.host.build import BuiltImage
 from docker_ros.host.config import image_problems, input_problems
 from docker_ros.host.lock import lock_status
@@ -283,6 +283,18 @@ def results_origin(settings: Settings, results_dir: str) -> str:
     return f"TEST_RESULTS_DIR (default: in WORKSPACE, {settings.source_of('workspace')})"
 
 
+def results_in_context(results: Path, context: Path, origin: str) -> Optional[str]:
+    """A warning when the results folder lies in the build context: every run then changes
+    the context (the dev image's sources, and a full colcon build: a file outside every
+    package changed). None when it lies outside."""
+    context = context.expanduser().resolve()
+    if results != context and context not in results.parents:
+        return None
+    return (f"docker-ros test: warning: {origin}: {results} is in the build context "
+            f"({context}): the next build sees the results as changed sources (copied into the "
+            "dev image, a full colcon build); give a folder outside the repository")
+
+
 def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> None:
     """Build the test stage per platform, export its results; fail when a test failed.
     (The dev stage needs no COMMAND.)"""
@@ -290,6 +302,9 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
     require(settings, ["base_image"])
     root = results_root(settings, results_dir)
     origin = results_origin(settings, results_dir)
+    warning = results_in_context(root, Path(settings.build_context), origin)
+    if warning:
+        print(warning)
     failures = []
     for platform in settings.platform:
         dest = root if len(settings.platform) == 1 else root / platform
@@ -425,6 +440,7 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
     ref = build.image_ref(settings, "dev")
     try:
         devshell.check_volumes(options.volumes)
+        blacklisted = devshell.blacklisted_names(settings)
         display = os.environ.get("DISPLAY", "")
         display = display if devshell.select_x11(x11, display) else ""
         runtimes = devshell.docker_runtimes() if options.gpus == "auto" else []
@@ -435,11 +451,31 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
                              tty=sys.stdin.isatty() and sys.stdout.isatty())
     with tempfile.TemporaryDirectory(prefix="docker-ros-dev-shell-") as tmp:
         cookie = devshell.write_cookie(display, os.environ, Path(tmp) / "xauth") if display else ""
+        defaults = devshell.write_colcon_defaults(blacklisted, Path(tmp) / "colcon-defaults.yaml")
         argv = devshell.dev_shell_argv(settings, ref, dataclasses.replace(
-            options, gpus=gpus, x11_display=display, xauthority=cookie), user)
+            options, gpus=gpus, x11_display=display, xauthority=cookie,
+            colcon_defaults=defaults), user)
         if dry_run:
             print(format_argv(argv))
             return 0
+        check_shell_engine(settings)
         if rebuild or not build.image_exists(ref):
             build_targets(settings, ("dev",), dry_run=False)
         return subprocess.call(argv)
+
+
+def check_shell_engine(settings: Settings) -> None:
+    """The dev shell's `docker run` uses the CLI's engine: a BUILDER whose engine keeps the
+    images elsewhere (a docker context's docker driver) would build the dev image there and
+    then have `docker run` look for it on a registry. Stop first, saying what to do."""
+    try:
+        chosen = build.selected_builder(settings)
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
+    elsewhere = builder.images_host(chosen, engine.cli_host(os.environ))
+    if elsewhere:
+        raise TaskError(
+            f"BUILDER '{chosen.name}' keeps its images in the engine at {elsewhere}, but the "
+            f"shell's `docker run` uses the local engine ({engine.cli_host(os.environ)}): run "
+            f"`DOCKER_CONTEXT={chosen.name} inv dev-shell` instead (without BUILDER; the "
+            "repository is mounted from that engine's machine)")

@@ -98,9 +98,10 @@ TEST_RESULT_ARGV = ["colcon", "test-result", "--test-result-base", "build", "--v
 DELETE_RESULTS_ARGV = ["colcon", "test-result", "--test-result-base", "build", "--delete-yes"]
 
 
-def copy_results(ws_root: Path, destination: Path) -> None:
-    """JUnit reports from build/ (keeping their paths) and the build and test logs."""
-    for path in junit_files(ws_root / "build"):
+def copy_results(ws_root: Path, destination: Path, *, junit: bool = True) -> None:
+    """JUnit reports from build/ (keeping their paths; junit=False: none, when no test ran,
+    as build/ then holds an earlier run's) and the build and test logs."""
+    for path in junit_files(ws_root / "build") if junit else ():
         target = destination / JUNIT / path.relative_to(ws_root / "build")
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(str(path), str(target))
@@ -140,7 +141,8 @@ def run_in_image(ws_root: Path, destination: Path, environ: Dict[str, str]) -> D
             TEST_RESULT_ARGV, step=STEP, cwd=ws.root, env=env
         )
         (destination / TEST_RESULT_LOG).write_text("".join(lines))
-    copy_results(ws.root, destination)
+    # a failed build ran no test: the reports in the build/ cache mount are an earlier run's
+    copy_results(ws.root, destination, junit=outcome["colcon_build"] == 0)
     (destination / OUTCOME).write_text(json.dumps(outcome, sort_keys=True) + "\n")
     counts = summarize(destination / JUNIT)
     LOG.info("%s: %s", STEP, format_summary(counts))

@@ -142,6 +142,45 @@ def imported_modules(source: str) -> Set[str]:
     return names
 
 
+# Handlers that make an import in their `try` optional (the code goes on without the module).
+_IMPORT_GUARDS = ("ImportError", "ModuleNotFoundError", "Exception", "BaseException")
+
+
+def _guards_imports(node: ast.Try) -> bool:
+    for handler in node.handlers:
+        if handler.type is None:
+            return True
+        types = handler.type.elts if isinstance(handler.type, ast.Tuple) else [handler.type]
+        if any(isinstance(t, ast.Name) and t.id in _IMPORT_GUARDS for t in types):
+            return True
+    return False
+
+
+def optional_modules(source: str) -> Set[str]:
+    """Top-level names a Python source imports only in a `try` (or its handlers) that catches
+    ImportError: fallbacks such as setuptools' console-script wrapper's
+    `from importlib_metadata import distribution`."""
+    guarded: Set[str] = set()
+    plain: Set[str] = set()
+
+    def visit(node: ast.AST, inside: bool) -> None:
+        if isinstance(node, ast.Try) and _guards_imports(node):
+            for guarded_child in [*node.body, *node.handlers]:
+                visit(guarded_child, True)
+            for other_child in [*node.orelse, *node.finalbody]:
+                visit(other_child, inside)
+            return
+        if isinstance(node, ast.Import):
+            (guarded if inside else plain).update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            (guarded if inside else plain).add(node.module.split(".")[0])
+        for child in ast.iter_child_nodes(node):
+            visit(child, inside)
+
+    visit(ast.parse(source), False)
+    return guarded - plain
+
+
 def local_names(path: Path) -> Set[str]:
     """Modules a script can import from its own folder."""
     return {p.stem if p.suffix == ".py" else p.name for p in path.parent.iterdir()}
@@ -177,34 +216,41 @@ def library_needs(elf: Sequence[Path], env: Mapping[str, str], install: Path
 
 
 def module_needs(python: Sequence[Path], env: Mapping[str, str], install: Path
-                 ) -> Tuple[Dict[str, Set[str]], Set[str]]:
+                 ) -> Tuple[Dict[str, Set[str]], Set[str], Set[str]]:
     """(module file or folder outside install/ -> Python files importing it, modules not found
-    by the ROS environment's python3)."""
+    by the ROS environment's python3, those of them every file imports only optionally)."""
     importers: Dict[str, Set[str]] = {}
+    required: Set[str] = set()
     for path in python:
         try:
-            names = imported_modules(path.read_text(errors="replace"))
+            source = path.read_text(errors="replace")
+            names = imported_modules(source)
+            optional = optional_modules(source)
         except SyntaxError as exc:
             LOG.warning("%s: %s is not Python 3 (%s): its imports are not followed", STEP,
                         path.relative_to(install), exc.msg)
             continue
         for name in names - local_names(path):
             importers.setdefault(name, set()).add(str(path.relative_to(install)))
+            if name not in optional:
+                required.add(name)
     if not importers:
-        return {}, set()
+        return {}, set(), set()
     proc = probe(["python3", "-c", FIND_MODULES, *sorted(importers)], step=STEP, env=env)
     if proc.returncode != 0:
         raise StepError(STEP, "finding the imported Python modules failed: "
                         + (proc.stderr.strip().splitlines() or ["no message"])[-1])
     needs: Dict[str, Set[str]] = {}
     missing: Set[str] = set()
+    optional_missing: Set[str] = set()
     for name, places in json.loads(proc.stdout).items():
         if places is None:
-            missing.add(f"{name} (imported by {', '.join(sorted(importers[name]))})")
+            (missing if name in required else optional_missing).add(
+                f"{name} (imported by {', '.join(sorted(importers[name]))})")
         for place in places or []:
             if not place.startswith(str(install) + "/"):
                 needs.setdefault(place, set()).update(importers[name])
-    return needs, missing
+    return needs, missing, optional_missing
 
 
 def providers(needs: Mapping[str, Set[str]], index: Mapping[str, Set[str]]
@@ -228,7 +274,7 @@ def lean_resolution(ws: Workspace, settings: Settings, resolved: Path,
     elf, python = install_files(ws.install)
     env = runtime_env(ws, settings)
     libraries, missing_libraries = library_needs(elf, env, ws.install)
-    modules, missing_modules = module_needs(python, env, ws.install)
+    modules, missing_modules, optional_missing = module_needs(python, env, ws.install)
     index = dpkg_index()
     for_libraries, unowned_libraries = providers(libraries, index)
     for_modules, unowned_modules = providers(modules, index)
@@ -257,6 +303,7 @@ def lean_resolution(ws: Workspace, settings: Settings, resolved: Path,
         "for_modules": {p: sorted(v) for p, v in sorted(for_modules.items())},
         "not_from_packages": unowned,
         "not_found": missing,
+        "optional_not_found": sorted(optional_missing),
     }
     # the report beside the resolution, not in it: the run image's dependency layer is keyed by
     # the resolution's content, which must change only when the packages do
@@ -271,6 +318,9 @@ def lean_resolution(ws: Workspace, settings: Settings, resolved: Path,
         LOG.info("%s: %s is not from a Debian package (left to pip, files and hooks)", STEP, what)
     for what in missing:
         LOG.warning("%s: not found in the dev image either: %s", STEP, what)
+    for what in sorted(optional_missing):
+        LOG.info("%s: optional import (in a try that catches ImportError) not found in the dev "
+                 "image either: %s", STEP, what)
     return report
 
 

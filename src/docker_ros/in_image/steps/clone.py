@@ -113,11 +113,26 @@ def url_host(url: str) -> str:
     return ""
 
 
+_NOT_A_REPOSITORY = re.compile(r"does not appear to be a git repository|does not exist|"
+                               r"no such file", re.IGNORECASE)
+
+
+def is_local_url(url: str) -> bool:
+    """Whether git reads the repository from a folder: a file:// URL or a path."""
+    return url.startswith("file://") or ("://" not in url and not uses_ssh(url))
+
+
 def failure_hint(url: str, reason: str, *, in_image: bool) -> str:
     """What to do about a clone failure we recognise (empty when we do not)."""
     if in_image and LOOPBACK.match(url_host(url)) and _CONNECT_FAILED.search(reason):
-        return (" (in an image build the loopback address is the build container itself: set "
-                "BUILD_NETWORK=host to reach a server on this machine)")
+        # (the step cannot tell whether the build runs with BUILD_NETWORK=host)
+        return (" (in an image build the loopback address is the build container itself unless "
+                "BUILD_NETWORK=host: set it to reach a server on this machine; if it is set, "
+                "nothing answered at that address on this machine: is the server running?)")
+    if in_image and is_local_url(url) and _NOT_A_REPOSITORY.search(reason):
+        return (" (in an image build a file:// URL or a path names a folder in the build "
+                "container, not on this machine: serve the repository over HTTP(S) or SSH, "
+                "with BUILD_NETWORK=host for a server on this machine)")
     return ""
 
 
