@@ -47,6 +47,13 @@ def test_unset_settings_stay_unset_and_set_ones_are_passed():
     assert [p.split("=")[0] for p in pairs].count("BASE_IMAGE") == 1
 
 
+def test_rmw_implementation_is_passed_only_when_chosen():
+    """Unchosen, the Dockerfile's ENV keeps the base image's RMW_IMPLEMENTATION (docker-ros's
+    build.sh passed it only when set); chosen, it is the image's."""
+    assert not any(a.startswith("RMW_IMPLEMENTATION=") for a in plan(settings()))
+    assert "RMW_IMPLEMENTATION=rmw_zenoh_cpp" in plan(settings(RMW_IMPLEMENTATION="rmw_zenoh_cpp"))
+
+
 def test_secrets_are_never_build_arguments():
     s = settings(GIT_HTTPS_PASSWORD="hunter2", GIT_SSH_PRIVATE_KEY="-----KEY-----",
                  REGISTRY_PASSWORD="regpw")

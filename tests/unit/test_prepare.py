@@ -155,7 +155,7 @@ def test_chosen_rmw_is_installed_on_a_ros2_base_that_lacks_it():
 
 def test_rmw_installs_nothing_when_not_needed():
     assert rmw_plan(installed=["ros-jazzy-rmw-zenoh-cpp"]) == []
-    assert rmw_plan(chosen=False) == []  # the default: ROS 2 bases have it
+    assert rmw_plan(chosen=False) == []  # the default keeps the base image's middleware
     assert rmw_plan(disabled=True) == []
     assert rmw_plan(distro=None) == []  # the package cannot be named (prepare warns)
     assert rmw_plan(distro="noetic") == []  # ROS 1 has no RMW

@@ -24,7 +24,14 @@ from docker_ros.in_image.runtime.files import walk
 from docker_ros.in_image.runtime.inputs import resolve_inputs
 from docker_ros.in_image.runtime.lock import LOCK_FILE
 from docker_ros.in_image.runtime.workspace import StepError, Workspace
-from docker_ros.in_image.settings import FIELDS, Settings, as_env, build_secrets, env_name
+from docker_ros.in_image.settings import (
+    FIELDS,
+    Settings,
+    as_env,
+    build_secrets,
+    env_name,
+    explicitly_set,
+)
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
@@ -233,6 +240,10 @@ def build_args(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
     """The value of every declared ARG whose setting is set (docker-ros's add_arg_if_set).
     Secrets are never build arguments (they would stay in the image history)."""
     values = as_env(settings)
+    if not explicitly_set(settings, "rmw_implementation"):
+        # unchosen, a base image's RMW_IMPLEMENTATION stays (the Dockerfile's ENV falls back to
+        # it, then to the default), as with docker-ros's build.sh
+        values.pop("RMW_IMPLEMENTATION", None)
     return {name: values[name] for name in declared if name in values and name.lower() in FIELDS}
 
 
