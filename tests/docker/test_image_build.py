@@ -3,6 +3,7 @@ user mapping, underlaying a docker-ros base image, and bad input (issue: contain
 
 from __future__ import annotations
 
+import json
 import subprocess
 import uuid
 from pathlib import Path
@@ -82,6 +83,19 @@ def test_default_cmd_replaces_the_command_as_in_docker_ros(example: dict) -> Non
     )
     assert result.returncode == 0, result.stdout + result.stderr
     assert result.stdout.strip().endswith("/share/docker_ros_example")
+
+
+def test_images_have_docker_ros_environment(example: dict) -> None:
+    """docker-ros's ENVs: the architecture (hooks fetch files for it), ROS_DISTRO, coloured
+    ROS 2 logs, the default middleware."""
+    for ref in (example["dev"], example["run"]):
+        env = subprocess.run(["docker", "image", "inspect", "-f", "{{json .Config.Env}}", ref],
+                             capture_output=True, text=True, check=True).stdout
+        for pair in ("TARGETARCH=amd64", "RCUTILS_COLORIZED_OUTPUT=1",
+                     "RMW_IMPLEMENTATION=rmw_fastrtps_cpp"):
+            assert f'"{pair}"' in env, (ref, env)
+        # the base (Debian's ROS) has none, nor does this build set one: defined, empty
+        assert "ROS_DISTRO=" in json.loads(env), (ref, env)
 
 
 def test_run_image_has_no_compiler_and_no_sources(example: dict) -> None:
