@@ -1,8 +1,13 @@
 """Pure planning of steps in containers: the Dockerfile's step commands stage by stage, where
 a step starts, --until, composites, resuming, the failed step of a BuildKit log."""
 
+import io
+import os
 import re
+import signal
 from pathlib import Path
+
+import pytest
 
 from docker_ros.host import build, container
 from docker_ros.in_image.settings import load_settings
@@ -190,3 +195,47 @@ def test_every_declared_step_has_its_module_with_main():
     for name in BY_NAME:
         assert callable(step_main(name)), name
         assert step_main(name).__module__ == BY_NAME[name].module
+
+
+class InterruptedCreate:
+    """A docker client whose containers.create is answered by the engine (the container
+    exists) while Ctrl-C arrives: the signal comes before create returns."""
+
+    def __init__(self):
+        self.removed = []
+        self.containers = self
+
+    def create(self, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)
+        return FakeContainer(self.removed)
+
+
+class FakeContainer:
+    def __init__(self, removed):
+        self.removed = removed
+
+    def start(self):
+        pass
+
+    def put_archive(self, *args):
+        raise AssertionError("the interrupt should have come first")
+
+    def remove(self, force=False):
+        self.removed.append(self)
+
+
+def test_ctrl_c_while_the_engine_creates_the_container_leaves_no_container():
+    # Ctrl-C right after the engine created the step container left it running
+    # `sleep infinity` (and `docker ps` full of them): it was never in the variable that
+    # the `finally` removes.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    fake = InterruptedCreate()
+    plan = container.plan_step(settings(), "rosdep")
+    session = container.Session(fake, settings(), plan, Path("/tmp/My_Robot"), None,
+                                io.StringIO(), False)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            session.run("image", 0, {}, "sha256:start")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert len(fake.removed) == 1

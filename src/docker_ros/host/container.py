@@ -310,9 +310,11 @@ class Session:
 
     def run(self, image: str, done: int, env: Mapping[str, str], start_id: str) -> str:
         """Run the plan's commands from done on, in one container of image; tag the result."""
-        container = self.create(image, env)
+        container = None
         snapshots: List[str] = []
         try:
+            with engine.signals_held():
+                container = self.create(image, env)
             container.put_archive("/", tools_archive())
             for index in range(done, len(self.plan.commands)):
                 command = self.plan.commands[index]
@@ -328,7 +330,8 @@ class Session:
             label = state_label(start_id, self.plan.commands, env)
             return self.commit(container, label, self.plan.commands[done:], self.plan.tag)
         finally:
-            container.remove(force=True)
+            if container is not None:
+                container.remove(force=True)
             # newest first: an older snapshot is the parent of the newer ones (and of the result,
             # which keeps it: removing it then fails, and that is fine)
             for snapshot in reversed(snapshots):
