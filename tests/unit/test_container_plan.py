@@ -239,3 +239,20 @@ def test_ctrl_c_while_the_engine_creates_the_container_leaves_no_container():
     finally:
         signal.signal(signal.SIGINT, previous)
     assert len(fake.removed) == 1
+
+
+def test_ctrl_c_as_the_start_stage_is_tagged_leaves_no_stage_tag(monkeypatch):
+    # Ctrl-C right after buildx tagged <IMAGE>-stage-<stage> (before the code that removes
+    # that tag again began) left the tag in `docker images`.
+    tags = set()
+
+    def build_image(settings, *, target, platform, tag, out):
+        tags.add(tag)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(container.build, "build_image", build_image)
+    monkeypatch.setattr(container.engine, "remove_quietly", tags.difference_update)
+    with pytest.raises(KeyboardInterrupt):
+        container.run_plan(settings(), container.plan_step(settings(), "rosdep"),
+                           out=io.StringIO())
+    assert tags == set()

@@ -356,16 +356,17 @@ def run_plan(
     """Build the plan's start stage, run its commands in a container (resuming from an image
     made earlier for a prefix of them), tag the result; returns the tag."""
     stage_tag = tag_of(settings, "stage", plan.start)
+    client = None
     try:
-        build.build_image(settings, target=plan.start, platform=settings.platform[0],
-                          tag=stage_tag, out=out)
-    except build.BuildError as exc:
-        if shell_on_failure and exc.stage in STAGES and exc.step:
-            # The state before the start failed to build: open the shell where that failed.
-            reproduce(settings, exc, out=out)
-        raise
-    client = engine.client()
-    try:
+        try:
+            build.build_image(settings, target=plan.start, platform=settings.platform[0],
+                              tag=stage_tag, out=out)
+        except build.BuildError as exc:
+            if shell_on_failure and exc.stage in STAGES and exc.step:
+                # The state before the start failed to build: open the shell where that failed.
+                reproduce(settings, exc, out=out)
+            raise
+        client = engine.client()
         start_id = str(client.images.get(stage_tag).id)
         declared = [a for a in build.dockerfile_args() if a not in NOT_SETTINGS]
         env = step_environment(settings, declared)
@@ -384,9 +385,13 @@ def run_plan(
             session.run(found or start_id, done, env, start_id)
     finally:
         # The tag only named the stage's build; the image stays while our commits use it.
-        with contextlib.suppress(docker.errors.APIError):
-            client.images.remove(stage_tag)
-        client.close()
+        if client is None:  # (Ctrl-C as buildx had just tagged it, or the build failed)
+            with contextlib.suppress(engine.EngineError):
+                engine.remove_quietly([stage_tag])
+        else:
+            with contextlib.suppress(docker.errors.APIError):
+                client.images.remove(stage_tag)
+            client.close()
     return plan.tag
 
 
