@@ -1,12 +1,15 @@
 """Pure planning of steps in containers: the Dockerfile's step commands stage by stage, where
 a step starts, --until, composites, resuming, the failed step of a BuildKit log."""
 
+import dataclasses
 import io
 import os
 import re
 import signal
+import types
 from pathlib import Path
 
+import docker
 import pytest
 
 from docker_ros.host import build, container
@@ -256,3 +259,51 @@ def test_ctrl_c_as_the_start_stage_is_tagged_leaves_no_stage_tag(monkeypatch):
         container.run_plan(settings(), container.plan_step(settings(), "rosdep"),
                            out=io.StringIO())
     assert tags == set()
+
+
+class EngineOfOneRun:
+    """A docker client for run_plan: the start stage's image, one container; the container's
+    removal takes a moment, and Ctrl-C comes during it (the engine then finishes it alone)."""
+
+    def __init__(self):
+        self.containers = self.images = self
+        self.removing = False
+        self.tags = {"r/i:v1-stage-resolved-dev"}
+
+    def get(self, ref):
+        return types.SimpleNamespace(id="sha256:start", attrs={"Config": {}}, labels={})
+
+    def create(self, *args, **kwargs):
+        return types.SimpleNamespace(start=lambda: None, put_archive=lambda *a: None,
+                                     commit=lambda **k: types.SimpleNamespace(id="sha256:after"),
+                                     remove=self.remove_container)
+
+    def remove_container(self, force=False):
+        self.removing = True
+        os.kill(os.getpid(), signal.SIGINT)
+        self.removing = False  # the engine's answer
+
+    def remove(self, ref, **kwargs):
+        if self.removing:
+            raise docker.errors.APIError(f"conflict: unable to remove {ref}: a container uses it")
+        self.tags.discard(ref)
+
+    def close(self):
+        pass
+
+
+def test_ctrl_c_while_the_step_container_is_removed_still_removes_the_stage_tag(monkeypatch):
+    # Ctrl-C as the container was being removed cut that call short; the engine was still
+    # removing the container when the stage tag's removal came, refused it ("a container is
+    # using its referenced image"), and <IMAGE>-stage-resolved-dev stayed.
+    fake = EngineOfOneRun()
+    monkeypatch.setattr(container.build, "build_image", lambda *a, **k: None)
+    monkeypatch.setattr(container.engine, "client", lambda: fake)
+    plan = dataclasses.replace(container.plan_step(settings(), "rosdep"), commands=())
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            container.run_plan(settings(), plan, out=io.StringIO())
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert fake.tags == set()

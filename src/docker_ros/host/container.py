@@ -330,13 +330,16 @@ class Session:
             label = state_label(start_id, self.plan.commands, env)
             return self.commit(container, label, self.plan.commands[done:], self.plan.tag)
         finally:
-            if container is not None:
-                container.remove(force=True)
-            # newest first: an older snapshot is the parent of the newer ones (and of the result,
-            # which keeps it: removing it then fails, and that is fine)
-            for snapshot in reversed(snapshots):
-                with contextlib.suppress(docker.errors.APIError):
-                    self.client.images.remove(snapshot)
+            # Held: Ctrl-C during the removal left it to the engine, and the removal of the
+            # stage tag right after failed (the container still used the image).
+            with engine.signals_held():
+                if container is not None:
+                    container.remove(force=True)
+                # newest first: an older snapshot is the parent of the newer ones (and of the
+                # result, which keeps it: removing it then fails, and that is fine)
+                for snapshot in reversed(snapshots):
+                    with contextlib.suppress(docker.errors.APIError):
+                        self.client.images.remove(snapshot)
 
 
 def image_label(client: Any, ref: str) -> Optional[str]:
