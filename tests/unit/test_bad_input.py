@@ -148,6 +148,13 @@ def test_git_errors_keep_their_cause_and_loopback_hint() -> None:
     assert clone.failure_hint(url, reason, in_image=False) == ""
     assert clone.failure_hint("https://example.com/x.git", reason, in_image=True) == ""
     assert clone.failure_hint(url, "fatal: invalid reference: main", in_image=True) == ""
+    # a repository of this machine given by its path: the image build cannot see it, and git
+    # said only "does not appear to be a git repository" of a folder the user sees
+    gone = ("Could not determine ref type of version: fatal: '/srv/up' does not appear to be a "
+            "git repository")
+    for local in ("/srv/up", "file:///srv/up"):
+        assert "only the build context" in clone.failure_hint(local, gone, in_image=True)
+        assert clone.failure_hint(local, gone, in_image=False) == ""
     for url, host in (("http://u@localhost:8080/x", "localhost"), ("git@127.0.0.1:x.git",
                       "127.0.0.1"), ("ssh://[::1]:22/x", "[::1]"), ("/srv/x.git", "")):
         assert clone.url_host(url) == host

@@ -118,6 +118,11 @@ def failure_hint(url: str, reason: str, *, in_image: bool) -> str:
     if in_image and LOOPBACK.match(url_host(url)) and _CONNECT_FAILED.search(reason):
         return (" (in an image build the loopback address is the build container itself: set "
                 "BUILD_NETWORK=host to reach a server on this machine)")
+    if in_image and url.startswith(("/", "file://", "./", "../", "~")) and \
+            "not appear to be a git repository" in reason:
+        return (" (a path: an image build sees only the build context, not this machine's "
+                "folders; give a URL the build can reach, e.g. a git daemon on this machine "
+                "with BUILD_NETWORK=host)")
     return ""
 
 
