@@ -210,6 +210,12 @@ def test_invoke_yaml_that_is_no_yaml_or_no_mapping_is_one_line(repo: Path) -> No
     assert proc.returncode == 1
     assert last_line(proc) == ("docker-ros config: invoke configuration: `docker_ros:` is 5: give "
                                "it the settings as NAME: value lines")
+    # `docker-ros:` (as the program is called): its image_tag was ignored without a word
+    (repo / "invoke.yaml").write_text("docker-ros:\n  image_tag: v1\n")
+    proc = run(["docker_ros", "build", "--dry-run"], repo)
+    assert proc.returncode == 1
+    assert last_line(proc) == ("docker-ros build: invoke configuration: `docker-ros:` is not "
+                               "read; the settings go under `docker_ros:`")
 
 
 def test_a_folder_where_a_file_belongs_is_named_so(repo: Path) -> None:

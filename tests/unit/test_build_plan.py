@@ -400,3 +400,32 @@ def test_a_target_failing_after_another_was_built_alone_names_the_built_one(
                                  "'dev' was built: img:t-dev")
     assert (failed.value.returncode, failed.value.stage, failed.value.step) == (
         2, "build", "colcon")
+
+
+def test_the_repository_s_other_imports_images_go_only_after_the_build(monkeypatch, tmp_path):
+    # Two builds of one repository at once, the second after a package.xml edit: the second
+    # removed the first's imports image before the first's BuildKit had read it, and the
+    # first failed looking for docker-ros-imports:... on Docker Hub.
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "package.xml").write_text("<package/>")
+    s = settings(BUILD_CONTEXT=str(tmp_path))
+    other = f"{build.IMPORTS_REPOSITORY}:0000000000000000-{build.imports_owner(tmp_path)[:8]}-amd64"
+    images = {other}
+    seen_in_build = []
+    monkeypatch.setattr(build, "selected_builder", lambda settings: None)
+    monkeypatch.setattr(build.builder, "cache_export", lambda chosen: "inline")
+    monkeypatch.setattr(build.builder, "buildx_command", lambda chosen, name: ["docker", "buildx"])
+    monkeypatch.setattr(build, "ensure_tools_image", lambda platform, buildx: "tools:1")
+    monkeypatch.setattr(build, "image_exists", lambda ref: ref in images)
+    monkeypatch.setattr(build, "scratch_image", lambda ctx, folder, ref, *a, **k: images.add(ref))
+    monkeypatch.setattr(build, "tag_local_base", lambda settings, platform: None)
+    monkeypatch.setattr(build, "prepare_pin_secrets", lambda *a: ({}, {}))
+    monkeypatch.setattr(build, "platform_base", lambda settings, platform: ("base:1", ""))
+    monkeypatch.setattr(build, "seed_builds", lambda *a: None)
+    monkeypatch.setattr(build, "run_buildx",
+                        lambda *a, **k: seen_in_build.append(set(images)) or 1.0)
+    monkeypatch.setattr(build.engine, "tags_labelled", lambda labels: sorted(images))
+    monkeypatch.setattr(build.engine, "remove_quietly", images.difference_update)
+    build.build_images(s, targets={"run": "r:1"}, platform="amd64", out=io.StringIO())
+    assert other in seen_in_build[0]  # still there while the build ran
+    assert other not in images and len(images) == 1  # then only the new one stays

@@ -1,8 +1,16 @@
 """Pure planning of steps in containers: the Dockerfile's step commands stage by stage, where
 a step starts, --until, composites, resuming, the failed step of a BuildKit log."""
 
+import dataclasses
+import io
+import os
 import re
+import signal
+import types
 from pathlib import Path
+
+import docker
+import pytest
 
 from docker_ros.host import build, container
 from docker_ros.in_image.settings import load_settings
@@ -190,3 +198,112 @@ def test_every_declared_step_has_its_module_with_main():
     for name in BY_NAME:
         assert callable(step_main(name)), name
         assert step_main(name).__module__ == BY_NAME[name].module
+
+
+class InterruptedCreate:
+    """A docker client whose containers.create is answered by the engine (the container
+    exists) while Ctrl-C arrives: the signal comes before create returns."""
+
+    def __init__(self):
+        self.removed = []
+        self.containers = self
+
+    def create(self, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)
+        return FakeContainer(self.removed)
+
+
+class FakeContainer:
+    def __init__(self, removed):
+        self.removed = removed
+
+    def start(self):
+        pass
+
+    def put_archive(self, *args):
+        raise AssertionError("the interrupt should have come first")
+
+    def remove(self, force=False):
+        self.removed.append(self)
+
+
+def test_ctrl_c_while_the_engine_creates_the_container_leaves_no_container():
+    # Ctrl-C right after the engine created the step container left it running
+    # `sleep infinity` (and `docker ps` full of them): it was never in the variable that
+    # the `finally` removes.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    fake = InterruptedCreate()
+    plan = container.plan_step(settings(), "rosdep")
+    session = container.Session(fake, settings(), plan, Path("/tmp/My_Robot"), None,
+                                io.StringIO(), False)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            session.run("image", 0, {}, "sha256:start")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert len(fake.removed) == 1
+
+
+def test_ctrl_c_as_the_start_stage_is_tagged_leaves_no_stage_tag(monkeypatch):
+    # Ctrl-C right after buildx tagged <IMAGE>-stage-<stage> (before the code that removes
+    # that tag again began) left the tag in `docker images`.
+    tags = set()
+
+    def build_image(settings, *, target, platform, tag, out):
+        tags.add(tag)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(container.build, "build_image", build_image)
+    monkeypatch.setattr(container.engine, "remove_quietly", tags.difference_update)
+    with pytest.raises(KeyboardInterrupt):
+        container.run_plan(settings(), container.plan_step(settings(), "rosdep"),
+                           out=io.StringIO())
+    assert tags == set()
+
+
+class EngineOfOneRun:
+    """A docker client for run_plan: the start stage's image, one container; the container's
+    removal takes a moment, and Ctrl-C comes during it (the engine then finishes it alone)."""
+
+    def __init__(self):
+        self.containers = self.images = self
+        self.removing = False
+        self.tags = {"r/i:v1-stage-resolved-dev"}
+
+    def get(self, ref):
+        return types.SimpleNamespace(id="sha256:start", attrs={"Config": {}}, labels={})
+
+    def create(self, *args, **kwargs):
+        return types.SimpleNamespace(start=lambda: None, put_archive=lambda *a: None,
+                                     commit=lambda **k: types.SimpleNamespace(id="sha256:after"),
+                                     remove=self.remove_container)
+
+    def remove_container(self, force=False):
+        self.removing = True
+        os.kill(os.getpid(), signal.SIGINT)
+        self.removing = False  # the engine's answer
+
+    def remove(self, ref, **kwargs):
+        if self.removing:
+            raise docker.errors.APIError(f"conflict: unable to remove {ref}: a container uses it")
+        self.tags.discard(ref)
+
+    def close(self):
+        pass
+
+
+def test_ctrl_c_while_the_step_container_is_removed_still_removes_the_stage_tag(monkeypatch):
+    # Ctrl-C as the container was being removed cut that call short; the engine was still
+    # removing the container when the stage tag's removal came, refused it ("a container is
+    # using its referenced image"), and <IMAGE>-stage-resolved-dev stayed.
+    fake = EngineOfOneRun()
+    monkeypatch.setattr(container.build, "build_image", lambda *a, **k: None)
+    monkeypatch.setattr(container.engine, "client", lambda: fake)
+    plan = dataclasses.replace(container.plan_step(settings(), "rosdep"), commands=())
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            container.run_plan(settings(), plan, out=io.StringIO())
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert fake.tags == set()

@@ -4,6 +4,7 @@ import pytest
 
 from docker_ros.in_image.runtime.prepare import (
     plan_rmw_installation,
+    distro_problem,
     plan_ros_installation,
     plan_tool_packages,
     ros_package_names,
@@ -160,3 +161,18 @@ def test_rmw_installs_nothing_when_not_needed():
     assert rmw_plan(distro=None) == []  # the package cannot be named (prepare warns)
     assert rmw_plan(distro="noetic") == []  # ROS 1 has no RMW
     assert rmw_plan(ros_installed=False) == []  # installed with ROS (plan_ros_installation)
+def test_a_ros_distro_the_base_image_does_not_have_is_named(tmp_path):
+    # ROS_DISTRO=noetic over Debian's ROS (docker-ros/ros1:bookworm) failed only in colcon,
+    # in catkin ("ROS_DISTRO was set to 'noetic' before"); over /opt/ros/jazzy, humble was
+    # not installed (ROS was "present") and the build mixed the two
+    assert distro_problem("noetic", tmp_path) is None  # no ROS: prepare installs it
+    (tmp_path / "usr/bin").mkdir(parents=True)
+    (tmp_path / "usr/bin/roscore").touch()
+    assert "Debian's ROS packages in /usr" in distro_problem("noetic", tmp_path)
+    assert distro_problem(None, tmp_path) is None
+    (tmp_path / "opt/ros/jazzy").mkdir(parents=True)
+    (tmp_path / "opt/ros/jazzy/setup.bash").touch()
+    assert distro_problem("humble", tmp_path) == (
+        "ROS_DISTRO=humble, but BASE_IMAGE has ROS jazzy in /opt/ros: set ROS_DISTRO=jazzy, "
+        "or leave it unset")
+    assert distro_problem("jazzy", tmp_path) is None

@@ -272,3 +272,18 @@ def test_the_settings_repr_holds_no_secret():
                                       "s3cr3t-b", "GIT_SSH_PRIVATE_KEY": "s3cr3t-c"})
     assert settings.registry_password == "s3cr3t-b"
     assert "s3cr3t" not in repr(settings) and "git_https_server" in repr(settings)
+
+
+def test_a_yaml_number_for_a_text_setting_and_a_list_item_twice_are_refused():
+    # `image_tag: 1.10` in invoke.yaml is the float 1.1 to YAML: the images were tagged 1.1
+    with pytest.raises(SettingsError, match=r"image_tag: YAML reads it as the number 1.1 .*quote"):
+        load(invoke_config=yaml.safe_load("image_tag: 1.10\nbase_image: b:1"))
+    assert load(invoke_config=yaml.safe_load("image_tag: '1.10'")).image_tag == "1.10"
+    assert load(invoke_config={"image_tag": 2}).image_tag == "2"  # (no digit lost)
+    # PLATFORM=amd64,amd64 built amd64 twice, tagged -amd64 as for two platforms
+    with pytest.raises(SettingsError, match=r"PLATFORM='amd64,amd64': amd64 given twice"):
+        load(environ={"PLATFORM": "amd64,amd64"})
+    with pytest.raises(SettingsError, match=r"TARGET='dev,run,dev': dev given twice"):
+        load(environ={"TARGET": "dev,run,dev"})
+    # (a list without fixed values may name one image twice: CI's defaults on the default branch)
+    assert load(environ={"CACHE_FROM": "r/i:1,r/i:1"}).cache_from == ("r/i:1", "r/i:1")

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import signal
 import tarfile
 from pathlib import Path
 
 import pytest
 
+from docker_ros.host import slim
 from docker_ros.host.push import plan_push, push_targets
 from docker_ros.host.slim import (
     Probe,
@@ -383,3 +386,59 @@ def test_an_unknown_options_value_is_not_listed_as_an_option() -> None:
     assert "unknown option(s) --foo, --bar;" in str(err.value)
     with pytest.raises(SlimError, match=r"unknown option\(s\) stray;"):
         parse_slim_args("stray --include-exe ls")
+
+
+class EngineAnsweringDuringCtrlC:
+    """containers.run/create of a docker client: the engine makes the container (and the
+    slim check's runs COMMAND) while Ctrl-C arrives, before the call returns."""
+
+    def __init__(self):
+        self.made = {}
+        self.removed = []
+        self.containers = self
+
+    def _make(self, name):
+        made = self.made[name] = FakeContainer(name, self.removed)
+        os.kill(os.getpid(), signal.SIGINT)
+        return made
+
+    def run(self, image, detach=False, name=None, environment=()):
+        return self._make(name)
+
+    def create(self, *args, name=None, **kwargs):
+        return self._make(name or f"unnamed-{len(self.made)}")
+
+    def get(self, name):
+        return self.made[name]
+
+
+class FakeContainer:
+    def __init__(self, name, removed):
+        self.name, self.removed = name, removed
+
+    def remove(self, force=False):
+        self.removed.append(self.name)
+
+
+@pytest.mark.parametrize("call", ["trace", "check", "run_once", "export_filtered"])
+def test_ctrl_c_while_the_engine_starts_a_container_leaves_no_container(monkeypatch, tmp_path,
+                                                                        call):
+    # Ctrl-C right after the engine started the slim check's container left it running
+    # COMMAND for good (`docker ps`: docker-ros-slim-check-...); export's and run_once's
+    # containers stayed too.
+    fake = EngineAnsweringDuringCtrlC()
+    monkeypatch.setattr(slim, "client", lambda: fake)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            if call == "trace":
+                slim.trace("sha256:run", {"Cmd": ["x"]}, slim.SlimOptions(), tmp_path)
+            elif call == "check":
+                slim.check("sha256:slim", {}, slim.SlimOptions(), slim.Probe())
+            elif call == "run_once":
+                slim.run_once("sha256:run", ["true"], [])
+            else:
+                slim.export_filtered("sha256:run", set(), [])
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert list(fake.made) == fake.removed and len(fake.removed) == 1

@@ -171,6 +171,11 @@ def settings_task(
                                   if kwargs[n] is not None})
                 for n in settings_flags:
                     kwargs.pop(n, None)
+                near = [k for k in c.config if k != "docker_ros" and
+                        str(k).lower().replace("-", "_") in ("docker_ros", "dockerros")]
+                if near:  # (its settings would be ignored without a word)
+                    raise SettingsError(f"invoke configuration: `{near[0]}:` is not read; the "
+                                        "settings go under `docker_ros:`")
                 cfg = c.config.get("docker_ros", None) or {}
                 if not isinstance(cfg, Mapping):
                     raise SettingsError(f"invoke configuration: `docker_ros:` is {cfg!r}: "

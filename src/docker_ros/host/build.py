@@ -770,8 +770,15 @@ def ensure_imports_image(settings: Settings, platform: str,
         owner = {IMPORTS_LABEL: mine}
         scratch_image(Path(tmp), "context", ref, platform, into="/", buildx=buildx,
                       labels=owner)
-    engine.remove_quietly(superseded_imports(engine.tags_labelled(owner), ref))
     return ref
+
+
+def remove_superseded_imports(settings: Settings, current: str) -> None:
+    """After a build, the repository's other imports images of the platform go. Not before
+    it: a concurrent build of the repository (other .repos or inputs) made them, and its
+    BuildKit may not have read its own yet (removed, it looked for it on Docker Hub)."""
+    owner = {IMPORTS_LABEL: imports_owner(Path(settings.build_context))}
+    engine.remove_quietly(superseded_imports(engine.tags_labelled(owner), current))
 
 
 def imports_owner(repository: Path) -> str:
@@ -900,6 +907,7 @@ def build_images(
             except BuildError as exc:
                 raise with_built(exc, built) from None
             built += [BuiltImage(t, targets[t], platform, seconds) for t in names]
+    remove_superseded_imports(settings, imports)
     return built
 
 

@@ -310,9 +310,11 @@ class Session:
 
     def run(self, image: str, done: int, env: Mapping[str, str], start_id: str) -> str:
         """Run the plan's commands from done on, in one container of image; tag the result."""
-        container = self.create(image, env)
+        container = None
         snapshots: List[str] = []
         try:
+            with engine.signals_held():
+                container = self.create(image, env)
             container.put_archive("/", tools_archive())
             for index in range(done, len(self.plan.commands)):
                 command = self.plan.commands[index]
@@ -328,12 +330,16 @@ class Session:
             label = state_label(start_id, self.plan.commands, env)
             return self.commit(container, label, self.plan.commands[done:], self.plan.tag)
         finally:
-            container.remove(force=True)
-            # newest first: an older snapshot is the parent of the newer ones (and of the result,
-            # which keeps it: removing it then fails, and that is fine)
-            for snapshot in reversed(snapshots):
-                with contextlib.suppress(docker.errors.APIError):
-                    self.client.images.remove(snapshot)
+            # Held: Ctrl-C during the removal left it to the engine, and the removal of the
+            # stage tag right after failed (the container still used the image).
+            with engine.signals_held():
+                if container is not None:
+                    container.remove(force=True)
+                # newest first: an older snapshot is the parent of the newer ones (and of the
+                # result, which keeps it: removing it then fails, and that is fine)
+                for snapshot in reversed(snapshots):
+                    with contextlib.suppress(docker.errors.APIError):
+                        self.client.images.remove(snapshot)
 
 
 def image_label(client: Any, ref: str) -> Optional[str]:
@@ -353,16 +359,17 @@ def run_plan(
     """Build the plan's start stage, run its commands in a container (resuming from an image
     made earlier for a prefix of them), tag the result; returns the tag."""
     stage_tag = tag_of(settings, "stage", plan.start)
+    client = None
     try:
-        build.build_image(settings, target=plan.start, platform=settings.platform[0],
-                          tag=stage_tag, out=out)
-    except build.BuildError as exc:
-        if shell_on_failure and exc.stage in STAGES and exc.step:
-            # The state before the start failed to build: open the shell where that failed.
-            reproduce(settings, exc, out=out)
-        raise
-    client = engine.client()
-    try:
+        try:
+            build.build_image(settings, target=plan.start, platform=settings.platform[0],
+                              tag=stage_tag, out=out)
+        except build.BuildError as exc:
+            if shell_on_failure and exc.stage in STAGES and exc.step:
+                # The state before the start failed to build: open the shell where that failed.
+                reproduce(settings, exc, out=out)
+            raise
+        client = engine.client()
         start_id = str(client.images.get(stage_tag).id)
         declared = [a for a in build.dockerfile_args() if a not in NOT_SETTINGS]
         env = step_environment(settings, declared)
@@ -381,9 +388,13 @@ def run_plan(
             session.run(found or start_id, done, env, start_id)
     finally:
         # The tag only named the stage's build; the image stays while our commits use it.
-        with contextlib.suppress(docker.errors.APIError):
-            client.images.remove(stage_tag)
-        client.close()
+        if client is None:  # (Ctrl-C as buildx had just tagged it, or the build failed)
+            with contextlib.suppress(engine.EngineError):
+                engine.remove_quietly([stage_tag])
+        else:
+            with contextlib.suppress(docker.errors.APIError):
+                client.images.remove(stage_tag)
+            client.close()
     return plan.tag
 
 

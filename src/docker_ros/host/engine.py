@@ -10,8 +10,10 @@ import functools
 import hashlib
 import json
 import os
+import signal
+import threading
 from pathlib import Path
-from typing import Any, Dict, Iterable, List, Mapping, Optional
+from typing import Any, Dict, Iterable, Iterator, List, Mapping, Optional
 
 import docker
 from docker.errors import APIError, DockerException, ImageNotFound, NotFound
@@ -23,6 +25,24 @@ class EngineError(Exception):
 
 
 DEFAULT_HOST = "unix:///var/run/docker.sock"
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """Ctrl-C (SIGINT) and SIGTERM wait until the block is done, then raise as usual. Around
+    the creation of a container and the assignment of it to the variable a `finally` removes:
+    a signal between the engine's answer and the assignment left the container behind (and
+    `sleep infinity` or COMMAND running in it)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
 # The engine the images are in when it is not the CLI's (bind): a docker-driver builder of
 # another docker context keeps what it builds there.
 _bound: Dict[str, str] = {}

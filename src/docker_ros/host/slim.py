@@ -26,7 +26,7 @@ from docker.errors import DockerException
 from docker.models.containers import Container
 
 from docker_ros.host.build import PACKAGE_DIR, image_ref, image_size, platform_ref
-from docker_ros.host.engine import client, inspect_image, tag
+from docker_ros.host.engine import client, inspect_image, signals_held, tag
 from docker_ros.in_image.settings import Settings, host_platform
 
 TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
@@ -373,13 +373,16 @@ def logs(name: str) -> str:
 def run_once(image: str, argv: Sequence[str], env: Sequence[str]) -> Tuple[int, str]:
     """`docker run --rm`: a container of image running argv; (exit status, its output)."""
     with engine_errors(f"running {shlex.join(argv)[:100]} in {image}"):
-        once = client().containers.create(image, list(argv), environment=list(env))
+        once = None
         try:
+            with signals_held():
+                once = client().containers.create(image, list(argv), environment=list(env))
             once.start()
             code = int(once.wait(timeout=300)["StatusCode"])
             return code, bytes(once.logs(stdout=True, stderr=True)).decode(errors="replace")
         finally:
-            once.remove(force=True)
+            if once is not None:
+                once.remove(force=True)
 
 
 Ending = Optional[Tuple[str, Optional[int]]]  # why a window ends, COMMAND's exit status
@@ -459,10 +462,10 @@ def trace(run_id: str, config: Mapping, options: SlimOptions, workdir: Path) -> 
         Probe, Set[str], dict]:
     """Trace the run image: its probe (the reference), the keep set, the tracer's figures."""
     name = f"docker-ros-slim-trace-{os.getpid()}-{int(time.time() * 1000)}"
-    with engine_errors("creating the trace container"):
-        traced = client().containers.create(**plan_trace_container(run_id, config, options,
-                                                                   name))
     try:
+        with engine_errors("creating the trace container"), signals_held():
+            traced = client().containers.create(**plan_trace_container(run_id, config, options,
+                                                                       name))
         exchange = io.BytesIO()
         with tarfile.open(fileobj=exchange, mode="w") as tar:
             tar.add(str(TRACER), arcname=f"{EXCHANGE[1:]}/slimtrace.py")
@@ -551,12 +554,15 @@ def export_filtered(run_id: str, keep: Set[str], changes: Sequence[str]) -> Tupl
     image with the run image's config (`changes`)."""
     with engine_errors("exporting the run image's files"), \
             tempfile.NamedTemporaryFile(prefix="docker-ros-slim-", suffix=".tar") as filtered:
-        created = client().containers.create(run_id)
+        created = None
         try:
+            with signals_held():
+                created = client().containers.create(run_id)
             kept, total = filter_tar(io.BufferedReader(ChunkReader(created.export())),
                                      filtered, keep)
         finally:
-            created.remove(force=True)
+            if created is not None:
+                created.remove(force=True)
         filtered.flush()
         answer = client().api.import_image(src=filtered.name, changes=list(changes))
     return imported_id(str(answer)), kept, total
@@ -565,9 +571,11 @@ def export_filtered(run_id: str, keep: Set[str], changes: Sequence[str]) -> Tupl
 def check(slim_id: str, config: Mapping, options: SlimOptions, reference: Probe) -> Probe:
     """Run the slim image as the run image was run (same command, env and window)."""
     name = f"docker-ros-slim-check-{os.getpid()}-{int(time.time() * 1000)}"
-    with engine_errors("starting the slim image"):
-        client().containers.run(slim_id, detach=True, name=name, environment=list(options.env))
     try:
+        with engine_errors("starting the slim image"), signals_held():
+            client().containers.run(slim_id, detach=True, name=name,
+                                    environment=list(options.env))
+
         def poll(elapsed: float) -> Ending:
             return check_ending(elapsed, *container_state(name), reference,
                                 lambda: logs(name), options.expect)

@@ -475,6 +475,10 @@ def parse_list(name: str, raw: str) -> Tuple[str, ...]:
             "(comma-separated), or leave it unset"
         )
     bad = [item for item in items if choices and item not in choices]
+    twice = sorted({i for i in items if items.count(i) > 1}) if choices else []
+    if twice and not bad:  # (PLATFORM=amd64,amd64 built amd64 twice, with -amd64 tags)
+        raise SettingsError(f"{env_name(name)}={raw!r}: {', '.join(twice)} given twice; "
+                            "name each once")
     if bad:
         raise SettingsError(
             f"{env_name(name)}={raw!r}: {', '.join(bad)} not allowed; "
@@ -585,6 +589,12 @@ def load_settings(
             errors.append(f"invoke.yaml: docker_ros.{key}: a secret is never kept in a "
                           "committed file; set it in the environment or .env")
             problems[f"invoke.yaml:{key}"] = (MASKED, errors[-1])
+        elif isinstance(value, float) and kind_of(name) == "str":
+            # YAML reads `image_tag: 1.10` as the number 1.1: the tag would be 1.1
+            errors.append(f"invoke.yaml: docker_ros.{key}: YAML reads it as the number "
+                          f"{value!r} (1.10 is 1.1 to YAML): quote the value as you wrote it, "
+                          f"e.g. {key}: '1.10'")
+            problems[f"invoke.yaml:{key}"] = (str(value), errors[-1])
         elif value is not None and value != "":  # (`key:` alone, like an empty variable: unset)
             yaml_values[name] = value
     layers.append(("invoke.yaml", yaml_values))

@@ -60,6 +60,22 @@ def ros_present(root: Path = Path("/"), distro: Optional[str] = None) -> bool:
     return any((root / p).exists() for p in ("usr/bin/roscore", "usr/share/ament_cmake_core"))
 
 
+def distro_problem(distro: Optional[str], root: Path = Path("/")) -> Optional[str]:
+    """Why a ROS_DISTRO the user set does not fit the ROS the base image has (None: it fits,
+    or the base has none). Built against another distribution's ROS, the build failed only in
+    colcon, e.g. in catkin: "ROS_DISTRO was set to 'noetic' before"."""
+    if not distro:
+        return None
+    found = sorted(p.parent.name for p in (root / "opt/ros").glob("*/setup.bash"))
+    if found and distro not in found:
+        return (f"ROS_DISTRO={distro}, but BASE_IMAGE has ROS {', '.join(found)} in /opt/ros: "
+                f"set ROS_DISTRO={found[0]}, or leave it unset")
+    if not found and ros_present(root):
+        return (f"ROS_DISTRO={distro}, but BASE_IMAGE has Debian's ROS packages in /usr, not "
+                f"/opt/ros/{distro}: leave ROS_DISTRO unset")
+    return None
+
+
 def ros_package_names(distro: str, rmw_implementation: str) -> List[str]:
     """apt packages of a ROS installation: ros-core, and the RMW implementation on ROS 2."""
     packages = [f"ros-{distro}-ros-core"]
@@ -239,6 +255,9 @@ def main(
     with step_log("prepare"), held_to_lock(options.get("dependency_types"), dry_run=dry_run):
         move_base_workspace(ws, dry_run=dry_run)
         keep_apt_downloads(dry_run=dry_run)
+        problem = distro_problem(settings.ros_distro)
+        if problem:
+            raise StepError("prepare", problem)
         distro = settings.ros_distro or environ.get("ROS_DISTRO")
         commands = plan_ros_installation(
             ros_installed=ros_present(distro=distro),
