@@ -3,8 +3,8 @@
 import pytest
 
 from docker_ros.in_image.runtime.prepare import (
-    plan_rmw_installation,
     distro_problem,
+    plan_rmw_installation,
     plan_ros_installation,
     plan_tool_packages,
     ros_package_names,
