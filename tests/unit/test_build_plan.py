@@ -3,6 +3,7 @@
 import io
 import os
 import re
+import shlex
 import tarfile
 from pathlib import Path
 
@@ -401,6 +402,20 @@ def test_a_target_failing_after_another_was_built_alone_names_the_built_one(
     assert (failed.value.returncode, failed.value.stage, failed.value.step) == (
         2, "build", "colcon")
 
+    class Terminated(KeyboardInterrupt):  # (as tasks.Terminated: SIGTERM keeps its type)
+        pass
+
+    def ctrl_c(argv, targets, platform, **kw):
+        if "run" in targets:
+            raise Terminated
+        return 1.0
+
+    monkeypatch.setattr(build, "run_buildx", ctrl_c)
+    with pytest.raises(Terminated) as stopped:
+        build.build_images(s, targets={"dev": "img:t-dev", "run": "img:t"}, platform="amd64",
+                           out=io.StringIO(), environ={})
+    assert str(stopped.value) == "'dev' was built: img:t-dev"
+
 
 def test_the_repository_s_other_imports_images_go_only_after_the_build(monkeypatch, tmp_path):
     # Two builds of one repository at once, the second after a package.xml edit: the second
@@ -429,3 +444,20 @@ def test_the_repository_s_other_imports_images_go_only_after_the_build(monkeypat
     build.build_images(s, targets={"run": "r:1"}, platform="amd64", out=io.StringIO())
     assert other in seen_in_build[0]  # still there while the build ran
     assert other not in images and len(images) == 1  # then only the new one stays
+
+
+def test_a_ctrl_c_after_buildkit_tagged_an_image_says_so():
+    """buildx cancelled by Ctrl-C after it had named one target: the interruption names it
+    (it stays tagged; README: 'interrupted' otherwise tags nothing)."""
+    log = ("#20 naming to docker.io/library/img:t-dev done\n"
+           "ERROR: failed to solve: Canceled: context canceled\n")
+    argv = ["bash", "-c", f"printf '%s' {shlex.quote(log)}; exit 1"]
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        build.run_buildx(argv, {"dev": "img:t-dev", "run": "img:t"}, "amd64", env=os.environ,
+                         out=io.StringIO(), environ={})
+    assert str(stopped.value) == "'dev' was built: img:t-dev"
+    argv = ["bash", "-c", "echo 'ERROR: failed to solve: Canceled: context canceled'; exit 1"]
+    with pytest.raises(KeyboardInterrupt) as plain:
+        build.run_buildx(argv, {"run": "img:t"}, "amd64", env=os.environ, out=io.StringIO(),
+                         environ={})
+    assert str(plain.value) == ""

@@ -186,10 +186,13 @@ def settings_task(
                 with logged_in_job(settings, f"docker-ros {name}", required=login_required,
                                    dry_run=bool(kwargs.get("dry_run"))):
                     return func(c, settings, **kwargs)
-            except Terminated:
-                raise Exit(f"docker-ros {name}: terminated (SIGTERM)", code=143) from None
-            except KeyboardInterrupt:
-                raise Exit(f"docker-ros {name}: interrupted", code=130) from None
+            except KeyboardInterrupt as exc:
+                # (a build's names what BuildKit had tagged before the Ctrl-C: build.noted)
+                detail = f" ({exc})" if str(exc) else ""
+                if isinstance(exc, Terminated):
+                    raise Exit(f"docker-ros {name}: terminated (SIGTERM){detail}",
+                               code=143) from None
+                raise Exit(f"docker-ros {name}: interrupted{detail}", code=130) from None
             except (SettingsError, StepError, TaskError, LockError, engine.EngineError) as exc:
                 code = getattr(exc, "returncode", 1) or 1
                 where = exc.step if isinstance(exc, StepError) else name

@@ -71,6 +71,14 @@ class BuildError(Exception):
         self.step = step
 
 
+def noted(interruption: KeyboardInterrupt, tagged: Sequence[str]) -> KeyboardInterrupt:
+    """A Ctrl-C (or SIGTERM: tasks.Terminated) after which images of the build stay tagged
+    (BuildKit had finished them): its message names them (`'dev' was built: x:1-dev`)."""
+    notes = [*tagged, *([str(interruption)] if str(interruption) else [])]
+    interruption.args = ("; ".join(notes),) if notes else ()
+    return interruption
+
+
 @dataclass(frozen=True)
 class BuiltImage:
     target: str
@@ -906,6 +914,8 @@ def build_images(
                                      env=child_env, out=out, environ=environ)
             except BuildError as exc:
                 raise with_built(exc, built) from None
+            except KeyboardInterrupt as exc:
+                raise noted(exc, built_notes(built)) from None
             built += [BuiltImage(t, targets[t], platform, seconds) for t in names]
     remove_superseded_imports(settings, imports)
     return built
@@ -916,9 +926,12 @@ def with_built(error: BuildError, built: Sequence[BuiltImage]) -> BuildError:
     run per target: BUILD_NETWORK, CACHE_FROM), as run_buildx names those of its own run."""
     if not built:
         return error
-    return BuildError(str(error) + "".join(f"; {image.target!r} was built: {image.ref}"
-                                          for image in built),
+    return BuildError("; ".join([str(error), *built_notes(built)]),
                       error.returncode, stage=error.stage, step=error.step)
+
+
+def built_notes(built: Sequence[BuiltImage]) -> List[str]:
+    return [f"{image.target!r} was built: {image.ref}" for image in built]
 
 
 def build_image(settings: Settings, *, target: str, platform: str, tag: str,
@@ -944,16 +957,19 @@ def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *
     try:
         errors = stream_build(log, out, environ)
         code = proc.wait()
-    except KeyboardInterrupt:
-        # buildx got the same Ctrl-C: let it cancel the build (nothing is tagged) and end.
+    except KeyboardInterrupt as exc:
+        # buildx got the same Ctrl-C: let it cancel the build and end (what it had named by
+        # then stays tagged: said in the message)
         proc.terminate()
         proc.wait()
-        raise
+        raise noted(exc, [f"{t!r} was built: {tag}" for t, tag in targets.items()
+                          if tagged_in_log(lines, tag)]) from None
+    done = [t for t, tag in targets.items() if tagged_in_log(lines, tag)]
     if code != 0 and cancelled(lines) and not engine_lost(lines):
-        raise KeyboardInterrupt  # as if we had seen the Ctrl-C that stopped buildx
+        # as if we had seen the Ctrl-C that stopped buildx
+        raise noted(KeyboardInterrupt(), [f"{t!r} was built: {targets[t]}" for t in done])
     if code != 0:
         stage, step = failed_step(lines)
-        done = [t for t, tag in targets.items() if tagged_in_log(lines, tag)]
         failed = [t for t in targets if t not in done]
         what = "target" if len(failed) == 1 else "targets"
         raise BuildError(f"building {what} {', '.join(repr(t) for t in failed)} ({platform}) "
