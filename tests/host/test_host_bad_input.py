@@ -340,7 +340,9 @@ def test_bad_base_image_and_slim_tag_stop_the_dry_run(repo: Path) -> None:
     proc = run(["docker_ros", "build", "--dry-run", "--target", "run", "--enable-slim", "--set",
                 "SLIM_IMAGE_TAG=bad tag!"], repo)
     assert proc.returncode == 1, proc.stdout
-    assert last_line(proc).strip() == "SLIM_IMAGE_TAG: 'bad tag!' is not a valid image tag"
+    assert last_line(proc).strip() == ("SLIM_IMAGE_TAG: 'bad tag!' is not a valid image tag: up "
+                                       "to 128 letters, digits, _ . and -, not starting with . "
+                                       "or -")
     assert "[dry-run]" not in proc.stdout
 
 

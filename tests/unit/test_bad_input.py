@@ -22,6 +22,10 @@ from docker_ros.in_image.settings import (
 )
 from docker_ros.in_image.steps import clone, pip
 
+TAG_RULE = ": up to 128 letters, digits, _ . and -, not starting with . or -"
+NAME_RULE = (
+    ": lower-case letters, digits and . _ - between /, after an optional registry host[:port]/")
+
 
 def settings_for(repository: Path, **env: str):
     return load_settings(environ={"BUILD_CONTEXT": str(repository), **env},
@@ -86,18 +90,24 @@ def test_a_tag_from_a_flag_over_image_in_env_is_named_by_the_flags_variable(
     IMAGE."""
     settings = load_settings(dotenv={"IMAGE": "robot:v1"}, flags={"image_tag": "bad:tag"},
                              environ={"BUILD_CONTEXT": str(tmp_path)}, project_dir=tmp_path)
+    # (DEV_IMAGE_TAG, from IMAGE_TAG, is the same mistake: told once)
     assert image_problems(settings, ("dev", "run")) == {
-        "image_tag": "IMAGE_TAG: 'bad:tag' is not a valid image tag",
-        "dev_image_tag": "DEV_IMAGE_TAG (from IMAGE_TAG): 'bad:tag-dev' is not a valid image tag"}
+        "image_tag": "IMAGE_TAG: 'bad:tag' is not a valid image tag" + TAG_RULE}
 
 
 def test_invalid_image_names_name_the_setting(tmp_path: Path) -> None:
     bad = settings_for(tmp_path, IMAGE="my robot:v1")
     assert image_problems(bad, ("run",)) == {
-        "image_name": "IMAGE_NAME (from IMAGE): 'my robot' is not a valid image name"}
+        "image_name": "IMAGE_NAME (from IMAGE): 'my robot' is not a valid image name" + NAME_RULE}
     tag = settings_for(tmp_path, IMAGE_NAME="ok/name", IMAGE_TAG="v1?")
-    assert set(image_problems(tag, ("dev", "run"))) == {"image_tag", "dev_image_tag"}
-    assert "IMAGE_TAG: 'v1?' is not a valid image tag" in image_problems(tag, ("run",)).values()
+    assert set(image_problems(tag, ("dev", "run"))) == {"image_tag"}
+    assert "IMAGE_TAG: 'v1?' is not a valid image tag" + TAG_RULE in image_problems(
+        tag, ("run",)).values()
+    other = settings_for(tmp_path, IMAGE_TAG="v1?", DEV_IMAGE_TAG="dev?")  # set apart: both
+    assert set(image_problems(other, ("dev", "run"))) == {"image_tag", "dev_image_tag"}
+    digest = settings_for(tmp_path, IMAGE="x:latest@sha256:abc")
+    assert image_problems(digest, ("run",))["image_name"].endswith(
+        "(IMAGE takes name[:tag], no @digest)")
     folder = load_settings(environ={}, project_dir=Path("/tmp/My Robot"))
     assert "set IMAGE or IMAGE_NAME" in image_problems(folder, ("run",))["image_name"]
     for good in ("localhost:5000/a/b-c:1.0", "ghcr.io/org/repo_x:latest", "a__b/c.d:tag-1"):
@@ -277,7 +287,7 @@ def test_slim_image_names_are_checked_when_slimmed(tmp_path: Path) -> None:
     bad = settings_for(tmp_path, SLIM_IMAGE_TAG="bad tag!")
     assert image_problems(bad, ("run",)) == {}
     assert image_problems(bad, ("run", "slim")) == {
-        "slim_image_tag": "SLIM_IMAGE_TAG: 'bad tag!' is not a valid image tag"}
+        "slim_image_tag": "SLIM_IMAGE_TAG: 'bad tag!' is not a valid image tag" + TAG_RULE}
     with pytest.raises(SettingsError, match="SLIM_IMAGE_TAG: 'bad tag!' is not a valid"):
         check_slim_options(bad)
 
@@ -286,7 +296,8 @@ def test_a_bad_image_postfix_is_named(tmp_path: Path) -> None:
     bad = load_settings(environ={"BUILD_CONTEXT": str(tmp_path)}, project_dir=tmp_path,
                         flags={"image_postfix": "bad/post", "image": "x:y"})
     assert image_problems(bad, ("run",)) == {"image_tag": (
-        "IMAGE_TAG (from IMAGE) + IMAGE_POSTFIX (flag): 'ybad/post' is not a valid image tag")}
+        "IMAGE_TAG (from IMAGE) + IMAGE_POSTFIX (flag): 'ybad/post' is not a valid image tag"
+        + TAG_RULE)}
 
 
 def test_inspect_image_turns_a_refused_reference_into_an_engine_error(

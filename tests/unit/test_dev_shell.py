@@ -160,6 +160,15 @@ def test_volume_specs_are_checked_in_our_words():
         devshell.check_volumes(["./ok:/ok", "x:y", "bad:::"])
 
 
+def test_env_values_are_checked_before_the_build():
+    for good in ("ROS_DOMAIN_ID=3", "DISPLAY", "A_1=x=y", "EMPTY="):
+        assert devshell.env_problem(good) == "", good
+    for bad in ("=x", "1A=x", "MY VAR=x", ""):
+        assert "give NAME=VALUE (or NAME)" in devshell.env_problem(bad), bad
+    with pytest.raises(devshell.DevShellError, match="--env '=x'"):
+        devshell.check_volumes(["./ok:/ok"], ["A=1", "=x"])
+
+
 def test_a_builder_keeping_images_in_another_engine_stops_the_shell_first(tmp_path,
                                                                           monkeypatch):
     """BUILDER=<docker context of another engine>: the dev image would be built there and

@@ -287,3 +287,14 @@ def test_a_yaml_number_for_a_text_setting_and_a_list_item_twice_are_refused():
         load(environ={"TARGET": "dev,run,dev"})
     # (a list without fixed values may name one image twice: CI's defaults on the default branch)
     assert load(environ={"CACHE_FROM": "r/i:1,r/i:1"}).cache_from == ("r/i:1", "r/i:1")
+
+
+def test_a_required_value_emptied_by_a_higher_source_says_where_from():
+    """`--base-image ""` over a .env that sets it: the message names the flag, not only the
+    variable (the user sees BASE_IMAGE in .env)."""
+    emptied = load_settings(dotenv={"BASE_IMAGE": "ros:noetic"}, flags={"base_image": ""},
+                            project_dir=Path("/tmp/p"))
+    with pytest.raises(SettingsError, match=r"BASE_IMAGE \(empty, from flag\)"):
+        require(emptied, ["base_image"])
+    with pytest.raises(SettingsError, match=r"configuration: BASE_IMAGE \(set them"):
+        require(load_settings(project_dir=Path("/tmp/p")), ["base_image"])

@@ -193,13 +193,28 @@ def image_problems(settings: Settings, targets: Sequence[str]) -> Dict[str, str]
         problems["base_image"] = (
             f"BASE_IMAGE ({settings.source_of('base_image')}): {settings.base_image!r} is not a "
             "valid image reference: give [registry/]name[:tag][@digest], the name in lower case")
+    told = set()  # the variables a reported value came from: a value derived from the same
+    # one (DEV_IMAGE_TAG from IMAGE) is the same mistake, told once
     for name_field, tag_field in refs.values():
         for field, pattern in ((name_field, IMAGE_NAME), (tag_field, IMAGE_TAG)):
             value = str(getattr(settings, field))
-            if not pattern.match(value):
-                problems[field] = (f"{origin_of(settings, field)}: {value!r} is not a valid "
-                                   f"image {'name' if field.endswith('name') else 'tag'}")
+            root = root_variable(settings, field, settings.source_of(field))
+            if pattern.match(value) or root in told:
+                continue
+            told.add(root)
+            kind = "name" if field.endswith("name") else "tag"
+            problems[field] = (f"{origin_of(settings, field)}: {value!r} is not a valid image "
+                               f"{kind}: {IMAGE_RULES[kind]}")
+            if root == "IMAGE" and "@" in settings.image:
+                problems[field] += " (IMAGE takes name[:tag], no @digest)"
     return problems
+
+
+IMAGE_RULES = {
+    "name": "lower-case letters, digits and . _ - between /, after an optional registry "
+            "host[:port]/",
+    "tag": "up to 128 letters, digits, _ . and -, not starting with . or -",
+}
 
 
 def valid_reference(ref: str) -> bool:

@@ -159,10 +159,19 @@ def volume_problem(spec: str) -> str:
     return ""
 
 
-def check_volumes(specs: Sequence[str]) -> None:
-    """Every --volume checked before the dev image is built (docker would say `invalid spec`
-    only after it)."""
-    problems = [p for p in map(volume_problem, specs) if p]
+def env_problem(spec: str) -> str:
+    """What is wrong with an --env value (NAME=VALUE, or NAME to pass this machine's), '' if
+    nothing (docker passed `-e =x` on, and its error came after the dev image's build)."""
+    name = spec.partition("=")[0]
+    if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        return ""
+    return f"--env {spec!r}: give NAME=VALUE (or NAME), NAME of letters, digits and _"
+
+
+def check_volumes(specs: Sequence[str], env: Sequence[str] = ()) -> None:
+    """Every --volume and --env checked before the dev image is built (docker would say
+    `invalid spec` only after it)."""
+    problems = [p for p in [*map(volume_problem, specs), *map(env_problem, env)] if p]
     if problems:
         raise DevShellError("; ".join(problems))
 

@@ -844,7 +844,9 @@ def host_platform() -> str:
 
 def require(settings: Settings, names: Iterable[str]) -> None:
     """Fail with one message listing every required value that is missing."""
-    missing = [env_name(n) for n in names if not getattr(settings, n)]
+    missing = [env_name(n) + ("" if settings.source_of(n) == "default"
+                              else f" (empty, from {settings.source_of(n)})")
+               for n in names if not getattr(settings, n)]
     if missing:
         raise SettingsError(
             "missing required configuration: "
