@@ -205,7 +205,7 @@ def image_problems(settings: Settings, targets: Sequence[str]) -> Dict[str, str]
             kind = "name" if field.endswith("name") else "tag"
             problems[field] = (f"{origin_of(settings, field)}: {value!r} is not a valid image "
                                f"{kind}: {IMAGE_RULES[kind]}")
-            if root == "IMAGE" and "@" in settings.image:
+            if root == "IMAGE" and "@" in (settings.image or ""):
                 problems[field] += " (IMAGE takes name[:tag], no @digest)"
     return problems
 
