@@ -225,6 +225,19 @@ def test_pip_failure_names_the_file(project, venv_python, environ):
     assert "exit code" in err.value.message
 
 
+def test_an_invalid_requirement_is_named_by_its_line(project, venv_python, environ):
+    """pip names a bad line by its number in our temporary file, gone after the step: the
+    message shows the line itself (real pip: it refuses the file before any download)."""
+    (project.repo / "docker").mkdir()
+    (project.repo / "docker" / "additional-pip-requirements.txt").write_text(
+        "six\nthis is not a requirement\n")
+    environ({"DOCKER_ROS_PYTHON": str(venv_python)})
+    with pytest.raises(StepError) as err:
+        pip.main(project.ws, project.settings())
+    assert "(from the requirement line 'this is not a requirement')" in err.value.message
+    assert "from line" not in err.value.message
+
+
 def test_files_stages_and_copies(project, tmp_path):
     src = project.repo / "docker" / "additional-files"
     (src / "etc").mkdir(parents=True)

@@ -96,7 +96,23 @@ def install_requirements(
         LOG.info("%s: constraint %s", STEP, line)
     with tempfile.TemporaryDirectory(prefix="docker-ros-pip-") as tmp:
         path = requirement_files(Path(tmp), requirements, constraints)
-        pip_install(["-r", str(path)], step=STEP, dry_run=dry_run, what=what)
+        try:
+            pip_install(["-r", str(path)], step=STEP, dry_run=dry_run, what=what)
+        except StepError as exc:
+            raise StepError(STEP, named_lines(exc.message, path), exc.returncode) from None
+
+
+def named_lines(message: str, path: Path) -> str:
+    """pip's `(from line N of <our temporary requirements.txt>)` as the line itself: the user's
+    file has other line numbers, and the temporary one is gone."""
+    lines = path.read_text().splitlines()
+
+    def line(match: "re.Match[str]") -> str:
+        number = int(match.group(1))
+        text = lines[number - 1] if 0 < number <= len(lines) else "?"
+        return f"(from the requirement line {text!r})"
+
+    return re.sub(r"\(from line (\d+) of " + re.escape(str(path)) + r"\)", line, message)
 
 
 def version_tuple(version: Optional[str]) -> Tuple[int, ...]:
