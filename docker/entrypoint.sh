@@ -3,57 +3,63 @@
 #
 #   DOCKER_UID / DOCKER_GID / DOCKER_USER  create that user (and group) and run as it
 
-source_if_exists() {
+_dros_source() {
     # shellcheck disable=SC1090
     if [[ -f "$1" ]]; then source "$1"; fi
 }
 
-source_ros() {
+_dros_source_ros() {
     if [[ -n "${ROS_DISTRO:-}" ]]; then
-        source_if_exists "/opt/ros/${ROS_DISTRO}/setup.bash"
+        _dros_source "/opt/ros/${ROS_DISTRO}/setup.bash"
     else
-        for setup in /opt/ros/*/setup.bash; do source_if_exists "$setup"; break; done
+        local setup
+        for setup in /opt/ros/*/setup.bash; do _dros_source "$setup"; break; done
     fi
-    source_if_exists /opt/ws_base_image/install/setup.bash
-    source_if_exists "${WORKSPACE:-/docker-ros/ws}/install/setup.bash"
+    _dros_source /opt/ws_base_image/install/setup.bash
+    _dros_source "${WORKSPACE:-/docker-ros/ws}/install/setup.bash"
 }
 
-warn() { echo "docker-ros: $*" >&2; }
+_dros_warn() { echo "docker-ros: $*" >&2; }
 
 # Collisions never stop the container: an existing UID or GID is reused under its own name, a
 # name taken with another ID gets an _<id> suffix, and a failed useradd/groupadd only warns.
-map_user() {
+_dros_map_user() {
     local user="${DOCKER_USER:-dockeruser}" uid="$DOCKER_UID" gid="${DOCKER_GID:-$DOCKER_UID}"
     local group="$user"
     if getent group "$gid" >/dev/null; then
-        warn "GID $gid exists already ($(getent group "$gid" | cut -d: -f1)); reusing it"
+        _dros_warn "GID $gid exists already ($(getent group "$gid" | cut -d: -f1)); reusing it"
     else
         if getent group "$group" >/dev/null; then
-            warn "group '$group' exists with another GID; creating '${group}_$gid'"
+            _dros_warn "group '$group' exists with another GID; creating '${group}_$gid'"
             group="${group}_$gid"
         fi
         groupadd --gid "$gid" "$group" >/dev/null 2>&1 \
-            || warn "could not create group $group ($gid); running with GID $gid unnamed"
+            || _dros_warn "could not create group $group ($gid); running with GID $gid unnamed"
     fi
+    # docker-ros's groups: sudo, and video for cameras and GPUs (/dev/video*, /dev/dri)
+    local extra=() group_name
+    for group_name in sudo video; do
+        getent group "$group_name" >/dev/null && extra+=("$group_name")
+    done
+    local groups=()
+    if [[ ${#extra[@]} -gt 0 ]]; then groups=(--groups "$(IFS=,; echo "${extra[*]}")"); fi
     if getent passwd "$uid" >/dev/null; then
         user="$(getent passwd "$uid" | cut -d: -f1)"
-        warn "UID $uid exists already ($user); running as that user"
+        _dros_warn "UID $uid exists already ($user); running as that user"
+        if [[ ${#extra[@]} -gt 0 ]]; then
+            usermod --append "${groups[@]}" "$user" >/dev/null 2>&1 \
+                || _dros_warn "could not add $user to the groups ${extra[*]}"
+        fi
     else
         if getent passwd "$user" >/dev/null; then
-            warn "user '$user' exists with another UID; creating '${user}_$uid'"
+            _dros_warn "user '$user' exists with another UID; creating '${user}_$uid'"
             user="${user}_$uid"
         fi
         local primary=(--gid "$gid")
         getent group "$gid" >/dev/null || primary=(--no-user-group)
-        # docker-ros's groups: sudo, and video for cameras and GPUs (/dev/video*, /dev/dri)
-        local extra=() group_name
-        for group_name in sudo video; do
-            getent group "$group_name" >/dev/null && extra+=("$group_name")
-        done
-        local groups=()
-        if [[ ${#extra[@]} -gt 0 ]]; then groups=(--groups "$(IFS=,; echo "${extra[*]}")"); fi
         useradd --uid "$uid" "${primary[@]}" "${groups[@]}" --create-home --shell /bin/bash \
-            "$user" >/dev/null 2>&1 || warn "could not create user $user ($uid:$gid); running unnamed"
+            "$user" >/dev/null 2>&1 \
+            || _dros_warn "could not create user $user ($uid:$gid); running unnamed"
     fi
     if getent passwd "$uid" >/dev/null; then
         echo "$user:$user" | chpasswd 2>/dev/null || true
@@ -67,12 +73,12 @@ map_user() {
     DOCKER_ROS_RUN_AS="$user"
 }
 
-source_ros
+_dros_source_ros
 
 # Sourced (from /etc/bash.bashrc: interactive shells such as `docker exec -it <container> bash`):
 # the ROS environment only, as docker-ros's ~/.bashrc gave it; no user mapping, no exec.
 if [[ "${BASH_SOURCE[0]}" != "$0" ]]; then
-    unset -f source_if_exists source_ros warn map_user
+    unset -f _dros_source _dros_source_ros _dros_warn _dros_map_user
     return 0
 fi
 
@@ -81,7 +87,7 @@ if [[ $# -eq 0 ]]; then
 fi
 
 if [[ -n "${DOCKER_UID:-}" && "$(id -u)" == "0" ]]; then
-    map_user
+    _dros_map_user
     gid="${DOCKER_GID:-$DOCKER_UID}"
     if entry="$(getent passwd "$DOCKER_UID")"; then
         home="$(echo "$entry" | cut -d: -f6)"

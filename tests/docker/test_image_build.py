@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.in_image.settings import host_platform
 from tests.docker.buildhelp import (
     STAGE,
     cached_vertices,
@@ -91,7 +92,7 @@ def test_images_have_docker_ros_environment(example: dict) -> None:
     for ref in (example["dev"], example["run"]):
         env = subprocess.run(["docker", "image", "inspect", "-f", "{{json .Config.Env}}", ref],
                              capture_output=True, text=True, check=True).stdout
-        for pair in ("TARGETARCH=amd64", "RCUTILS_COLORIZED_OUTPUT=1",
+        for pair in (f"TARGETARCH={host_platform()}", "RCUTILS_COLORIZED_OUTPUT=1",
                      "RMW_IMPLEMENTATION=rmw_fastrtps_cpp"):
             assert f'"{pair}"' in env, (ref, env)
         # the base (Debian's ROS) has none, nor does this build set one: defined, empty

@@ -82,6 +82,10 @@ def test_mapped_user_is_in_the_sudo_and_video_groups(ros1_base_image: str) -> No
     result = mapped(ros1_base_image, "robot", 1242, 1242, script="id -nG")
     assert result.returncode == 0, result.stderr
     assert set(result.stdout.split()) == {"robot", "sudo", "video"}, result.stdout
+    # a UID the image has already (daemon, 1): that user joins them (ubuntu, 1000, in Noble)
+    existing = mapped(ros1_base_image, "robot", 1, 1, script="id -nG")
+    assert existing.returncode == 0, existing.stderr
+    assert {"sudo", "video"} <= set(existing.stdout.split()), existing.stdout
 
 
 def test_sourced_entrypoint_only_sets_up_the_environment(
@@ -97,8 +101,10 @@ def test_sourced_entrypoint_only_sets_up_the_environment(
          "-v", f"{setup}:/docker-ros/ws/install/setup.bash:ro", "-e", "DOCKER_UID=1243",
          "--entrypoint", "bash", ros1_base_image, "-c",
          'source /docker-ros/entrypoint.sh; echo "$WORKSPACE_SOURCED $(id -u)"; '
-         'if type map_user >/dev/null 2>&1; then echo functions-left; fi'],
+         'if type _dros_map_user >/dev/null 2>&1; then echo functions-left; fi; '
+         'echo "setup=${setup-unset}"'],
         capture_output=True, text=True, timeout=120,
     )
     assert result.returncode == 0, result.stderr
-    assert result.stdout.strip() == "yes 0", result.stdout + result.stderr
+    # (no function and no variable of the entrypoint's is left in the shell)
+    assert result.stdout.split() == ["yes", "0", "setup=unset"], result.stdout + result.stderr

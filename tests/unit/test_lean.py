@@ -160,6 +160,9 @@ def test_imports_in_a_try_catching_import_error_are_optional() -> None:
     assert optional_modules("import yaml\ntry:\n    import yaml\nexcept ImportError:\n"
                             "    pass\n") == set()
     assert optional_modules("try:\n    import yaml\nexcept KeyError:\n    pass\n") == set()
+    # a handler that raises makes it required still
+    assert optional_modules("try:\n    import yaml\nexcept ImportError as e:\n"
+                            "    raise RuntimeError('need yaml') from e\n") == set()
     assert optional_modules("try:\n    pass\nexcept ImportError:\n    pass\nelse:\n"
                             "    import yaml\n") == set()
 

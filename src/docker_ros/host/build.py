@@ -247,12 +247,21 @@ def build_order(targets: Sequence[str], registry_cache: bool) -> List[str]:
 def build_args(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
     """The value of every declared ARG whose setting is set (docker-ros's add_arg_if_set).
     Secrets are never build arguments (they would stay in the image history)."""
-    values = as_env(settings)
-    if not explicitly_set(settings, "rmw_implementation"):
-        # unchosen, a base image's RMW_IMPLEMENTATION stays (the Dockerfile's ENV falls back to
-        # it, then to the default), as with docker-ros's build.sh
-        values.pop("RMW_IMPLEMENTATION", None)
+    values = arg_values(settings)
     return {name: values[name] for name in declared if name in values and name.lower() in FIELDS}
+
+
+def arg_values(settings: Settings) -> Dict[str, str]:
+    """The settings as build arguments (as_env), without an RMW_IMPLEMENTATION nobody chose:
+    then a base image's own stays (the Dockerfile's ENV falls back to it, then to the default),
+    as with docker-ros's build.sh. Chosen: a value other than the default, or the default
+    written in .env, invoke.yaml or a flag (the CI integrations pass the default on in the
+    environment, so there the value alone tells)."""
+    values = as_env(settings)
+    source = settings.source_of("rmw_implementation")
+    if not explicitly_set(settings, "rmw_implementation") and source in ("default", "environment"):
+        values.pop("RMW_IMPLEMENTATION", None)
+    return values
 
 
 def definition(

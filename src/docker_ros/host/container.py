@@ -28,7 +28,7 @@ import docker
 
 from docker_ros.host import build, engine
 from docker_ros.in_image.runtime.workspace import StepError
-from docker_ros.in_image.settings import Settings, as_env, env_name
+from docker_ros.in_image.settings import Settings, env_name
 from docker_ros.in_image.steps import BY_NAME, PHASED, STEPS
 
 Command = Tuple[str, ...]  # the arguments after `python3 -m docker_ros.in_image.steps`
@@ -154,7 +154,7 @@ def next_command(step: str) -> Optional[Command]:
 def step_environment(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
     """What the Dockerfile's RUNs see: the settings it declares as ARGs (secrets never), and the
     step modules on PYTHONPATH."""
-    values = as_env(settings)
+    values = build.arg_values(settings)
     env = {n: values[n] for n in declared if n in values and n not in NOT_SETTINGS}
     env["PYTHONPATH"] = LIB
     return env
@@ -332,14 +332,14 @@ class Session:
         finally:
             # Held: Ctrl-C during the removal left it to the engine, and the removal of the
             # stage tag right after failed (the container still used the image).
-            with engine.signals_held():
-                if container is not None:
+            if container is not None:
+                with engine.signals_held():
                     container.remove(force=True)
-                # newest first: an older snapshot is the parent of the newer ones (and of the
-                # result, which keeps it: removing it then fails, and that is fine)
-                for snapshot in reversed(snapshots):
-                    with contextlib.suppress(docker.errors.APIError):
-                        self.client.images.remove(snapshot)
+            # newest first: an older snapshot is the parent of the newer ones (and of the
+            # result, which keeps it: removing it then fails, and that is fine)
+            for snapshot in reversed(snapshots):
+                with contextlib.suppress(docker.errors.APIError):
+                    self.client.images.remove(snapshot)
 
 
 def image_label(client: Any, ref: str) -> Optional[str]:
@@ -368,6 +368,9 @@ def run_plan(
             if shell_on_failure and exc.stage in STAGES and exc.step:
                 # The state before the start failed to build: open the shell where that failed.
                 reproduce(settings, exc, out=out)
+            raise
+        except KeyboardInterrupt as exc:
+            exc.args = ()  # (it named the stage's tag as built: the finally removes that)
             raise
         client = engine.client()
         start_id = str(client.images.get(stage_tag).id)

@@ -148,6 +148,8 @@ _IMPORT_GUARDS = ("ImportError", "ModuleNotFoundError", "Exception", "BaseExcept
 
 def _guards_imports(node: ast.Try) -> bool:
     for handler in node.handlers:
+        if any(isinstance(n, ast.Raise) for part in handler.body for n in ast.walk(part)):
+            continue  # (`except ImportError: raise RuntimeError("need x")`: still required)
         if handler.type is None:
             return True
         types = handler.type.elts if isinstance(handler.type, ast.Tuple) else [handler.type]
