@@ -3,6 +3,7 @@
 import pytest
 
 from docker_ros.in_image.runtime.prepare import (
+    allow_pip_system_installs,
     distro_problem,
     plan_rmw_installation,
     plan_ros_installation,
@@ -176,3 +177,16 @@ def test_a_ros_distro_the_base_image_does_not_have_is_named(tmp_path):
         "ROS_DISTRO=humble, but BASE_IMAGE has ROS jazzy in /opt/ros: set ROS_DISTRO=jazzy, "
         "or leave it unset")
     assert distro_problem("jazzy", tmp_path) is None
+
+
+def test_pip_may_install_into_the_system_as_in_docker_ros(tmp_path):
+    conf = tmp_path / "pip.conf"
+    conf.write_text("[global]\nindex-url = https://mirror.example/simple\n")
+    allow_pip_system_installs(conf, dry_run=False)
+    allow_pip_system_installs(conf, dry_run=False)  # (twice: written once)
+    text = conf.read_text()
+    assert "index-url = https://mirror.example/simple" in text
+    assert text.count("break-system-packages = true") == 1
+    fresh = tmp_path / "none.conf"
+    allow_pip_system_installs(fresh, dry_run=False)
+    assert fresh.read_text() == "[global]\nbreak-system-packages = true\n\n"

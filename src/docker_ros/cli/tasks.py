@@ -375,7 +375,7 @@ dev, run = make_composite_task("dev"), make_composite_task("run")
     "Build the TARGET images (dev, run) for every PLATFORM",
     [DRY_RUN, SHELL_ON_FAILURE,
      ("until", "", "Build only up to (and including) this step, tag the result "
-      "<IMAGE>-until-<step> and stop; the README shows how to run the next step in it")],
+      "<IMAGE>-until-<step>, print how to enter it and run the next step, and stop")],
     uses=("target",) + IMAGE_SETTINGS + ("command", "enable_slim"),
     logs_in=True,
 )

@@ -261,7 +261,8 @@ class Settings:
         None, "Docker registry username", build="none", flags=("push",),
         default_doc=CI_DEFAULT.format("`${{ github.actor }}`", "`$CI_REGISTRY_USER`"),
     )
-    rmw_implementation: str = setting("rmw_fastrtps_cpp", "ROS 2 middleware implementation")
+    rmw_implementation: str = setting(
+        "rmw_fastrtps_cpp", "ROS 2 middleware implementation (unset: the base image's, if any)")
     ros_distro: Optional[str] = setting(
         None, "ROS Distro", default_doc="*required if ROS is not installed in `base-image`*",
         flags=("image",)

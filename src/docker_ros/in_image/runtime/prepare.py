@@ -1,6 +1,7 @@
 """prepare (image only, before the ten steps): tini, git, vcstool, rosdep, colcon and ROS itself
 when the base image lacks them; a docker-ros workspace in the base moves to /opt/ws_base_image."""
 
+import configparser
 import glob
 import os
 import shutil
@@ -226,6 +227,27 @@ def keep_apt_downloads(*, dry_run: bool) -> None:
         APT_KEEP_CACHE.write_text('Binary::apt::APT::Keep-Downloaded-Packages "true";\n')
 
 
+PIP_CONF = Path("/etc/pip.conf")
+
+
+def allow_pip_system_installs(conf: Path = PIP_CONF, *, dry_run: bool) -> None:
+    """As docker-ros (`pip config --global set global.break-system-packages true`): a `pip
+    install` in the user's hooks or in a dev container works on PEP 668 bases (Debian 12,
+    Ubuntu 24.04); a pip that predates the option ignores it. The file's other settings stay."""
+    if dry_run:
+        print(f"[dry-run] prepare: set break-system-packages = true in {conf}")
+        return
+    config = configparser.ConfigParser()
+    config.read(str(conf))
+    if not config.has_section("global"):
+        config.add_section("global")
+    if config.get("global", "break-system-packages", fallback="") == "true":
+        return
+    config.set("global", "break-system-packages", "true")
+    with conf.open("w") as out:
+        config.write(out)
+
+
 def move_base_workspace(ws: Workspace, *, dry_run: bool) -> None:
     """A base image built by docker-ros has its install at /docker-ros/ws/install: underlay it."""
     if not ws.install.is_dir():
@@ -255,6 +277,7 @@ def main(
     with step_log("prepare"), held_to_lock(options.get("dependency_types"), dry_run=dry_run):
         move_base_workspace(ws, dry_run=dry_run)
         keep_apt_downloads(dry_run=dry_run)
+        allow_pip_system_installs(dry_run=dry_run)
         problem = distro_problem(settings.ros_distro)
         if problem:
             raise StepError("prepare", problem)
