@@ -471,3 +471,35 @@ def test_rmw_implementation_is_passed_when_chosen():
                            dotenv={"RMW_IMPLEMENTATION": "rmw_fastrtps_cpp"},
                            project_dir=Path("/tmp/My_Robot"))
     assert passed(chosen) == ["RMW_IMPLEMENTATION=rmw_fastrtps_cpp"]
+
+
+def test_a_platform_failing_after_another_names_what_that_one_built(monkeypatch, tmp_path):
+    """PLATFORM=amd64,arm64: arm64 failing (or Ctrl-C) names amd64's tagged images."""
+    from docker_ros.host import pipeline
+    from docker_ros.host.pipeline import TaskError
+
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "package.xml").write_text("<package/>")
+    s = load_settings(environ={"BASE_IMAGE": "base:1", "COMMAND": "run me", "IMAGE": "img:t",
+                               "PLATFORM": "amd64,arm64"}, project_dir=tmp_path)
+    monkeypatch.setattr(pipeline, "check_inputs", lambda settings, targets: None)
+    monkeypatch.setattr(build, "check_engine", lambda settings: None)
+    monkeypatch.setattr(build, "platform_base", lambda settings, platform: ("base:1", ""))
+    monkeypatch.setattr(build, "summary_table", lambda built: "")
+    failure: BaseException = build.BuildError("building target 'run' (arm64) failed in step "
+                                              "colcon: x", 2, stage="build", step="colcon")
+
+    def build_images(settings, *, targets, platform, **kw):
+        if platform == "arm64":
+            raise failure
+        return [build.BuiltImage(t, ref, platform, 1.0) for t, ref in targets.items()]
+
+    monkeypatch.setattr(build, "build_images", build_images)
+    with pytest.raises(TaskError) as failed:
+        pipeline.build_targets(s, ("dev", "run"), dry_run=False)
+    assert str(failed.value).endswith("colcon: x; 'dev' was built: img:t-dev-amd64; 'run' was "
+                                      "built: img:t-amd64")
+    failure = KeyboardInterrupt()
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        pipeline.build_targets(s, ("dev", "run"), dry_run=False)
+    assert str(stopped.value) == "'dev' was built: img:t-dev-amd64; 'run' was built: img:t-amd64"

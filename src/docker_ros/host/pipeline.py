@@ -223,8 +223,12 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             try:
                 built += build.build_images(settings, targets=tags, platform=platform)
             except build.BuildError as exc:
+                # (naming what the platforms before this one built and tagged)
+                exc = build.with_built(exc, built)
                 code = reproduce_failure(settings, exc) if shell_on_failure else None
                 raise TaskError(str(exc), code or 1) from None
+            except KeyboardInterrupt as exc:
+                raise build.noted(exc, build.built_notes(built)) from None
         if slim and "run" in targets and slimmed_here(settings, platform):
             slimmed = slim_one(settings, platform, dry_run=dry_run)
             built += [] if dry_run else [slimmed]
