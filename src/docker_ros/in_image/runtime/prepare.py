@@ -45,7 +45,10 @@ DEV_TOOLS = ("build-essential", "cmake", "python3-pip")
 # Extra Debian packages that make the plain `colcon` package useful for ROS workspaces.
 DEBIAN_COLCON_EXTRAS = ("python3-colcon-ros", "python3-colcon-cmake", "python3-colcon-bash",
                         "python3-colcon-package-selection", "python3-colcon-test-result",
-                        "python3-colcon-output", "python3-colcon-library-path")
+                        "python3-colcon-output", "python3-colcon-library-path",
+                        # (COLCON_DEFAULTS_FILE: inv dev-shell's ignore list of blacklisted
+                        # packages)
+                        "python3-colcon-defaults")
 
 
 def is_ros1(distro: str) -> bool:
