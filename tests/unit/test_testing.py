@@ -188,6 +188,8 @@ def test_a_results_folder_in_the_build_context_is_warned_about(tmp_path: Path) -
     assert results_in_context(repo, repo, "--results-dir") is not None
     assert results_in_context(tmp_path / "results", repo, "--results-dir") is None
     assert results_in_context(tmp_path / "repo-results", repo, "--results-dir") is None
+    # a folder the build leaves out (ours: the CI template's docker-ros-test-results)
+    assert results_in_context(repo / "docker-ros-test-results", repo, "--results-dir") is None
 
 
 def test_a_failed_build_reports_no_earlier_runs_tests(tmp_path: Path,

@@ -294,6 +294,8 @@ def results_in_context(results: Path, context: Path, origin: str) -> Optional[st
     context = context.expanduser().resolve()
     if results != context and context not in results.parents:
         return None
+    if results != context and build.left_out(str(results.relative_to(context))):
+        return None  # (our .dockerignore leaves it out: docker-ros-test-results, ...)
     return (f"docker-ros test: warning: {origin}: {results} is in the build context "
             f"({context}): the next build sees the results as changed sources (copied into the "
             "dev image, a full colcon build); give a folder outside the repository")
