@@ -1,5 +1,6 @@
 """Pure planning of image builds: argv, tags, build args, secrets, log folding."""
 
+import fcntl
 import io
 import os
 import re
@@ -437,6 +438,18 @@ def test_the_repository_s_other_imports_images_go_only_after_the_build(monkeypat
     build.build_images(s, targets={"run": "r:1"}, platform="amd64", out=io.StringIO())
     assert other in seen_in_build[0]  # still there while the build ran
     assert other not in images and len(images) == 1  # then only the new one stays
+    # another build of the repository running (its shared lock on the folder): its imports
+    # image stays; the last build to end removes the superseded ones
+    images.add(other)
+    running = os.open(str(tmp_path), os.O_RDONLY)
+    try:
+        fcntl.flock(running, fcntl.LOCK_SH)
+        build.build_images(s, targets={"run": "r:1"}, platform="amd64", out=io.StringIO())
+        assert other in images
+    finally:
+        os.close(running)
+    build.build_images(s, targets={"run": "r:1"}, platform="amd64", out=io.StringIO())
+    assert other not in images
 
 
 def test_a_ctrl_c_after_buildkit_tagged_an_image_says_so():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
@@ -791,9 +792,8 @@ def ensure_imports_image(settings: Settings, platform: str,
 
 
 def remove_superseded_imports(settings: Settings, current: str) -> None:
-    """After a build, the repository's other imports images of the platform go. Not before
-    it: a concurrent build of the repository (other .repos or inputs) made them, and its
-    BuildKit may not have read its own yet (removed, it looked for it on Docker Hub)."""
+    """The repository's other imports images of the platform go (see build_images: after a
+    build, when no other build of the repository runs)."""
     owner = {IMPORTS_LABEL: imports_owner(Path(settings.build_context))}
     engine.remove_quietly(superseded_imports(engine.tags_labelled(owner), current))
 
@@ -856,7 +856,28 @@ def selected_builder(settings: Settings) -> builder.Builder:
 
 
 
-def build_images(
+def build_images(settings: Settings, **options: Any) -> List[BuiltImage]:
+    """Build the targets (target -> tag) for one platform, by default in one `docker buildx
+    bake` run (bake=False or not can_bake: one `docker buildx build` per target, one after the
+    other, as docker-ros does); raise BuildError naming the failed step. Then the repository's
+    other imports images of the platform go, unless another build of the repository is running:
+    its BuildKit may not have read its own yet (removed, it looked for it on Docker Hub). Each
+    build holds a shared lock on the build context folder (flock: nothing written) meanwhile."""
+    folder = os.open(str(Path(settings.build_context).expanduser().resolve()), os.O_RDONLY)
+    try:
+        fcntl.flock(folder, fcntl.LOCK_SH)
+        built, imports = build_images_locked(settings, **options)
+        try:
+            fcntl.flock(folder, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return built  # (the last build of the repository to end removes them)
+        remove_superseded_imports(settings, imports)
+        return built
+    finally:
+        os.close(folder)
+
+
+def build_images_locked(
     settings: Settings,
     *,
     targets: Mapping[str, str],
@@ -867,10 +888,8 @@ def build_images(
     output: str = "",
     extra_build_args: Mapping[str, str] = {},
     bake: bool = True,
-) -> List[BuiltImage]:
-    """Build the targets (target -> tag) for one platform, by default in one `docker buildx
-    bake` run (bake=False or not can_bake: one `docker buildx build` per target, one after the
-    other, as docker-ros does); raise BuildError naming the failed step."""
+) -> Tuple[List[BuiltImage], str]:
+    """build_images' builds; (the images, the imports image they used)."""
     environ = os.environ if environ is None else environ
     chosen = selected_builder(settings)
     export = builder.cache_export(chosen)
@@ -926,8 +945,7 @@ def build_images(
             except KeyboardInterrupt as exc:
                 raise noted(exc, built_notes(built)) from None
             built += [BuiltImage(t, targets[t], platform, seconds) for t in names]
-    remove_superseded_imports(settings, imports)
-    return built
+    return built, imports
 
 
 def with_built(error: BuildError, built: Sequence[BuiltImage]) -> BuildError:
