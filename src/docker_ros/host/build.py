@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import json
@@ -865,12 +866,15 @@ def build_images(settings: Settings, **options: Any) -> List[BuiltImage]:
     build holds a shared lock on the build context folder (flock: nothing written) meanwhile."""
     folder = os.open(str(Path(settings.build_context).expanduser().resolve()), os.O_RDONLY)
     try:
-        fcntl.flock(folder, fcntl.LOCK_SH)
+        with contextlib.suppress(OSError):  # (a file system without flock: no lock)
+            fcntl.flock(folder, fcntl.LOCK_SH)
         built, imports = build_images_locked(settings, **options)
         try:
             fcntl.flock(folder, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             return built  # (the last build of the repository to end removes them)
+        except OSError:
+            pass
         remove_superseded_imports(settings, imports)
         return built
     finally:
