@@ -104,8 +104,9 @@ def test_registry_images_serve_as_cache_on_an_empty_machine(
     assert len(installs) == 3 and all(installs.values()), installs
     installs = {name: cached for name, cached in cached_vertices(run).items()
                 if name.startswith(("[dependencies-run", "[base-run")) and " FROM " not in name}
-    assert len(installs) == 4 and all(installs.values()), installs  # (the base image's FROM
-    # is one vertex for base and base-run, named after either)
+    # base-run's prepare, entrypoint, bash.bashrc line and WORKDIR, and dependencies-run's
+    # install (the base image's FROM is one vertex for base and base-run, named after either)
+    assert len(installs) == 5 and all(installs.values()), installs
     on_empty = {**os.environ, "DOCKER_HOST": empty_engine}
     jq = subprocess.run(["docker", "run", "--rm", ref, "jq", "--version"], env=on_empty,
                         capture_output=True, text=True)
