@@ -98,9 +98,8 @@ def test_images_have_docker_ros_environment(example: dict) -> None:
         # the base (Debian's ROS) has none, nor does this build set one: defined, empty
         assert "ROS_DISTRO=" in json.loads(env), (ref, env)
     # docker-ros's pip configuration: hooks and dev containers may pip install (PEP 668)
-    pip = sh(example["dev"], "python3 -m pip config get global.break-system-packages",
-             "--entrypoint", "")
-    assert pip.stdout.strip() == "true", pip.stdout + pip.stderr
+    pip = sh(example["dev"], "python3 -m pip config list", "--entrypoint", "")
+    assert "global.break-system-packages='true'" in pip.stdout.splitlines(), pip.stdout
 
 
 def test_run_image_has_no_compiler_and_no_sources(example: dict) -> None:
