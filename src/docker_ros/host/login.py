@@ -39,6 +39,20 @@ def plan_login(settings: Settings) -> Optional[List[str]]:
     return argv + [settings.registry] if settings.registry else argv
 
 
+def half_credentials(settings: Settings) -> str:
+    """A line saying which of REGISTRY_USER/REGISTRY_PASSWORD is missing when only one is set
+    (no login then: a CI variable that is empty on this branch, e.g. a protected one), else ''."""
+    user, password = bool(settings.registry_user), bool(settings.registry_password)
+    if user == password:
+        return ""
+    given, missing = (("REGISTRY_USER", "REGISTRY_PASSWORD") if user
+                      else ("REGISTRY_PASSWORD", "REGISTRY_USER"))
+    return (f"{given} is set but {missing} is empty: no docker login to "
+            f"{settings.registry or 'Docker Hub'} (only the docker configuration's own logins "
+            f"count); set {missing} (in CI: is the variable protected or masked away on this "
+            "branch?) or leave both empty")
+
+
 def private_config(config: Mapping[str, Any], registry: str) -> Dict[str, Any]:
     """The user's config.json for the job: their logins, credential store and settings, but the
     registry's credentials in the file (an empty credential helper means the file to docker):
@@ -100,6 +114,8 @@ def job_login(
     fails is a warning, and the task goes on with the user's own docker configuration."""
     argv = plan_login(settings)
     login = f"{settings.registry} {settings.registry_user}"
+    if argv is None and half_credentials(settings):
+        print(f"{label}: warning: {half_credentials(settings)}", file=sys.stderr, flush=True)
     # A task of a job that logged in (`ci` runs `push` as a process) uses that login.
     if argv is None or environ.get(LOGGED_IN) == login:
         yield
