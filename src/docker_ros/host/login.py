@@ -19,6 +19,8 @@ from docker_ros.in_image.settings import Settings, server_host
 
 # Set while a job's login is in force: the registry and user it logged in as.
 LOGGED_IN = "DOCKER_ROS_LOGGED_IN"
+# Set once a task said that only half of the credentials are set (the job's later tasks do not).
+HALF_WARNED = "DOCKER_ROS_HALF_CREDENTIALS_WARNED"
 # How long a login that is not required may take (a registry out of reach, e.g. behind a VPN,
 # must not hold up a build from local images for docker's own connection timeouts).
 OPTIONAL_LOGIN_SECONDS = 20.0
@@ -114,8 +116,9 @@ def job_login(
     fails is a warning, and the task goes on with the user's own docker configuration."""
     argv = plan_login(settings)
     login = f"{settings.registry} {settings.registry_user}"
-    if argv is None and half_credentials(settings):
+    if argv is None and half_credentials(settings) and not environ.get(HALF_WARNED):
         print(f"{label}: warning: {half_credentials(settings)}", file=sys.stderr, flush=True)
+        environ[HALF_WARNED] = "1"  # once a job: `ci` runs its tasks as processes
     # A task of a job that logged in (`ci` runs `push` as a process) uses that login.
     if argv is None or environ.get(LOGGED_IN) == login:
         yield
