@@ -4,7 +4,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from docker.errors import APIError
+from docker.errors import APIError, NotFound
 
 from docker_ros.host import build, engine
 from docker_ros.host.config import config_table, dotenv_warnings, image_problems, path_problems
@@ -338,3 +338,25 @@ def test_a_ca_bundle_with_a_latin1_comment_is_read(tmp_path: Path) -> None:
                                       + pem.encode())
     bundle = build.ca_bundle(tmp_path / "ca.pem", tmp_path / "bundle.pem")
     assert pem in bundle.read_text()
+
+
+def test_a_base_image_the_registry_refuses_names_why_and_the_login_settings(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """A private BASE_IMAGE pulled without credentials: the registry's answer and the settings
+    docker-ros logs in with (REGISTRY_USER/REGISTRY_PASSWORD, as a CI job sets them), not only
+    `docker login`, which a job's own login would not use."""
+    class Images:
+        def get(self, ref: str) -> None:
+            raise NotFound("No such image")
+
+        def pull(self, repository: str, tag: str) -> None:
+            raise APIError("500 Server Error", explanation=f"Head \"{repository}\": no basic "
+                           "auth credentials")
+
+    monkeypatch.setattr(engine, "client", lambda: SimpleNamespace(images=Images()))
+    settings = settings_for(tmp_path, BASE_IMAGE="127.0.0.1:5000/private/base:1")
+    with pytest.raises(build.BuildError) as raised:
+        build.platform_base(settings, "amd64")
+    message = str(raised.value)
+    assert "(Head \"127.0.0.1:5000/private/base\": no basic auth credentials)" in message
+    assert "REGISTRY_USER and REGISTRY_PASSWORD" in message

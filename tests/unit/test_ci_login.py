@@ -148,3 +148,29 @@ def test_an_optional_login_that_gets_no_answer_gives_up(tmp_path: Path, capsys,
             pass
         assert time.monotonic() - started < 15
     assert f"docker login to {registry} as me got no answer in 2 s" in capsys.readouterr().err
+
+
+def test_half_of_the_credentials_is_a_warning_naming_the_missing_one(tmp_path: Path,
+                                                                     capsys) -> None:
+    """REGISTRY_USER without REGISTRY_PASSWORD (a protected CI variable on an unprotected
+    branch) logs in nowhere: the task says so at its start instead of failing at the push,
+    after the whole build, with the registry's 'unauthorized'."""
+    for given, missing in (("REGISTRY_USER", "REGISTRY_PASSWORD"),
+                           ("REGISTRY_PASSWORD", "REGISTRY_USER")):
+        environ = {"DOCKER_CONFIG": str(tmp_path)}
+        s = load_settings(environ={"REGISTRY": "reg:5000", given: "pw-never-shown"})
+        with job_login(s, environ, label="docker-ros push"):
+            assert environ["DOCKER_CONFIG"] == str(tmp_path)
+        err = capsys.readouterr().err
+        assert (f"docker-ros push: warning: {given} is set but {missing} is empty: no docker "
+                "login to reg:5000") in err
+        assert "pw-never-shown" not in err
+        # once a job: the tasks `ci` runs as processes (its environment) say it no second time
+        with job_login(s, environ, label="docker-ros build"):
+            pass
+        assert capsys.readouterr().err == ""
+    environ = {"DOCKER_CONFIG": str(tmp_path)}
+    s = load_settings(environ={"REGISTRY": "reg:5000"})
+    with job_login(s, environ, label="docker-ros push"):
+        pass
+    assert capsys.readouterr().err == ""

@@ -2,8 +2,13 @@
 
 from pathlib import Path
 
+import pytest
+
+from docker_ros.host import engine
+from docker_ros.host.build import BuildError
 from docker_ros.host.push import (
     also_ref,
+    execute,
     plan_manifest,
     plan_outputs,
     plan_push,
@@ -84,3 +89,28 @@ def test_outputs_are_appended_to_the_github_output_file(tmp_path):
     write_outputs({"images": "a:1,b:2", "image": "a:1"}, {"GITHUB_OUTPUT": str(out)})
     write_outputs({"images": "ignored"}, {})
     assert out.read_text() == "earlier=1\nimages=a:1,b:2\nimage=a:1\n"
+
+
+def test_a_push_the_registry_refuses_for_want_of_a_login_names_the_login_settings(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A CI job without (valid) REGISTRY_USER/REGISTRY_PASSWORD fails at the push after the
+    whole build: the line names the settings to check, not only the engine's answer; other
+    failures keep their own reason only."""
+    def refused(ref: str, auth: object) -> None:
+        raise engine.EngineError(f"docker push {ref} failed: no basic auth credentials")
+
+    monkeypatch.setattr(engine, "push", refused)
+    with pytest.raises(BuildError) as raised:
+        execute(["docker", "push", "reg:5000/x:1"], None)
+    assert str(raised.value) == (
+        "docker push reg:5000/x:1 failed: no basic auth credentials; the registry wants a "
+        "login: check REGISTRY, REGISTRY_USER and REGISTRY_PASSWORD (and that the user may "
+        "push there)")
+
+    def unreachable(ref: str, auth: object) -> None:
+        raise engine.EngineError(f"docker push {ref} failed: connection refused")
+
+    monkeypatch.setattr(engine, "push", unreachable)
+    with pytest.raises(BuildError) as raised:
+        execute(["docker", "push", "reg:5000/x:1"], None)
+    assert str(raised.value) == "docker push reg:5000/x:1 failed: connection refused"

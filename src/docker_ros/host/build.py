@@ -189,10 +189,13 @@ def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:
     names = (base, arch_ref(base, platform))
     local = {name: local_base(name) for name in names}
     if not any(local.values()):
-        if not engine.pull(base):
+        refused = engine.pull_error(base)
+        if refused is not None:
             raise BuildError(
-                f"BASE_IMAGE '{base}' is neither a local image nor pullable: check the name, "
-                "`docker login`, or make one with `inv bootstrap-base-image`")
+                f"BASE_IMAGE '{base}' is neither a local image nor pullable ({refused}): check "
+                "the name; for a private registry set REGISTRY, REGISTRY_USER and "
+                "REGISTRY_PASSWORD (docker-ros logs in before the build) or `docker login`; "
+                "or make one with `inv bootstrap-base-image`")
         local[base] = local_base(base)
     return choose_base(base, platform, local)
 

@@ -153,12 +153,18 @@ def image_size(ref: str) -> int:
 
 def pull(ref: str) -> bool:
     """Pull ref; False when the registry refuses or cannot be reached."""
+    return pull_error(ref) is None
+
+
+def pull_error(ref: str) -> Optional[str]:
+    """Pull ref; None when it was pulled, else the engine's answer (the registry's refusal)."""
     repository, tag = parse_repository_tag(ref)
     try:
         client().images.pull(repository, tag=tag or "latest")
-    except DockerException:
-        return False
-    return True
+    except DockerException as exc:
+        explanation = getattr(exc, "explanation", None)
+        return str(explanation or exc).strip() or type(exc).__name__
+    return None
 
 
 def local_or_pulled(ref: str) -> bool:

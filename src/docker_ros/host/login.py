@@ -19,6 +19,8 @@ from docker_ros.in_image.settings import Settings, server_host
 
 # Set while a job's login is in force: the registry and user it logged in as.
 LOGGED_IN = "DOCKER_ROS_LOGGED_IN"
+# Set once a task said that only half of the credentials are set (the job's later tasks do not).
+HALF_WARNED = "DOCKER_ROS_HALF_CREDENTIALS_WARNED"
 # How long a login that is not required may take (a registry out of reach, e.g. behind a VPN,
 # must not hold up a build from local images for docker's own connection timeouts).
 OPTIONAL_LOGIN_SECONDS = 20.0
@@ -37,6 +39,20 @@ def plan_login(settings: Settings) -> Optional[List[str]]:
         return None
     argv = ["docker", "login", "--username", settings.registry_user, "--password-stdin"]
     return argv + [settings.registry] if settings.registry else argv
+
+
+def half_credentials(settings: Settings) -> str:
+    """A line saying which of REGISTRY_USER/REGISTRY_PASSWORD is missing when only one is set
+    (no login then: a CI variable that is empty on this branch, e.g. a protected one), else ''."""
+    user, password = bool(settings.registry_user), bool(settings.registry_password)
+    if user == password:
+        return ""
+    given, missing = (("REGISTRY_USER", "REGISTRY_PASSWORD") if user
+                      else ("REGISTRY_PASSWORD", "REGISTRY_USER"))
+    return (f"{given} is set but {missing} is empty: no docker login to "
+            f"{settings.registry or 'Docker Hub'} (only the docker configuration's own logins "
+            f"count); set {missing} (in CI: is the variable protected or masked away on this "
+            "branch?) or leave both empty")
 
 
 def private_config(config: Mapping[str, Any], registry: str) -> Dict[str, Any]:
@@ -100,6 +116,9 @@ def job_login(
     fails is a warning, and the task goes on with the user's own docker configuration."""
     argv = plan_login(settings)
     login = f"{settings.registry} {settings.registry_user}"
+    if argv is None and half_credentials(settings) and not environ.get(HALF_WARNED):
+        print(f"{label}: warning: {half_credentials(settings)}", file=sys.stderr, flush=True)
+        environ[HALF_WARNED] = "1"  # once a job: `ci` runs its tasks as processes
     # A task of a job that logged in (`ci` runs `push` as a process) uses that login.
     if argv is None or environ.get(LOGGED_IN) == login:
         yield

@@ -147,12 +147,26 @@ def execute(argv: List[str], auth: Optional[Dict[str, str]]) -> None:
             engine.push(argv[2], auth)
             return
     except engine.EngineError as exc:
-        raise BuildError(str(exc)) from None
+        raise BuildError(str(exc) + auth_hint(str(exc))) from None
     proc = subprocess.run(argv, capture_output=True, text=True)
     if proc.returncode != 0:
         reason = (proc.stderr.strip() or proc.stdout.strip()).splitlines()
+        last = reason[-1] if reason else "no reason given"
         raise BuildError(f"{format_argv(argv)} failed with exit code {proc.returncode}: "
-                         f"{reason[-1] if reason else 'no reason given'}")
+                         f"{last}{auth_hint(last)}")
+
+
+# How registries and the engine say that the request had no (valid) credentials.
+AUTH_REFUSALS = ("no basic auth credentials", "unauthorized", "authentication required",
+                 "denied")
+
+
+def auth_hint(reason: str) -> str:
+    """What to check when the registry refused the credentials (or got none), else ''."""
+    if any(word in reason.lower() for word in AUTH_REFUSALS):
+        return ("; the registry wants a login: check REGISTRY, REGISTRY_USER and "
+                "REGISTRY_PASSWORD (and that the user may push there)")
+    return ""
 
 
 def is_manifest(argv: Sequence[str]) -> bool:
