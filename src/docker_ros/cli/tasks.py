@@ -240,6 +240,9 @@ class Terminated(KeyboardInterrupt):
 
 
 def terminated(signum: int, frame: Any) -> None:
+    # Once: a second SIGTERM (the job's runner and `docker-ros ci` may both send one) must not
+    # cut short the clean-up the first one started.
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise Terminated
 
 

@@ -431,10 +431,27 @@ def run_ci_plan(settings: Settings, plan: Sequence[Sequence[str]], *, dry_run: b
     for argv in plan:
         command = [sys.executable, "-m", "docker_ros", *argv, *given]
         print(f"docker-ros ci: docker-ros {format_argv([*argv, *given])}", flush=True)
-        code = subprocess.call(command)
+        task = subprocess.Popen(command)
+        try:
+            code = task.wait()
+        except KeyboardInterrupt:
+            let_end(task)
+            raise
         if code != 0:
             raise TaskError(f"`docker-ros {argv[0]}` failed with exit code {code}; "
                             "nothing after it ran")
+
+
+def let_end(task: subprocess.Popen, grace: float = 10.0) -> None:
+    """After Ctrl-C or SIGTERM: let a task process clean up and end (subprocess.call killed it,
+    and its temporary folders and buildx run stayed). A terminal's Ctrl-C and a runner's
+    SIGTERM to the job's processes reach it too; a signal to this process alone does not, so
+    after grace seconds it gets SIGTERM (a second one is ignored by a task: tasks.terminated)."""
+    try:
+        task.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        task.terminate()
+        task.wait()
 
 
 def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: str,
