@@ -442,3 +442,34 @@ def test_ctrl_c_while_the_engine_starts_a_container_leaves_no_container(monkeypa
     finally:
         signal.signal(signal.SIGINT, previous)
     assert list(fake.made) == fake.removed and len(fake.removed) == 1
+
+
+def test_include_exe_and_include_bin_the_image_lacks_are_named(tmp_path: Path) -> None:
+    """`--include-exe nosuchtool` or `--include-bin /usr/bin/nosuch` kept nothing and said
+    nothing: the slim image was tagged without the tool the option asked for."""
+    (tmp_path / "bin").mkdir()
+    tool = tmp_path / "bin" / "tool"
+    tool.write_text("#!/bin/sh\n")
+    tool.chmod(0o755)
+    options = parse_slim_args(f"--include-exe tool --include-exe nosuchtool "
+                              f"--include-bin {tool} --include-bin {tmp_path}/nosuch")
+    spec = tracer_spec({"Env": [f"PATH={tmp_path / 'bin'}"]}, options)
+    assert slimtrace.missing_requests(json.loads(json.dumps(spec))) == [
+        "--include-exe nosuchtool", f"--include-bin {tmp_path}/nosuch"]
+    assert str(tool) in options.include  # --include-bin still keeps the file
+
+
+def test_a_slim_run_whose_requested_executable_is_missing_tags_nothing(monkeypatch) -> None:
+    settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform(),
+                                      "ADDITIONAL_SLIM_BUILD_ARGS": "--include-exe nosuchtool"})
+    images = {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}}}
+    monkeypatch.setattr(slim, "inspect_image", images.get)
+    monkeypatch.setattr(slim, "trace", lambda *a: (
+        slim.Probe(), set(), {"missing": ["--include-exe nosuchtool"]}))
+
+    def no_export(*args: object) -> None:
+        raise AssertionError("the slim image was made")
+
+    monkeypatch.setattr(slim, "export_filtered", no_export)
+    with pytest.raises(SlimError, match="reg/x:v1 has no --include-exe nosuchtool: fix or remove"):
+        slim.slim_image(settings, slim.host_platform())

@@ -99,6 +99,7 @@ class SlimOptions:
     include: Tuple[str, ...] = ()
     exclude: Tuple[str, ...] = ()
     executables: Tuple[str, ...] = ()
+    binaries: Tuple[str, ...] = ()  # --include-bin (also in include)
     continue_after: float = 10.0  # the longest window
     settle: float = SETTLE_SECONDS  # the window ends this long after the last new file
     env: Tuple[str, ...] = ()
@@ -160,6 +161,7 @@ def parse_slim_args(text: str, additional: str = "") -> SlimOptions:
                       + values["--include-bin"]),
         exclude=tuple(values["--exclude-pattern"]),
         executables=tuple(values["--include-exe"]),
+        binaries=tuple(values["--include-bin"]),
         continue_after=continue_after,
         settle=settle,
         env=tuple(values["--env"]),
@@ -221,6 +223,9 @@ def tracer_spec(config: Mapping, options: SlimOptions) -> Dict[str, object]:
         "exclude": list(options.exclude),
         "executables": list(ESSENTIAL_EXECUTABLES) + list(options.executables),
         "path": path,
+        # what the options ask for by name: the tracer reports those the image lacks
+        "requested": [["--include-exe", name] for name in options.executables]
+        + [["--include-bin", name] for name in options.binaries],
         # the host stops the trace; this only bounds a trace whose host went away
         "max_seconds": options.continue_after + 900,
         "settle_seconds": options.settle,
@@ -627,6 +632,10 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         reference, keep, figures = trace(run["Id"], config, options, Path(tmp))
         trace_seconds = time.monotonic() - traced_at
     print(trace_report(trace_seconds, reference, figures, options), flush=True)
+    if figures.get("missing"):
+        raise SlimError(f"{run_ref} has no " + ", ".join(figures["missing"])
+                        + ": fix or remove the option in SLIM_BUILD_ARGS or "
+                        "ADDITIONAL_SLIM_BUILD_ARGS (nothing tagged)")
     if figures.get("overflow"):
         print("docker-ros slim: warning: the trace lost events (queue overflow); the check "
               "below decides", flush=True)
