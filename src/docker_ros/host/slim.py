@@ -661,6 +661,10 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
                         "ADDITIONAL_SLIM_BUILD_ARGS, or set ENABLE_SLIM=false")
     print(check_report(check_seconds, reference, options), flush=True)
     tag(slim_id, slim_ref)
+    if existing and existing["Id"] != slim_id:
+        # the slim image the tag left (a layer of its own, nothing shares it): gone unless
+        # another tag or a container still uses it
+        remove_image(existing["Id"], force=False)
     print(size_report(run_ref, slim_ref, kept, total, made_seconds), flush=True)
     return SlimResult(slim_ref, platform, time.monotonic() - began, False)
 
