@@ -493,3 +493,9 @@ def test_a_new_slim_image_removes_the_one_its_tag_left(monkeypatch) -> None:
     slim.slim_image(settings, slim.host_platform())
     assert calls == [("tag", "sha256:newslim", "reg/x:v1-slim"),
                      ("rmi", "sha256:oldslim", False)]  # (not forced: kept if still used)
+
+
+def test_error_lines_are_named_without_terminal_colours() -> None:
+    """roslaunch's red error lines were named as `[NmERROR: cannot launch node ...[Nm`."""
+    red = "\x1b[31mERROR: cannot launch node of type [pkg/talker]\x1b[0m"
+    assert trouble_lines(red) == {"ERROR: cannot launch node of type [pkg/talker]"}

@@ -296,11 +296,13 @@ class Probe:
 # processes race to make ~/.ros/log/latest: "INFO: cannot create a symlink to latest log
 # directory: [Errno 17] File exists", in either image, by chance)
 INFORMATIONAL = re.compile(r"^\s*\[?\s*(INFO|DEBUG)\b")
+# terminal colours and titles (roslaunch prints its errors in red): not part of the message
+ANSI = re.compile(r"\x1b(?:\[[0-9;?]*[A-Za-z]|\][^\x07]*\x07)")
 
 
 def trouble_lines(output: str) -> Set[str]:
     lines = set()
-    for line in output.splitlines():
+    for line in ANSI.sub("", output).splitlines():
         if TROUBLE.search(line) and not INFORMATIONAL.match(line):
             line = re.sub(r"[0-9a-f]{8}(-[0-9a-f]{4}){3}-[0-9a-f]{12}", "<uuid>", line.strip())
             lines.add(re.sub(r"0x[0-9a-fA-F]+|\d+", "N", line))
