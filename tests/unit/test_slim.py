@@ -499,3 +499,24 @@ def test_error_lines_are_named_without_terminal_colours() -> None:
     """roslaunch's red error lines were named as `[NmERROR: cannot launch node ...[Nm`."""
     red = "\x1b[31mERROR: cannot launch node of type [pkg/talker]\x1b[0m"
     assert trouble_lines(red) == {"ERROR: cannot launch node of type [pkg/talker]"}
+
+
+def test_a_locked_slim_refuses_a_run_image_of_another_lock(monkeypatch, tmp_path: Path) -> None:
+    """`inv slim --locked true` slimmed whatever run image was there: one built unlocked or
+    from an older docker-ros.lock became the slim image without a word."""
+    (tmp_path / "docker-ros.lock").write_text('{"format": 1, "targets": {}}\n')
+    settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform(),
+                                      "LOCKED": "true", "BUILD_CONTEXT": str(tmp_path)})
+    images = {"reg/x:v1": {"Id": "sha256:run", "Config": {
+        "Cmd": ["x"], "Labels": {"io.github.docker-ros.lock": "sha256:older"}}}}
+    monkeypatch.setattr(slim, "inspect_image", images.get)
+
+    def no_trace(*args: object) -> None:
+        raise AssertionError("traced")
+
+    monkeypatch.setattr(slim, "trace", no_trace)
+    with pytest.raises(SlimError, match="run image reg/x:v1 was not built from this docker-ros"):
+        slim.slim_image(settings, slim.host_platform())
+    (tmp_path / "docker-ros.lock").unlink()
+    with pytest.raises(SlimError, match="docker-ros.lock not found"):
+        slim.slim_image(settings, slim.host_platform())

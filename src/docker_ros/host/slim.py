@@ -27,6 +27,7 @@ from docker.models.containers import Container
 
 from docker_ros.host.build import PACKAGE_DIR, image_ref, image_size, platform_ref
 from docker_ros.host.engine import client, inspect_image, signals_held, tag
+from docker_ros.host.lock import LOCK_LABEL, lock_labels, lock_path
 from docker_ros.in_image.settings import Settings, host_platform
 
 TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
@@ -623,6 +624,12 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
     if run is None:
         raise SlimError(f"run image {run_ref} not found: build it first (`docker-ros build`)")
     config = run["Config"]
+    if settings.locked and not lock_path(settings).is_file():
+        raise SlimError("LOCKED: docker-ros.lock not found: run `inv lock` first")
+    wanted = lock_labels(settings, "run").get(LOCK_LABEL)
+    if wanted and (config.get("Labels") or {}).get(LOCK_LABEL) != wanted:
+        raise SlimError(f"LOCKED: run image {run_ref} was not built from this docker-ros.lock "
+                        f"({wanted[:19]}...): build it with `--locked true` first")
     stamp = fingerprint(run["Id"], options)
     existing = inspect_image(slim_ref)
     if existing and (existing["Config"].get("Labels") or {}).get(LABEL_FINGERPRINT) == stamp:
