@@ -442,3 +442,81 @@ def test_ctrl_c_while_the_engine_starts_a_container_leaves_no_container(monkeypa
     finally:
         signal.signal(signal.SIGINT, previous)
     assert list(fake.made) == fake.removed and len(fake.removed) == 1
+
+
+def test_include_exe_and_include_bin_the_image_lacks_are_named(tmp_path: Path) -> None:
+    """`--include-exe nosuchtool` or `--include-bin /usr/bin/nosuch` kept nothing and said
+    nothing: the slim image was tagged without the tool the option asked for."""
+    (tmp_path / "bin").mkdir()
+    tool = tmp_path / "bin" / "tool"
+    tool.write_text("#!/bin/sh\n")
+    tool.chmod(0o755)
+    options = parse_slim_args(f"--include-exe tool --include-exe nosuchtool "
+                              f"--include-bin {tool} --include-bin {tmp_path}/nosuch")
+    spec = tracer_spec({"Env": [f"PATH={tmp_path / 'bin'}"]}, options)
+    assert slimtrace.missing_requests(json.loads(json.dumps(spec))) == [
+        "--include-exe nosuchtool", f"--include-bin {tmp_path}/nosuch"]
+    assert str(tool) in options.include  # --include-bin still keeps the file
+
+
+def test_a_slim_run_whose_requested_executable_is_missing_tags_nothing(monkeypatch) -> None:
+    settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform(),
+                                      "ADDITIONAL_SLIM_BUILD_ARGS": "--include-exe nosuchtool"})
+    images = {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}}}
+    monkeypatch.setattr(slim, "inspect_image", images.get)
+    monkeypatch.setattr(slim, "trace", lambda *a: (
+        slim.Probe(), set(), {"missing": ["--include-exe nosuchtool"]}))
+
+    def no_export(*args: object) -> None:
+        raise AssertionError("the slim image was made")
+
+    monkeypatch.setattr(slim, "export_filtered", no_export)
+    with pytest.raises(SlimError, match="reg/x:v1 has no --include-exe nosuchtool: fix or remove"):
+        slim.slim_image(settings, slim.host_platform())
+
+
+def test_a_new_slim_image_removes_the_one_its_tag_left(monkeypatch) -> None:
+    """Each re-slim (another run image or other options) left the previous slim image
+    untagged on the engine, a layer of its own (87 MB for the example) per run."""
+    settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform()})
+    images = {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}},
+              "reg/x:v1-slim": {"Id": "sha256:oldslim", "Config": {"Labels": {}}}}
+    monkeypatch.setattr(slim, "inspect_image", images.get)
+    monkeypatch.setattr(slim, "trace", lambda *a: (slim.Probe(), set(), {}))
+    monkeypatch.setattr(slim, "export_filtered", lambda *a: ("sha256:newslim", 1, 2))
+    monkeypatch.setattr(slim, "check", lambda *a: slim.Probe())
+    monkeypatch.setattr(slim, "image_size", lambda ref: 1)
+    calls = []
+    monkeypatch.setattr(slim, "tag", lambda image, ref: calls.append(("tag", image, ref)))
+    monkeypatch.setattr(slim, "remove_image",
+                        lambda ref, force=True: calls.append(("rmi", ref, force)))
+    slim.slim_image(settings, slim.host_platform())
+    assert calls == [("tag", "sha256:newslim", "reg/x:v1-slim"),
+                     ("rmi", "sha256:oldslim", False)]  # (not forced: kept if still used)
+
+
+def test_error_lines_are_named_without_terminal_colours() -> None:
+    """roslaunch's red error lines were named as `[NmERROR: cannot launch node ...[Nm`."""
+    red = "\x1b[31mERROR: cannot launch node of type [pkg/talker]\x1b[0m"
+    assert trouble_lines(red) == {"ERROR: cannot launch node of type [pkg/talker]"}
+
+
+def test_a_locked_slim_refuses_a_run_image_of_another_lock(monkeypatch, tmp_path: Path) -> None:
+    """`inv slim --locked true` slimmed whatever run image was there: one built unlocked or
+    from an older docker-ros.lock became the slim image without a word."""
+    (tmp_path / "docker-ros.lock").write_text('{"format": 1, "targets": {}}\n')
+    settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform(),
+                                      "LOCKED": "true", "BUILD_CONTEXT": str(tmp_path)})
+    images = {"reg/x:v1": {"Id": "sha256:run", "Config": {
+        "Cmd": ["x"], "Labels": {"io.github.docker-ros.lock": "sha256:older"}}}}
+    monkeypatch.setattr(slim, "inspect_image", images.get)
+
+    def no_trace(*args: object) -> None:
+        raise AssertionError("traced")
+
+    monkeypatch.setattr(slim, "trace", no_trace)
+    with pytest.raises(SlimError, match="run image reg/x:v1 was not built from this docker-ros"):
+        slim.slim_image(settings, slim.host_platform())
+    (tmp_path / "docker-ros.lock").unlink()
+    with pytest.raises(SlimError, match="docker-ros.lock not found"):
+        slim.slim_image(settings, slim.host_platform())

@@ -27,6 +27,7 @@ from docker.models.containers import Container
 
 from docker_ros.host.build import PACKAGE_DIR, image_ref, image_size, platform_ref
 from docker_ros.host.engine import client, inspect_image, signals_held, tag
+from docker_ros.host.lock import LOCK_LABEL, lock_labels, lock_path
 from docker_ros.in_image.settings import Settings, host_platform
 
 TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
@@ -99,6 +100,7 @@ class SlimOptions:
     include: Tuple[str, ...] = ()
     exclude: Tuple[str, ...] = ()
     executables: Tuple[str, ...] = ()
+    binaries: Tuple[str, ...] = ()  # --include-bin (also in include)
     continue_after: float = 10.0  # the longest window
     settle: float = SETTLE_SECONDS  # the window ends this long after the last new file
     env: Tuple[str, ...] = ()
@@ -160,6 +162,7 @@ def parse_slim_args(text: str, additional: str = "") -> SlimOptions:
                       + values["--include-bin"]),
         exclude=tuple(values["--exclude-pattern"]),
         executables=tuple(values["--include-exe"]),
+        binaries=tuple(values["--include-bin"]),
         continue_after=continue_after,
         settle=settle,
         env=tuple(values["--env"]),
@@ -221,6 +224,9 @@ def tracer_spec(config: Mapping, options: SlimOptions) -> Dict[str, object]:
         "exclude": list(options.exclude),
         "executables": list(ESSENTIAL_EXECUTABLES) + list(options.executables),
         "path": path,
+        # what the options ask for by name: the tracer reports those the image lacks
+        "requested": [["--include-exe", name] for name in options.executables]
+        + [["--include-bin", name] for name in options.binaries],
         # the host stops the trace; this only bounds a trace whose host went away
         "max_seconds": options.continue_after + 900,
         "settle_seconds": options.settle,
@@ -291,11 +297,13 @@ class Probe:
 # processes race to make ~/.ros/log/latest: "INFO: cannot create a symlink to latest log
 # directory: [Errno 17] File exists", in either image, by chance)
 INFORMATIONAL = re.compile(r"^\s*\[?\s*(INFO|DEBUG)\b")
+# terminal colours and titles (roslaunch prints its errors in red): not part of the message
+ANSI = re.compile(r"\x1b(?:\[[0-9;?]*[A-Za-z]|\][^\x07]*\x07)")
 
 
 def trouble_lines(output: str) -> Set[str]:
     lines = set()
-    for line in output.splitlines():
+    for line in ANSI.sub("", output).splitlines():
         if TROUBLE.search(line) and not INFORMATIONAL.match(line):
             line = re.sub(r"[0-9a-f]{8}(-[0-9a-f]{4}){3}-[0-9a-f]{12}", "<uuid>", line.strip())
             lines.add(re.sub(r"0x[0-9a-fA-F]+|\d+", "N", line))
@@ -616,6 +624,12 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
     if run is None:
         raise SlimError(f"run image {run_ref} not found: build it first (`docker-ros build`)")
     config = run["Config"]
+    if settings.locked and not lock_path(settings).is_file():
+        raise SlimError("LOCKED: docker-ros.lock not found: run `inv lock` first")
+    wanted = lock_labels(settings, "run").get(LOCK_LABEL)
+    if wanted and (config.get("Labels") or {}).get(LOCK_LABEL) != wanted:
+        raise SlimError(f"LOCKED: run image {run_ref} was not built from this docker-ros.lock "
+                        f"({wanted[:19]}...): build it with `--locked true` first")
     stamp = fingerprint(run["Id"], options)
     existing = inspect_image(slim_ref)
     if existing and (existing["Config"].get("Labels") or {}).get(LABEL_FINGERPRINT) == stamp:
@@ -627,6 +641,10 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         reference, keep, figures = trace(run["Id"], config, options, Path(tmp))
         trace_seconds = time.monotonic() - traced_at
     print(trace_report(trace_seconds, reference, figures, options), flush=True)
+    if figures.get("missing"):
+        raise SlimError(f"{run_ref} has no " + ", ".join(figures["missing"])
+                        + ": fix or remove the option in SLIM_BUILD_ARGS or "
+                        "ADDITIONAL_SLIM_BUILD_ARGS (nothing tagged)")
     if figures.get("overflow"):
         print("docker-ros slim: warning: the trace lost events (queue overflow); the check "
               "below decides", flush=True)
@@ -652,6 +670,10 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
                         "ADDITIONAL_SLIM_BUILD_ARGS, or set ENABLE_SLIM=false")
     print(check_report(check_seconds, reference, options), flush=True)
     tag(slim_id, slim_ref)
+    if existing and existing["Id"] != slim_id:
+        # the slim image the tag left (a layer of its own, nothing shares it): gone unless
+        # another tag or a container still uses it
+        remove_image(existing["Id"], force=False)
     print(size_report(run_ref, slim_ref, kept, total, made_seconds), flush=True)
     return SlimResult(slim_ref, platform, time.monotonic() - began, False)
 

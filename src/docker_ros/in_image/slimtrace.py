@@ -534,6 +534,18 @@ def interpreter(path: str) -> List[str]:
     return [words[0].decode(errors="replace")] if words else []
 
 
+def missing_requests(spec: Dict[str, Any]) -> List[str]:
+    """The --include-exe names not on PATH and --include-bin files that do not exist, as
+    "OPTION VALUE" (those options would keep nothing)."""
+    path_env = spec.get("path", "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin")
+    missing = []
+    for option, value in spec.get("requested", []):
+        found = which(value, path_env) if option == "--include-exe" else os.path.lexists(value)
+        if not found:
+            missing.append(f"{option} {value}")
+    return missing
+
+
 def write(path: str, text: str) -> None:
     with open(path + ".tmp", "w") as handle:
         handle.write(text)
@@ -558,7 +570,7 @@ def main(argv: List[str]) -> int:
         write(out + "/done", json.dumps({
             "traced": len(paths), "kept": len(keep), "overflow": overflow,
             "library_path": library_path, "trace_seconds": round(traced_seconds, 1),
-            "keep_seconds": round(keep_seconds, 1),
+            "keep_seconds": round(keep_seconds, 1), "missing": missing_requests(spec),
         }))
     except Exception as exc:  # reported to the host, which names it in one line
         write(out + "/error", f"{type(exc).__name__}: {exc}\n")
