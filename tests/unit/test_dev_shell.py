@@ -157,7 +157,7 @@ def test_volume_specs_are_checked_in_our_words():
     assert "container side 'data' must be an absolute path" in devshell.volume_problem("./d:data")
     assert "unknown mode 'rx'" in devshell.volume_problem("./d:/d:ro,rx")
     with pytest.raises(devshell.DevShellError, match="'x:y'.*; --volume 'bad:::'"):
-        devshell.check_volumes(["./ok:/ok", "x:y", "bad:::"])
+        devshell.check_shell_options(["./ok:/ok", "x:y", "bad:::"])
 
 
 def test_env_values_are_checked_before_the_build():
@@ -166,7 +166,7 @@ def test_env_values_are_checked_before_the_build():
     for bad in ("=x", "MY VAR=x", ""):
         assert "give NAME=VALUE (or NAME)" in devshell.env_problem(bad), bad
     with pytest.raises(devshell.DevShellError, match="--env '=x'"):
-        devshell.check_volumes(["./ok:/ok"], ["A=1", "=x"])
+        devshell.check_shell_options(["./ok:/ok"], ["A=1", "=x"])
 
 
 def test_a_builder_keeping_images_in_another_engine_stops_the_shell_first(tmp_path,

@@ -964,8 +964,13 @@ def with_built(error: BuildError, built: Sequence[BuiltImage]) -> BuildError:
                       error.returncode, stage=error.stage, step=error.step)
 
 
+def built_note(target: str, ref: str) -> str:
+    """How a message names an image that was built and tagged before a failure or Ctrl-C."""
+    return f"{target!r} was built: {ref}"
+
+
 def built_notes(built: Sequence[BuiltImage]) -> List[str]:
-    return [f"{image.target!r} was built: {image.ref}" for image in built]
+    return [built_note(image.target, image.ref) for image in built]
 
 
 def build_image(settings: Settings, *, target: str, platform: str, tag: str,
@@ -996,19 +1001,19 @@ def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *
         # then stays tagged: said in the message)
         proc.terminate()
         proc.wait()
-        raise noted(exc, [f"{t!r} was built: {tag}" for t, tag in targets.items()
+        raise noted(exc, [built_note(t, tag) for t, tag in targets.items()
                           if tagged_in_log(lines, tag)]) from None
     done = [t for t, tag in targets.items() if tagged_in_log(lines, tag)]
     if code != 0 and cancelled(lines) and not engine_lost(lines):
         # as if we had seen the Ctrl-C that stopped buildx
-        raise noted(KeyboardInterrupt(), [f"{t!r} was built: {targets[t]}" for t in done])
+        raise noted(KeyboardInterrupt(), [built_note(t, targets[t]) for t in done])
     if code != 0:
         stage, step = failed_step(lines)
         failed = [t for t in targets if t not in done]
         what = "target" if len(failed) == 1 else "targets"
         raise BuildError(f"building {what} {', '.join(repr(t) for t in failed)} ({platform}) "
                          f"{failure_reason(lines, errors)}"
-                         + "".join(f"; {t!r} was built: {targets[t]}" for t in done),
+                         + "".join(f"; {built_note(t, targets[t])}" for t in done),
                          code, stage=stage, step=step)
     return time.monotonic() - began
 

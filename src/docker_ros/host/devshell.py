@@ -12,9 +12,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, List, Mapping, Optional, Sequence, Tuple
 
-from docker_ros.in_image.runtime.files import read_list_file, unique
+from docker_ros.in_image.runtime.files import read_list_file
 from docker_ros.in_image.runtime.workspace import StepError
 from docker_ros.in_image.settings import FALSE_WORDS, TRUE_WORDS, Settings
+from docker_ros.in_image.steps.blacklist import listed_names
 
 TARGET = "/docker-ros/ws/src/target"
 X11_SOCKETS = Path("/tmp/.X11-unix")
@@ -168,7 +169,7 @@ def env_problem(spec: str) -> str:
     return f"--env {spec!r}: give NAME=VALUE (or NAME), NAME not empty and without spaces"
 
 
-def check_volumes(specs: Sequence[str], env: Sequence[str] = ()) -> None:
+def check_shell_options(specs: Sequence[str], env: Sequence[str] = ()) -> None:
     """Every --volume and --env checked before the dev image is built (docker would say
     `invalid spec` only after it)."""
     problems = [p for p in [*map(volume_problem, specs), *map(env_problem, env)] if p]
@@ -237,7 +238,7 @@ def blacklisted_names(settings: Settings) -> List[str]:
         lines = read_list_file(path, "dev-shell")
     except StepError as exc:
         raise DevShellError(exc.message) from None
-    return unique([word for line in lines for word in line.split()])
+    return listed_names(lines)
 
 
 def write_colcon_defaults(names: Sequence[str], destination: Path) -> str:

@@ -462,7 +462,7 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
     which prints the docker run command)."""
     ref = build.image_ref(settings, "dev")
     try:
-        devshell.check_volumes(options.volumes, options.env)
+        devshell.check_shell_options(options.volumes, options.env)
         blacklisted = devshell.blacklisted_names(settings)
         display = os.environ.get("DISPLAY", "")
         display = display if devshell.select_x11(x11, display) else ""

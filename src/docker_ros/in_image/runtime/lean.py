@@ -20,7 +20,7 @@ import os
 import shutil
 import sys
 from pathlib import Path
-from typing import Dict, Iterable, List, Mapping, Sequence, Set, Tuple
+from typing import Dict, Iterable, List, Mapping, Sequence, Set, Tuple, Union
 
 from docker_ros.in_image.runtime.lock import LOCK_FILE, LockError, lock_lean
 from docker_ros.in_image.runtime.process import probe
@@ -131,15 +131,19 @@ def install_files(install: Path) -> Tuple[List[Path], List[Path]]:
     return elf, python
 
 
-def imported_modules(source: str) -> Set[str]:
-    """Top-level names of the absolute imports anywhere in a Python source."""
-    names: Set[str] = set()
-    for node in ast.walk(ast.parse(source)):
-        if isinstance(node, ast.Import):
-            names.update(alias.name.split(".")[0] for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
-            names.add(node.module.split(".")[0])
-    return names
+def import_names(node: ast.AST) -> List[str]:
+    """Top-level names an import statement imports absolutely (none for other nodes)."""
+    if isinstance(node, ast.Import):
+        return [alias.name.split(".")[0] for alias in node.names]
+    if isinstance(node, ast.ImportFrom) and not node.level and node.module:
+        return [node.module.split(".")[0]]
+    return []
+
+
+def imported_modules(source: Union[str, ast.AST]) -> Set[str]:
+    """Top-level names of the absolute imports anywhere in a Python source (or its tree)."""
+    tree = ast.parse(source) if isinstance(source, str) else source
+    return {name for node in ast.walk(tree) for name in import_names(node)}
 
 
 # Handlers that make an import in their `try` optional (the code goes on without the module).
@@ -158,7 +162,7 @@ def _guards_imports(node: ast.Try) -> bool:
     return False
 
 
-def optional_modules(source: str) -> Set[str]:
+def optional_modules(source: Union[str, ast.AST]) -> Set[str]:
     """Top-level names a Python source imports only in a `try` (or its handlers) that catches
     ImportError: fallbacks such as setuptools' console-script wrapper's
     `from importlib_metadata import distribution`."""
@@ -172,14 +176,11 @@ def optional_modules(source: str) -> Set[str]:
             for other_child in [*node.orelse, *node.finalbody]:
                 visit(other_child, inside)
             return
-        if isinstance(node, ast.Import):
-            (guarded if inside else plain).update(a.name.split(".")[0] for a in node.names)
-        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
-            (guarded if inside else plain).add(node.module.split(".")[0])
+        (guarded if inside else plain).update(import_names(node))
         for child in ast.iter_child_nodes(node):
             visit(child, inside)
 
-    visit(ast.parse(source), False)
+    visit(ast.parse(source) if isinstance(source, str) else source, False)
     return guarded - plain
 
 
@@ -225,9 +226,9 @@ def module_needs(python: Sequence[Path], env: Mapping[str, str], install: Path
     required: Set[str] = set()
     for path in python:
         try:
-            source = path.read_text(errors="replace")
-            names = imported_modules(source)
-            optional = optional_modules(source)
+            tree = ast.parse(path.read_text(errors="replace"))  # (parsed once for both)
+            names = imported_modules(tree)
+            optional = optional_modules(tree)
         except SyntaxError as exc:
             LOG.warning("%s: %s is not Python 3 (%s): its imports are not followed", STEP,
                         path.relative_to(install), exc.msg)

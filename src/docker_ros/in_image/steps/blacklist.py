@@ -35,11 +35,15 @@ def plan_blacklist(
     }
 
 
+def listed_names(entries: Sequence[str]) -> List[str]:
+    """The package names of a blacklist file's lines: a line may hold several (docker-ros
+    passed lines to a shell command)."""
+    return unique([word for entry in entries for word in entry.split()])
+
+
 def compute(ws: Workspace, settings: Settings) -> Dict[str, Any]:
     entries, _ = collect_list_entries(ws, STEP, settings, "blacklisted_packages_file")
-    # A line may hold several names (docker-ros passed lines to a shell command).
-    names = unique([word for entry in entries for word in entry.split()])
-    return plan_blacklist(names, find_packages(ws, settings, step=STEP), ws)
+    return plan_blacklist(listed_names(entries), find_packages(ws, settings, step=STEP), ws)
 
 
 def blacklisted_packages(ws: Workspace, settings: Settings) -> List[str]:
