@@ -245,3 +245,24 @@ def test_unknown_slim_option_is_an_error_naming_it(ros2: dict) -> None:
     assert "docker-ros slim: ADDITIONAL_SLIM_BUILD_ARGS: unknown option(s) --frobnicate" in (
         result.stdout)
 
+
+
+def test_what_the_command_opens_after_a_pause_is_kept(ros2: dict) -> None:
+    """A node that used a program only after a pause longer than --settle (3 s) lost it in its
+    slim image, which passed the check (as long as the window) and was tagged: `tar: command
+    not found` 6 s after start. The trace goes on while the slim image is made and checked."""
+    paused = "docker-ros-test/slim-pause:latest"
+    dockerfile = (f"FROM {ros2['run']}\n"
+                  'ENV DEFAULT_CMD="slim_hello; sleep 6; tar --version; sleep infinity"\n')
+    subprocess.run(["docker", "build", "-q", "-t", paused, "-"], input=dockerfile, text=True,
+                   check=True, capture_output=True)
+    try:
+        result = docker_ros(ros2["project"], "slim", env={"ENABLE_SLIM": "true",
+                                                          "IMAGE": paused})
+        assert result.returncode == 0, result.stdout[-3000:]
+        later = [line for line in result.stdout.splitlines() if "after the window" in line]
+        assert later and "/usr/bin/tar" in later[0], result.stdout[-3000:]
+        assert "tar (GNU tar)" in run_until(paused + "-slim", "tar (GNU tar)", 30)
+    finally:
+        remove_image(paused + "-slim")
+        remove_image(paused)

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
 import signal
 import tarfile
 from pathlib import Path
+from typing import Any, Callable, Iterator, Optional, Set, Tuple
 
 import pytest
 
@@ -420,6 +422,24 @@ class FakeContainer:
         self.removed.append(self.name)
 
 
+def traced_as(figures: Optional[dict] = None, keep: Set[str] = frozenset(),
+              later: Optional[Set[str]] = None) -> Callable[..., Any]:
+    """A stand-in for slim.tracing (the engine's side is tested in tests/docker/test_slim.py):
+    the window's keep set and figures, and, if later is given, a command still running whose
+    finish() gives that keep set."""
+
+    @contextlib.contextmanager
+    def tracing(*args: object) -> Iterator[slim.Trace]:
+        traced = slim.Trace("fake", Path("."))
+        traced.keep, traced.figures = set(keep), dict(figures or {})
+        if later is not None:
+            traced.running = True
+            traced.finish = lambda: (set(later), {})  # type: ignore[method-assign]
+        yield traced
+
+    return tracing
+
+
 @pytest.mark.parametrize("call", ["trace", "check", "run_once", "export_filtered"])
 def test_ctrl_c_while_the_engine_starts_a_container_leaves_no_container(monkeypatch, tmp_path,
                                                                         call):
@@ -432,7 +452,8 @@ def test_ctrl_c_while_the_engine_starts_a_container_leaves_no_container(monkeypa
     try:
         with pytest.raises(KeyboardInterrupt):
             if call == "trace":
-                slim.trace("sha256:run", {"Cmd": ["x"]}, slim.SlimOptions(), tmp_path)
+                with slim.tracing("sha256:run", {"Cmd": ["x"]}, slim.SlimOptions(), tmp_path):
+                    pass
             elif call == "check":
                 slim.check("sha256:slim", {}, slim.SlimOptions(), slim.Probe())
             elif call == "run_once":
@@ -464,8 +485,8 @@ def test_a_slim_run_whose_requested_executable_is_missing_tags_nothing(monkeypat
                                       "ADDITIONAL_SLIM_BUILD_ARGS": "--include-exe nosuchtool"})
     images = {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}}}
     monkeypatch.setattr(slim, "inspect_image", images.get)
-    monkeypatch.setattr(slim, "trace", lambda *a: (
-        slim.Probe(), set(), {"missing": ["--include-exe nosuchtool"]}))
+    monkeypatch.setattr(slim, "tracing",
+                        traced_as(figures={"missing": ["--include-exe nosuchtool"]}))
 
     def no_export(*args: object) -> None:
         raise AssertionError("the slim image was made")
@@ -482,7 +503,7 @@ def test_a_new_slim_image_removes_the_one_its_tag_left(monkeypatch) -> None:
     images = {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}},
               "reg/x:v1-slim": {"Id": "sha256:oldslim", "Config": {"Labels": {}}}}
     monkeypatch.setattr(slim, "inspect_image", images.get)
-    monkeypatch.setattr(slim, "trace", lambda *a: (slim.Probe(), set(), {}))
+    monkeypatch.setattr(slim, "tracing", traced_as())
     monkeypatch.setattr(slim, "export_filtered", lambda *a: ("sha256:newslim", 1, 2))
     monkeypatch.setattr(slim, "check", lambda *a: slim.Probe())
     monkeypatch.setattr(slim, "image_size", lambda ref: 1)
@@ -514,9 +535,42 @@ def test_a_locked_slim_refuses_a_run_image_of_another_lock(monkeypatch, tmp_path
     def no_trace(*args: object) -> None:
         raise AssertionError("traced")
 
-    monkeypatch.setattr(slim, "trace", no_trace)
+    monkeypatch.setattr(slim, "tracing", no_trace)
     with pytest.raises(SlimError, match="run image reg/x:v1 was not built from this docker-ros"):
         slim.slim_image(settings, slim.host_platform())
     (tmp_path / "docker-ros.lock").unlink()
     with pytest.raises(SlimError, match="docker-ros.lock not found"):
         slim.slim_image(settings, slim.host_platform())
+
+
+@pytest.mark.parametrize("later", [{"/bin/sh", "/usr/bin/tar"}, {"/bin/sh"}])
+def test_files_the_command_opens_after_the_window_are_kept(monkeypatch, capsys, later) -> None:
+    """A node that opened a file only after a pause longer than --settle lost it in the slim
+    image, which passed its check (as long as the window) and was tagged: the trace now goes
+    on while the image is made and checked, and what it adds makes the image again."""
+    settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform()})
+    monkeypatch.setattr(slim, "inspect_image",
+                        {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}}}.get)
+    monkeypatch.setattr(slim, "tracing", traced_as(keep={"/bin/sh"}, later=later))
+    made = []
+
+    def export(run_id: str, keep: Set[str], changes: object) -> Tuple[str, int, int]:
+        made.append(sorted(keep))
+        return f"sha256:slim{len(made)}", len(keep), 9
+
+    monkeypatch.setattr(slim, "export_filtered", export)
+    monkeypatch.setattr(slim, "check", lambda *a: slim.Probe())
+    monkeypatch.setattr(slim, "image_size", lambda ref: 1)
+    calls = []
+    monkeypatch.setattr(slim, "tag", lambda image, ref: calls.append(("tag", image, ref)))
+    monkeypatch.setattr(slim, "remove_image",
+                        lambda ref, force=True: calls.append(("rmi", ref, force)))
+    slim.slim_image(settings, slim.host_platform())
+    out = capsys.readouterr().out
+    if len(later) == 1:
+        assert made == [["/bin/sh"]] and "after the window" not in out
+        assert calls == [("tag", "sha256:slim1", "reg/x:v1-slim")]
+    else:
+        assert made == [["/bin/sh"], ["/bin/sh", "/usr/bin/tar"]]
+        assert calls == [("rmi", "sha256:slim1", True), ("tag", "sha256:slim2", "reg/x:v1-slim")]
+        assert "and used 1 more file (/usr/bin/tar): made and checked again with them" in out

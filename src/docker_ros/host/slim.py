@@ -3,7 +3,8 @@
 No external binary: a stdlib tracer (docker_ros/in_image/slimtrace.py, fanotify) runs inside a
 container of the run image and computes the keep set there; the run image's filesystem is exported,
 filtered by that set and imported with the run image's config; then the slim image is run with
-the same probe as the traced run, and only if it behaves the same is it tagged.
+the same probe as the traced run, and only if it behaves the same is it tagged. A command still
+running after the window goes on, traced, meanwhile: files it opens then make the image again.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ LABEL_SOURCE = "io.docker-ros.slim.source"
 LABEL_FINGERPRINT = "io.docker-ros.slim.fingerprint"
 EXITED = re.compile(r"docker-ros slimtrace: command exited with status (-?\d+)")
 SETTLED = re.compile(r"docker-ros slimtrace: traced files settled after ([\d.]+) s")
+SNAPSHOT = re.compile(r"docker-ros slimtrace: keep set written, tracing on")
 SETTLE_SECONDS = 3.0  # --settle's default
 TRACER_LINE = re.compile(r"^docker-ros slimtrace: .*\n?", re.MULTILINE)
 # A DOCKER_UID/GID probe of the docker-ros entrypoint (as docker-ros's own SLIM_BUILD_ARGS do).
@@ -466,14 +468,73 @@ def run_probes(name: str, image: str, config: Mapping, options: SlimOptions,
     return probe
 
 
-def trace(run_id: str, config: Mapping, options: SlimOptions, workdir: Path) -> Tuple[
-        Probe, Set[str], dict]:
-    """Trace the run image: its probe (the reference), the keep set, the tracer's figures."""
-    name = f"docker-ros-slim-trace-{os.getpid()}-{int(time.time() * 1000)}"
+class Trace:
+    """The traced run image: its probe (the reference) and, at the end of the window, the keep
+    set and the tracer's figures. A command still running then goes on, traced, while the slim
+    image is made and checked; finish() stops it and gives the keep set with all it opened."""
+
+    def __init__(self, name: str, workdir: Path) -> None:
+        self.name, self.workdir = name, workdir
+        self.probe = Probe()
+        self.keep: Set[str] = set()
+        self.figures: dict = {}
+        self.running = False
+        self.later = 0.0  # when the window ended (monotonic): the trace went on from there
+
+    def results(self) -> Tuple[Set[str], dict]:
+        """The tracer's keep set and figures, from its exchange folder."""
+        with engine_errors("reading the tracer's results"):
+            stream, _ = container(self.name).get_archive(EXCHANGE)
+            result = b"".join(stream)
+        with tarfile.open(fileobj=io.BytesIO(result)) as tar:
+            tar.extractall(self.workdir)
+        folder = self.workdir / EXCHANGE.lstrip("/")
+        if (folder / "error").is_file() or not (folder / "done").is_file():
+            reason = (folder / "error").read_text().strip() if (folder / "error").is_file() \
+                else "no result"
+            raise SlimError(f"tracing the run image failed: {reason}")
+        keep = set((folder / "keep.txt").read_text().splitlines())
+        return keep, json.loads((folder / "done").read_text())
+
+    def snapshot(self) -> None:
+        """The keep set so far (the tracer goes on), or the final one if the command exited."""
+        if self.probe.ended == "exited":
+            self.keep, self.figures = self.finish()
+            return
+        with engine_errors("asking the tracer for its keep set"):
+            container(self.name).kill(signal="SIGUSR1")
+
+        def poll(elapsed: float) -> Ending:
+            if SNAPSHOT.search(logs(self.name)):
+                return ("written", None)
+            if not container_state(self.name)[0]:
+                raise SlimError("the tracer stopped early: " + logs(self.name).strip()[-500:])
+            return None
+
+        if watch(poll, 300)[0] != "written":
+            raise SlimError("the tracer wrote no keep set within 300 s")
+        self.keep, self.figures = self.results()
+        self.running, self.later = True, time.monotonic()
+
+    def finish(self) -> Tuple[Set[str], dict]:
+        """Stop the command (if it still runs) and the tracer: the final keep set, figures."""
+        with engine_errors("stopping the trace container"):
+            traced = container(self.name)
+            traced.kill(signal="SIGTERM")
+            traced.wait(timeout=300)
+        self.running = False
+        return self.results()
+
+
+@contextlib.contextmanager
+def tracing(run_id: str, config: Mapping, options: SlimOptions, workdir: Path
+            ) -> Iterator[Trace]:
+    """Trace the run image for the window (see Trace); its container is gone afterwards."""
+    traced = Trace(f"docker-ros-slim-trace-{os.getpid()}-{int(time.time() * 1000)}", workdir)
     try:
         with engine_errors("creating the trace container"), signals_held():
-            traced = client().containers.create(**plan_trace_container(run_id, config, options,
-                                                                       name))
+            made = client().containers.create(**plan_trace_container(run_id, config, options,
+                                                                     traced.name))
         exchange = io.BytesIO()
         with tarfile.open(fileobj=exchange, mode="w") as tar:
             tar.add(str(TRACER), arcname=f"{EXCHANGE[1:]}/slimtrace.py")
@@ -482,31 +543,20 @@ def trace(run_id: str, config: Mapping, options: SlimOptions, workdir: Path) -> 
             info.size = len(spec)
             tar.addfile(info, io.BytesIO(spec))
         with engine_errors("starting the trace container"):
-            traced.put_archive("/", exchange.getvalue())
-            traced.start()
+            made.put_archive("/", exchange.getvalue())
+            made.start()
 
         def poll(elapsed: float) -> Ending:
-            log = logs(name)
-            return trace_ending(log, *container_state(name), options.expect)
+            log = logs(traced.name)
+            return trace_ending(log, *container_state(traced.name), options.expect)
 
-        probe = run_probes(name, run_id, config, options, poll, options.continue_after,
-                           lambda: container_state(name)[0])
-        with engine_errors("stopping the trace container"):
-            traced.kill(signal="SIGTERM")
-            traced.wait(timeout=300)
-            stream, _ = traced.get_archive(EXCHANGE)
-            result = b"".join(stream)
-        with tarfile.open(fileobj=io.BytesIO(result)) as tar:
-            tar.extractall(workdir)
+        traced.probe = run_probes(traced.name, run_id, config, options, poll,
+                                  options.continue_after,
+                                  lambda: container_state(traced.name)[0])
+        traced.snapshot()
+        yield traced
     finally:
-        remove_container(name)
-    folder = workdir / EXCHANGE.lstrip("/")
-    if (folder / "error").is_file() or not (folder / "done").is_file():
-        reason = (folder / "error").read_text().strip() if (folder / "error").is_file() \
-            else "no result"
-        raise SlimError(f"tracing the run image failed: {reason}")
-    keep = set((folder / "keep.txt").read_text().splitlines())
-    return probe, keep, json.loads((folder / "done").read_text())
+        remove_container(traced.name)
 
 
 def filter_tar(source: IO[bytes], destination: IO[bytes], keep: Set[str]) -> Tuple[int, int]:
@@ -595,6 +645,22 @@ def check(slim_id: str, config: Mapping, options: SlimOptions, reference: Probe)
         remove_container(name)
 
 
+def made_and_checked(run_id: str, keep: Set[str], changes: Sequence[str], config: Mapping,
+                     options: SlimOptions, reference: Probe
+                     ) -> Tuple[str, int, int, float, float, List[str]]:
+    """The slim image of keep, checked against the reference: its ID, files kept and in all,
+    seconds to make and to check it, what differed (the image is removed on an exception)."""
+    made_at = time.monotonic()
+    slim_id, kept, total = export_filtered(run_id, keep, changes)
+    checked_at = time.monotonic()
+    try:
+        diffs = compare_probes(reference, check(slim_id, config, options, reference), options)
+    except BaseException:
+        remove_image(slim_id)
+        raise
+    return slim_id, kept, total, checked_at - made_at, time.monotonic() - checked_at, diffs
+
+
 @dataclass(frozen=True)
 class SlimResult:
     ref: str
@@ -636,29 +702,32 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         print(f"slim: {slim_ref} is up to date (made from {run_ref}, {run['Id'][7:19]})")
         return SlimResult(slim_ref, platform, time.monotonic() - began, True)
     print(f"==> docker-ros slim {run_ref} -> {slim_ref}", flush=True)
-    with tempfile.TemporaryDirectory(prefix="docker-ros-slim-") as tmp:
-        traced_at = time.monotonic()
-        reference, keep, figures = trace(run["Id"], config, options, Path(tmp))
-        trace_seconds = time.monotonic() - traced_at
-    print(trace_report(trace_seconds, reference, figures, options), flush=True)
-    if figures.get("missing"):
-        raise SlimError(f"{run_ref} has no " + ", ".join(figures["missing"])
-                        + ": fix or remove the option in SLIM_BUILD_ARGS or "
-                        "ADDITIONAL_SLIM_BUILD_ARGS (nothing tagged)")
-    if figures.get("overflow"):
-        print("docker-ros slim: warning: the trace lost events (queue overflow); the check "
-              "below decides", flush=True)
     labels = {LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp}
-    made_at = time.monotonic()
-    slim_id, kept, total = export_filtered(run["Id"], keep, plan_changes(config, labels))
-    made_seconds = time.monotonic() - made_at
-    checked_at = time.monotonic()
-    try:
-        diffs = compare_probes(reference, check(slim_id, config, options, reference), options)
-    except BaseException:
-        remove_image(slim_id)
-        raise
-    check_seconds = time.monotonic() - checked_at
+    with tempfile.TemporaryDirectory(prefix="docker-ros-slim-") as tmp, \
+            tracing(run["Id"], config, options, Path(tmp)) as traced:
+        reference, figures = traced.probe, traced.figures
+        print(trace_report(time.monotonic() - began, reference, figures, options), flush=True)
+        if figures.get("missing"):
+            raise SlimError(f"{run_ref} has no " + ", ".join(figures["missing"])
+                            + ": fix or remove the option in SLIM_BUILD_ARGS or "
+                            "ADDITIONAL_SLIM_BUILD_ARGS (nothing tagged)")
+        if figures.get("overflow"):
+            print("docker-ros slim: warning: the trace lost events (queue overflow); the check "
+                  "below decides", flush=True)
+        slim_id, kept, total, made_seconds, check_seconds, diffs = made_and_checked(
+            run["Id"], traced.keep, plan_changes(config, labels), config, options, reference)
+        if traced.running:
+            later = time.monotonic() - traced.later
+            try:
+                keep, _ = traced.finish()
+            except BaseException:
+                remove_image(slim_id)
+                raise
+            if keep - traced.keep:
+                print(later_report(later, keep - traced.keep), flush=True)
+                remove_image(slim_id)
+                slim_id, kept, total, made_seconds, check_seconds, diffs = made_and_checked(
+                    run["Id"], keep, plan_changes(config, labels), config, options, reference)
     if diffs:
         remove_image(slim_id)
         stale = " (removed the stale " + slim_ref + ")" if existing else ""
@@ -695,6 +764,16 @@ def trace_report(seconds: float, reference: Probe, figures: Mapping, options: Sl
     return (f"slim: trace {seconds:.1f} s: {window_words(reference, options)}; "
             f"{figures.get('traced', 0)} files opened (keep set "
             f"{figures.get('keep_seconds', 0):.1f} s)")
+
+
+def later_report(seconds: float, added: Set[str]) -> str:
+    """What COMMAND opened after the window, while the slim image was made and checked."""
+    files = sorted(added)
+    example = ", ".join(files[:3]) + (", ..." if len(files) > 3 else "")
+    return (f"slim: COMMAND went on for {seconds:.1f} s after the window (while the slim image "
+            f"was made and checked) and used {len(files)} more file{'s' if len(files) > 1 else ''} "
+            f"({example}): made and "
+            "checked again with them")
 
 
 def check_report(seconds: float, reference: Probe, options: SlimOptions) -> str:

@@ -10,7 +10,9 @@ the host side (docker_ros.host.slim) together with an exchange folder:
    runs with `docker exec` meanwhile, until it gets SIGTERM (`docker kill -s TERM`); when the
    command exits it says so on stderr (EXITED) and stays up for the execs; when the set of
    traced files has not grown for spec["settle_seconds"], it says that too (SETTLED), so that
-   the host stops watching a command that has started all it needs;
+   the host stops watching a command that has started all it needs; on SIGUSR1 it writes the
+   keep set of what it traced so far (below) and says so (SNAPSHOT), tracing on: the host
+   makes the slim image from it while the command goes on, and adds what it opens later;
 3. stops the command and writes DIR/keep.txt: the traced files plus the include paths and
    essentials of DIR/spec.json, closed over ELF DT_NEEDED (ld.so search rules), Python sources
    beside their bytecode, symlinks leading to kept files, hard links, parent directories;
@@ -29,7 +31,7 @@ import struct
 import subprocess
 import sys
 import time
-from typing import Any, Dict, Iterable, Iterator, List, Optional, Set, Tuple
+from typing import Any, Callable, Dict, Iterable, Iterator, List, Optional, Set, Tuple
 
 FAN_CLOEXEC, FAN_NONBLOCK, FAN_CLASS_NOTIF, FAN_UNLIMITED_QUEUE = 0x1, 0x2, 0x0, 0x10
 FAN_MARK_ADD, FAN_MARK_MOUNT = 0x1, 0x10
@@ -47,6 +49,7 @@ DEFAULT_LIB_DIRS = ("/lib", "/usr/lib", "/lib64", "/usr/lib64")
 SKIP_DIRS = ("/proc", "/sys", "/dev", "/docker-ros-slim")
 EXITED = "command exited with status "
 SETTLED = "traced files settled after "
+SNAPSHOT = "keep set written, tracing on: "
 
 
 def log(message: str) -> None:
@@ -76,6 +79,7 @@ class Fanotify:
         self.pids: Set[int] = set()
         self.library_path: List[str] = []
         self.overflow = False
+        self.own = os.getpid()
 
     def read(self, timeout: float) -> None:
         ready, _, _ = select.select([self.fd], [], [], timeout)
@@ -92,6 +96,9 @@ class Fanotify:
             if mask & FAN_Q_OVERFLOW:
                 self.overflow = True
             if fd < 0:
+                continue
+            if pid == self.own:  # the tracer itself, making a keep set while tracing on
+                os.close(fd)
                 continue
             try:
                 self.paths.add(os.readlink(f"/proc/self/fd/{fd}"))
@@ -137,12 +144,16 @@ def reap(child: subprocess.Popen, status: Optional[int]) -> Optional[int]:
                 status = 128 - status
 
 
-def trace(command: List[str], max_seconds: float,
-          settle_seconds: float = 0.0) -> Tuple[Set[str], List[str], bool]:
+def trace(command: List[str], max_seconds: float, settle_seconds: float = 0.0,
+          snapshot: Callable[[Set[str], List[str], bool], None] = lambda *_: None,
+          ) -> Tuple[Set[str], List[str], bool]:
     """Trace until SIGTERM (or max_seconds); return (paths, library_path, overflow). Say once
-    (SETTLED) when no new file was opened for settle_seconds (0: never)."""
+    (SETTLED) when no new file was opened for settle_seconds (0: never); call snapshot with
+    what was traced so far on each SIGUSR1."""
     stop: List[bool] = []
+    asked: List[bool] = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
+    signal.signal(signal.SIGUSR1, lambda *_: asked.append(True))
     notify = Fanotify("/")
     child = subprocess.Popen(command, start_new_session=True)
     status = None
@@ -151,6 +162,9 @@ def trace(command: List[str], max_seconds: float,
     grown, count, settled = began, 0, False
     while not stop and time.monotonic() < deadline:
         notify.read(0.2)
+        if asked:
+            asked.clear()
+            snapshot(set(notify.paths), list(notify.library_path), notify.overflow)
         now = time.monotonic()
         if len(notify.paths) != count:
             grown, count = now, len(notify.paths)
@@ -561,17 +575,24 @@ def main(argv: List[str]) -> int:
         with open(out + "/spec.json") as handle:
             spec = json.load(handle)
         began = time.monotonic()
-        paths, library_path, overflow = trace(command, spec["max_seconds"],
-                                              spec.get("settle_seconds", 0.0))
-        traced_seconds = time.monotonic() - began
-        keep = keep_set(spec, paths, library_path)
-        keep_seconds = time.monotonic() - began - traced_seconds
-        write(out + "/keep.txt", "".join(p + "\n" for p in sorted(keep)))
-        write(out + "/done", json.dumps({
-            "traced": len(paths), "kept": len(keep), "overflow": overflow,
-            "library_path": library_path, "trace_seconds": round(traced_seconds, 1),
-            "keep_seconds": round(keep_seconds, 1), "missing": missing_requests(spec),
-        }))
+
+        def results(paths: Set[str], library_path: List[str], overflow: bool) -> None:
+            traced_seconds = time.monotonic() - began
+            keep = keep_set(spec, paths, library_path)
+            keep_seconds = time.monotonic() - began - traced_seconds
+            write(out + "/keep.txt", "".join(p + "\n" for p in sorted(keep)))
+            write(out + "/done", json.dumps({
+                "traced": len(paths), "kept": len(keep), "overflow": overflow,
+                "library_path": library_path, "trace_seconds": round(traced_seconds, 1),
+                "keep_seconds": round(keep_seconds, 1), "missing": missing_requests(spec),
+            }))
+
+        def snapshot(paths: Set[str], library_path: List[str], overflow: bool) -> None:
+            results(paths, library_path, overflow)
+            log(f"{SNAPSHOT}{len(paths)} files")
+
+        results(*trace(command, spec["max_seconds"], spec.get("settle_seconds", 0.0),
+                       snapshot))
     except Exception as exc:  # reported to the host, which names it in one line
         write(out + "/error", f"{type(exc).__name__}: {exc}\n")
         log(f"{type(exc).__name__}: {exc}")
