@@ -9,7 +9,7 @@ import os
 import signal
 import tarfile
 from pathlib import Path
-from typing import Any, Callable, Iterator, Optional, Set, Tuple
+from typing import Any, Callable, Iterator, List, Optional, Set, Tuple
 
 import pytest
 
@@ -440,6 +440,21 @@ def traced_as(figures: Optional[dict] = None, keep: Set[str] = frozenset(),
     return tracing
 
 
+def slimmed_on(monkeypatch: pytest.MonkeyPatch, images: dict,
+               export: Callable[..., Tuple[str, int, int]]) -> List[Tuple[object, ...]]:
+    """An engine with these images whose slim images export() makes and that pass the check:
+    the list of tags and image removals slim_image then asks for."""
+    monkeypatch.setattr(slim, "inspect_image", images.get)
+    monkeypatch.setattr(slim, "export_filtered", export)
+    monkeypatch.setattr(slim, "check", lambda *a: slim.Probe())
+    monkeypatch.setattr(slim, "image_size", lambda ref: 1)
+    calls: List[Tuple[object, ...]] = []
+    monkeypatch.setattr(slim, "tag", lambda image, ref: calls.append(("tag", image, ref)))
+    monkeypatch.setattr(slim, "remove_image",
+                        lambda ref, force=True: calls.append(("rmi", ref, force)))
+    return calls
+
+
 @pytest.mark.parametrize("call", ["trace", "check", "run_once", "export_filtered"])
 def test_ctrl_c_while_the_engine_starts_a_container_leaves_no_container(monkeypatch, tmp_path,
                                                                         call):
@@ -502,15 +517,8 @@ def test_a_new_slim_image_removes_the_one_its_tag_left(monkeypatch) -> None:
     settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform()})
     images = {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}},
               "reg/x:v1-slim": {"Id": "sha256:oldslim", "Config": {"Labels": {}}}}
-    monkeypatch.setattr(slim, "inspect_image", images.get)
     monkeypatch.setattr(slim, "tracing", traced_as())
-    monkeypatch.setattr(slim, "export_filtered", lambda *a: ("sha256:newslim", 1, 2))
-    monkeypatch.setattr(slim, "check", lambda *a: slim.Probe())
-    monkeypatch.setattr(slim, "image_size", lambda ref: 1)
-    calls = []
-    monkeypatch.setattr(slim, "tag", lambda image, ref: calls.append(("tag", image, ref)))
-    monkeypatch.setattr(slim, "remove_image",
-                        lambda ref, force=True: calls.append(("rmi", ref, force)))
+    calls = slimmed_on(monkeypatch, images, lambda *a: ("sha256:newslim", 1, 2))
     slim.slim_image(settings, slim.host_platform())
     assert calls == [("tag", "sha256:newslim", "reg/x:v1-slim"),
                      ("rmi", "sha256:oldslim", False)]  # (not forced: kept if still used)
@@ -549,8 +557,6 @@ def test_files_the_command_opens_after_the_window_are_kept(monkeypatch, capsys, 
     image, which passed its check (as long as the window) and was tagged: the trace now goes
     on while the image is made and checked, and what it adds makes the image again."""
     settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform()})
-    monkeypatch.setattr(slim, "inspect_image",
-                        {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}}}.get)
     monkeypatch.setattr(slim, "tracing", traced_as(keep={"/bin/sh"}, later=later))
     made = []
 
@@ -558,13 +564,8 @@ def test_files_the_command_opens_after_the_window_are_kept(monkeypatch, capsys, 
         made.append(sorted(keep))
         return f"sha256:slim{len(made)}", len(keep), 9
 
-    monkeypatch.setattr(slim, "export_filtered", export)
-    monkeypatch.setattr(slim, "check", lambda *a: slim.Probe())
-    monkeypatch.setattr(slim, "image_size", lambda ref: 1)
-    calls = []
-    monkeypatch.setattr(slim, "tag", lambda image, ref: calls.append(("tag", image, ref)))
-    monkeypatch.setattr(slim, "remove_image",
-                        lambda ref, force=True: calls.append(("rmi", ref, force)))
+    calls = slimmed_on(monkeypatch, {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}}},
+                       export)
     slim.slim_image(settings, slim.host_platform())
     out = capsys.readouterr().out
     if len(later) == 1:
