@@ -13,7 +13,18 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable, Collection, Dict, Iterator, List, Mapping, Optional, Sequence
+from typing import (
+    Any,
+    Callable,
+    Collection,
+    Dict,
+    Iterator,
+    List,
+    Mapping,
+    Optional,
+    Sequence,
+    Tuple,
+)
 
 from docker_ros.host import build, builder, container, devshell, engine, slim
 from docker_ros.host.build import BuiltImage
@@ -90,14 +101,7 @@ def link_repository(ws: Workspace, repository: Path) -> None:
 def host_workspace(settings: Settings, *, dry_run: bool) -> Iterator[Workspace]:
     """The host workspace. A dry run before the first real run uses a throw-away workspace,
     so that it can show what would happen without creating WORKSPACE."""
-    assert settings.workspace
-    ws = Workspace(Path(settings.workspace).expanduser())
-    repository = Path(settings.build_context).resolve()
-    root = ws.root.resolve()
-    problem = workspace_problem(root, repository, os.listdir(root) if root.is_dir() else [],
-                                ws.target.is_symlink())
-    if problem:
-        raise TaskError(problem)
+    ws, repository = checked_workspace(settings)
     if dry_run and not ws.target.is_symlink():
         with tempfile.TemporaryDirectory(prefix="docker-ros-dry-run-") as tmp:
             print(f"[dry-run] would create {ws.root} with src/target -> {repository}"
@@ -106,12 +110,31 @@ def host_workspace(settings: Settings, *, dry_run: bool) -> Iterator[Workspace]:
             link_repository(temporary, repository)
             yield temporary
         return
+    claim_workspace(settings, ws, repository)
+    yield ws
+
+
+def checked_workspace(settings: Settings) -> Tuple[Workspace, Path]:
+    """WORKSPACE and the repository, refused (TaskError) when it cannot be the workspace."""
+    assert settings.workspace
+    ws = Workspace(Path(settings.workspace).expanduser())
+    repository = Path(settings.build_context).resolve()
+    root = ws.root.resolve()
+    problem = workspace_problem(root, repository, os.listdir(root) if root.is_dir() else [],
+                                ws.target.is_symlink())
+    if problem:
+        raise TaskError(problem)
+    return ws, repository
+
+
+def claim_workspace(settings: Settings, ws: Workspace, repository: Path) -> None:
+    """src/target -> the repository: the workspace is this repository's from now on (another
+    of the same folder name gets a default WORKSPACE of its own, settings.default_workspace)."""
     try:
         link_repository(ws, repository)
     except OSError as exc:
         raise TaskError(f"WORKSPACE '{settings.workspace}' cannot be created/used: "
                         f"{exc.strerror or exc}; give a writable folder") from None
-    yield ws
 
 
 def host_options(step: str, ws: Workspace) -> Dict[str, str]:
@@ -308,6 +331,11 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
     require(settings, ["base_image"])
     root = results_root(settings, results_dir)
     origin = results_origin(settings, results_dir)
+    if not (results_dir or settings.test_results_dir):
+        # the results go into WORKSPACE: refused as the host steps refuse it, and claimed
+        ws, repository = checked_workspace(settings)
+        if not dry_run:
+            claim_workspace(settings, ws, repository)
     warning = results_in_context(root, Path(settings.build_context), origin)
     if warning:
         print(warning)
