@@ -167,8 +167,8 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
     runs_command = plan.start == "run" or ("command",) in plan.commands
     require(settings, ["base_image"] + (["command"] if runs_command else []))
     check_inputs(settings, ("run",) if runs_command else ("dev",))
-    mount = f" -v {Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
-    mount = mount if plan.sources else ""
+    repository = f"{Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
+    mount = f" -v {repository}" if plan.sources else ""
     if dry_run:
         argv = build.plan_shown(settings, target=plan.start, platform=settings.platform[0],
                                 tag=container.tag_of(settings, "stage", plan.start))
@@ -183,7 +183,9 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
         tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
-    print(f"tagged {tag}\n  enter it: docker run --rm -it{mount} {tag} bash")
+    line = container.docker_run_line(tag, [repository] if plan.sources else [], ["bash"],
+                                     tty=True, cli=container.docker_cli(settings))
+    print(f"tagged {tag}\n  enter it: {line}")
     return tag
 
 
@@ -402,7 +404,9 @@ def build_until(settings: Settings, step: str, *, dry_run: bool,
     tag = run_in_container(settings, plan, dry_run=dry_run, shell_on_failure=shell_on_failure)
     following = container.next_command(step)
     if following and not dry_run:
-        print(f"  next step: docker run --rm {tag} {container.shown(following)}")
+        line = container.docker_run_line(tag, [], [*container.STEP_MODULE, *following],
+                                         tty=False, cli=container.docker_cli(settings))
+        print(f"  next step: {line}")
 
 
 def push_and_report(
