@@ -506,10 +506,13 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
                              tty=sys.stdin.isatty() and sys.stdout.isatty())
     with tempfile.TemporaryDirectory(prefix="docker-ros-dev-shell-") as tmp:
         cookie = devshell.write_cookie(display, os.environ, Path(tmp) / "xauth") if display else ""
-        defaults = devshell.write_colcon_defaults(blacklisted, Path(tmp) / "colcon-defaults.yaml")
+        shell, note = devshell.shell_colcon_defaults(
+            blacklisted, options, Path(settings.build_context).resolve(), user.cwd, os.environ,
+            Path(tmp) / "colcon-defaults.yaml")
+        if note:
+            print(note, file=sys.stderr, flush=True)
         argv = devshell.dev_shell_argv(settings, ref, dataclasses.replace(
-            options, gpus=gpus, x11_display=display, xauthority=cookie,
-            colcon_defaults=defaults), user)
+            shell, gpus=gpus, x11_display=display, xauthority=cookie), user)
         if dry_run:
             print(format_argv(argv))
             return 0
