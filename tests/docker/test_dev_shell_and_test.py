@@ -101,11 +101,16 @@ def test_passing_tests_pass_and_replace_the_earlier_results(
     assert not (results / "stale.xml").exists()
 
 
-def test_enable_industrial_ci_runs_the_tests_after_the_build(project: Path) -> None:
-    result = docker_ros(project, "build", env={"ENABLE_INDUSTRIAL_CI": "true"})
+def test_enable_industrial_ci_runs_the_tests_after_the_build(project: Path,
+                                                            tmp_path: Path) -> None:
+    # (the results go to WORKSPACE/test-results: this run's own, not ~/.cache/docker-ros/ws/)
+    result = docker_ros(project, "build", env={"ENABLE_INDUSTRIAL_CI": "true",
+                                                "WORKSPACE": str(tmp_path / "ws")})
     assert result.returncode != 0
     assert "1 passed, 1 failed, 1 skipped" in result.stdout
     assert "latest-dev" in result.stdout[: result.stdout.index("docker-ros test (amd64)")]
+    assert (tmp_path / "ws" / "test-results" / "junit").is_dir()
+    assert (tmp_path / "ws" / "src" / "target").resolve() == project.resolve()  # claimed
 
 
 def test_dev_shell_command_passes_its_exit_code_and_options(

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import uuid
@@ -247,3 +248,33 @@ def test_build_server_through_a_docker_context_pushes_to_the_registry(
     assert {tag, f"{tag}-dev", f"{tag}-cache-run-amd64"} <= set(
         registry_tags(local_registry, repository))
     assert_pulled_image_runs(ref)
+
+
+def test_until_on_a_context_builder_prints_commands_that_reach_its_engine(
+    engine26_context: str, ros1_base_image: str, tmp_path: Path
+) -> None:
+    """BUILDER names a docker context of Engine 26: `--until` runs its step and keeps the
+    image there, and the `docker run` it prints to go on names that engine (it said `docker
+    run`: the shared engine, which has no such image)."""
+    project = tmp_path / "example"
+    shutil.copytree(REPO / "example", project)
+    ref = f"docker-ros-test/until-context-{uuid.uuid4().hex[:8]}:1"
+    write_env(project, BASE_IMAGE=ros1_base_image, IMAGE=ref, BUILDER=engine26_context,
+              BUILD_NETWORK="host")
+    until = f"{ref}-until-clone"
+    try:
+        result = docker_ros(project, "build", "--until", "clone")
+        assert result.returncode == 0, result.stdout[-6000:]
+        enter, = (line for line in result.stdout.splitlines() if "enter it:" in line)
+        assert f"docker --context {engine26_context} run --rm -it {until} bash" in enter
+        line, = (line for line in result.stdout.splitlines() if "next step:" in line)
+        argv = shlex.split(line.split("next step:", 1)[1])
+        assert argv[:4] == ["docker", "--context", engine26_context, "run"]
+        ran = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+        assert ran.returncode == 0, ran.stdout + ran.stderr
+        assert "Finished <<< blacklist" in ran.stdout + ran.stderr
+        shared = subprocess.run(["docker", "image", "inspect", until], capture_output=True)
+        assert shared.returncode != 0, "the image is in the shared engine"
+    finally:  # the build server keeps nothing of this test
+        subprocess.run(["docker", "rmi", "-f", until], capture_output=True,
+                       env={**os.environ, "DOCKER_HOST": ENGINE26_HOST})

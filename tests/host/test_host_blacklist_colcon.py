@@ -122,3 +122,27 @@ def test_colcon_dry_run_builds_nothing(packages, capsys):
     )
     assert not packages.ws.install.exists()
     assert not packages.ws.state.exists()
+
+
+def test_colcon_takes_the_dev_shells_defaults_merged_with_the_users(tmp_path):
+    """What `inv dev-shell` gives colcon when the user passes a colcon defaults file of the
+    repository (--env COLCON_DEFAULTS_FILE=...): real colcon reads the merged file, ignores
+    the blacklisted package and the user's own ignored one, and keeps the user's settings."""
+    import os
+
+    from docker_ros.host import devshell
+
+    repo = tmp_path / "repo"
+    for name in ("keep_me", "blacklisted", "users_ignored"):
+        make_package(repo / name, name)
+    (repo / "colcon-defaults.yaml").write_text(
+        "list:\n  packages-ignore: [users_ignored]\n  names-only: true\n")
+    options = devshell.ShellOptions(
+        env=(f"COLCON_DEFAULTS_FILE={devshell.TARGET}/colcon-defaults.yaml",))
+    shell, warning = devshell.shell_colcon_defaults(["blacklisted"], options, repo, tmp_path,
+                                                    {}, tmp_path / "ours.yaml")
+    assert "is merged" in warning and shell.env == []
+    listed = subprocess.run(["colcon", "list", "--base-paths", str(repo)], cwd=tmp_path,
+                            capture_output=True, text=True, check=True,
+                            env={**os.environ, "COLCON_DEFAULTS_FILE": shell.colcon_defaults})
+    assert listed.stdout.split() == ["keep_me"]  # names only: the user's setting

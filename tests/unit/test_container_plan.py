@@ -307,3 +307,49 @@ def test_ctrl_c_while_the_step_container_is_removed_still_removes_the_stage_tag(
     finally:
         signal.signal(signal.SIGINT, previous)
     assert fake.tags == set()
+
+
+def test_hints_name_the_engine_of_a_docker_context_builder(monkeypatch, capsys):
+    """BUILDER=e26, a docker context of another engine, keeps the after-/until-/failed- images
+    there: the printed `docker run`s (and the shell a failure opens) reached the local engine,
+    which has no such image. They name the context now; a local build's stay `docker run`."""
+    from docker_ros.host import builder, pipeline
+
+    e26 = builder.Builder("e26", "docker", "e26", "unix:///e26.sock", True)
+    monkeypatch.setenv("DOCKER_HOST", "unix:///local.sock")
+    monkeypatch.setattr(build, "selected_builder", lambda settings: e26)
+    monkeypatch.setattr(build, "check_engine", lambda settings: None)
+    monkeypatch.setattr(container, "run_plan", lambda settings, plan, **kw: plan.tag)
+    pipeline.build_until(settings(BUILDER="e26"), "rosdep", dry_run=False,
+                         shell_on_failure=False)
+    shown = capsys.readouterr().out
+    assert "enter it: docker --context e26 run --rm -it r/i:v1-until-rosdep bash" in shown
+    assert ("next step: docker --context e26 run --rm r/i:v1-until-rosdep python3 -m "
+            "docker_ros.in_image.steps debs --phase apply") in shown
+
+    # no terminal: the failed state's lines; with one, the shell's own docker run
+    tagged = types.SimpleNamespace(tag=lambda *a: None)
+    client = types.SimpleNamespace(images=types.SimpleNamespace(get=lambda ref: tagged))
+    out = io.StringIO()
+    session = container.Session(client, settings(BUILDER="e26"),
+                                container.plan_step(settings(), "custom"), Path("/tmp/My_Robot"),
+                                None, out, True)
+    monkeypatch.setattr(container.sys.stdin, "isatty", lambda: False, raising=False)
+    session.on_failure("sha256:snap", ("custom", "--phase", "apply"), 3)
+    assert "enter it:  docker --context e26 run --rm -it r/i:v1-failed-custom bash" in (
+        out.getvalue())
+    assert "re-run it: docker --context e26 run --rm r/i:v1-failed-custom python3" in (
+        out.getvalue())
+    calls = []
+    monkeypatch.setattr(container.sys, "stdin", types.SimpleNamespace(isatty=lambda: True))
+    monkeypatch.setattr(container.sys, "stdout", types.SimpleNamespace(isatty=lambda: True))
+    monkeypatch.setattr(container.subprocess, "call", calls.append)
+    session.on_failure("sha256:snap", ("custom", "--phase", "apply"), 3)
+    assert calls[0][:4] == ["docker", "--context", "e26", "run"]
+
+    assert builder.images_cli(e26, "unix:///local.sock") == ["docker", "--context", "e26"]
+    assert builder.images_cli(e26, "unix:///e26.sock") == ["docker"]  # (DOCKER_CONTEXT=e26)
+    local = builder.Builder("default", "docker", "default", "unix:///local.sock", False)
+    assert builder.images_cli(local, "unix:///local.sock") == ["docker"]
+    own = builder.Builder("bk", "docker-container", "unix:///bk.sock", "", False)
+    assert builder.images_cli(own, "unix:///local.sock") == ["docker"]  # --load copies them

@@ -218,3 +218,53 @@ def test_blacklisted_packages_stay_out_of_colcon_in_the_shell(tmp_path):
     assert devshell.blacklisted_names(settings(tmp_path)) == []
     assert devshell.write_colcon_defaults([], tmp_path / "none.yaml") == ""
     assert "COLCON_DEFAULTS_FILE" not in " ".join(argv(tmp_path))
+
+
+def test_a_colcon_defaults_file_of_the_users_keeps_the_blacklist(tmp_path):
+    """`inv dev-shell --env COLCON_DEFAULTS_FILE=<a file of the repository>`: the user's file
+    replaced the defaults that ignore the blacklisted packages, so `colcon build` in the shell
+    built them again. A file of the repository or of a --volume is merged into ours (its
+    settings and its own ignored packages stay); one docker-ros cannot read stays in force,
+    with a warning naming the packages."""
+    import json
+
+    repo = tmp_path / "repo"
+    (repo / "config").mkdir(parents=True)
+    (repo / "config" / "colcon.yaml").write_text(
+        "build:\n  symlink-install: true\n  packages-ignore: [old_pkg]\n"
+        "test-result:\n  verbose: true\n")
+    (tmp_path / "extra").mkdir()
+    (tmp_path / "extra" / "defaults.json").write_text('{"list": {"names-only": true}}')
+    names = ["bad_a", "bad_b"]
+
+    def plan(env, volumes=(), environ=None):
+        options = ShellOptions(env=env, volumes=volumes)
+        return devshell.shell_colcon_defaults(names, options, repo, tmp_path, environ or {},
+                                              tmp_path / "ours.yaml")
+
+    shell, warning = plan(("A=1", f"COLCON_DEFAULTS_FILE={devshell.TARGET}/config/colcon.yaml"))
+    assert shell.env == ["A=1"]  # ours is the shell's COLCON_DEFAULTS_FILE, and it says so
+    assert warning == (f"docker-ros dev-shell: COLCON_DEFAULTS_FILE={devshell.TARGET}/config/"
+                       "colcon.yaml (--env) is merged into the shell's colcon defaults, which "
+                       "also ignore the blacklisted packages bad_a, bad_b")
+    merged = json.loads((tmp_path / "ours.yaml").read_text())
+    assert merged["build"] == {"symlink-install": True,
+                               "packages-ignore": ["old_pkg", "bad_a", "bad_b"]}
+    assert merged["test"] == {"packages-ignore": ["bad_a", "bad_b"]}
+    assert merged["test-result"] == {"verbose": True}
+    shell, warning = plan(("COLCON_DEFAULTS_FILE",), ("./extra:/extra:ro",),
+                          {"COLCON_DEFAULTS_FILE": "/extra/defaults.json"})
+    assert "/extra/defaults.json (--env) is merged" in warning and shell.env == []
+    assert json.loads((tmp_path / "ours.yaml").read_text())["list"] == {
+        "names-only": True, "packages-ignore": ["bad_a", "bad_b"]}
+    # a file only the image has: it stays in force, and the user learns what that means
+    shell, warning = plan(("COLCON_DEFAULTS_FILE=/etc/colcon.yaml",))
+    assert shell.env == ("COLCON_DEFAULTS_FILE=/etc/colcon.yaml",)
+    assert warning.startswith("docker-ros dev-shell: warning: COLCON_DEFAULTS_FILE=/etc/colcon"
+                              ".yaml (--env) is no colcon defaults file of the repository")
+    assert "builds the blacklisted packages bad_a, bad_b" in warning
+    # nothing of the user's: ours alone, as before
+    shell, warning = plan(())
+    assert warning == "" and shell.colcon_defaults == str(tmp_path / "ours.yaml")
+    assert json.loads((tmp_path / "ours.yaml").read_text())["graph"] == {
+        "packages-ignore": ["bad_a", "bad_b"]}

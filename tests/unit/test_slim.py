@@ -575,3 +575,22 @@ def test_files_the_command_opens_after_the_window_are_kept(monkeypatch, capsys, 
         assert made == [["/bin/sh"], ["/bin/sh", "/usr/bin/tar"]]
         assert calls == [("rmi", "sha256:slim1", True), ("tag", "sha256:slim2", "reg/x:v1-slim")]
         assert "and used 1 more file (/usr/bin/tar): made and checked again with them" in out
+
+
+def test_include_paths_the_image_lacks_are_named_but_not_the_defaults(tmp_path: Path) -> None:
+    """`--include-path /opt/mylib` that the run image lacks kept nothing and said nothing,
+    while --include-exe stopped: a typo shipped a slim image without what was asked for. The
+    paths of docker-ros's default SLIM_BUILD_ARGS (its /opt/ros is not in Debian's ROS images)
+    are kept when there and never asked for, also when SLIM_BUILD_ARGS repeats them (the GitLab
+    template and the Action set it to the default)."""
+    (tmp_path / "lib" / "sub").mkdir(parents=True)
+    (tmp_path / "lib" / "sub" / "libx.so.1").write_text("")
+    options = parse_slim_args(
+        SLIM_BUILD_ARGS_DEFAULT,
+        f"--include-path {tmp_path}/lib --preserve-path {tmp_path}/etc/my.conf "
+        f"--include-path {tmp_path}/lib/**/libx.so* --include-path {tmp_path}/lib/*/liby* "
+        "--include-path /opt/ros")
+    spec = json.loads(json.dumps(tracer_spec({}, options)))
+    assert slimtrace.missing_requests(spec) == [
+        f"--include-path {tmp_path}/lib/*/liby*", f"--preserve-path {tmp_path}/etc/my.conf"]
+    assert f"{tmp_path}/etc/my.conf" in options.include  # still kept where it is there

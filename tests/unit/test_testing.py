@@ -218,3 +218,45 @@ def test_a_failed_build_reports_no_earlier_runs_tests(tmp_path: Path,
     assert testing.summarize(results / testing.JUNIT) == Counts(0, 0, 0)
     assert not (results / testing.JUNIT).exists()
     assert (results / "log" / "build" / "events.log").is_file()
+
+
+def test_repositories_of_the_same_folder_name_keep_their_own_results(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """~/a/robot and ~/b/robot: `inv test` of one replaced the other's results in the shared
+    default ~/.cache/docker-ros/ws/robot/test-results (the host steps refused that workspace,
+    `inv test` did not look). The first keeps the documented default, the second gets a
+    workspace of its own; a WORKSPACE given for both is refused as the host steps refuse it."""
+    from docker_ros.host import pipeline
+
+    written = []
+    monkeypatch.setattr(build, "check_engine", lambda settings: None)
+    monkeypatch.setattr(build, "build_image", lambda settings, **kwargs: None)
+    monkeypatch.setattr(testing, "read_outcome", lambda folder: {})
+    monkeypatch.setattr(testing, "install_results", lambda exported, dest: written.append(dest))
+
+    def test_in(repo: Path, **env: str) -> Path:
+        repo.mkdir(parents=True, exist_ok=True)
+        settings = load_settings(environ={"BASE_IMAGE": "base:1", "PLATFORM": "amd64",
+                                          "XDG_CACHE_HOME": str(tmp_path / "cache"),
+                                          "BUILD_CONTEXT": str(repo), **env},
+                                 project_dir=repo)
+        pipeline.run_test_stage(settings, results_dir="", dry_run=False)
+        return written[-1]
+
+    cache = tmp_path / "cache" / "docker-ros" / "ws"
+    first = test_in(tmp_path / "a" / "robot")
+    assert first == cache / "robot" / "test-results"  # the documented default
+    second = test_in(tmp_path / "b" / "robot")
+    assert second.parent.parent == cache and second.parent.name.startswith("robot-")
+    assert test_in(tmp_path / "a" / "robot") == first  # each keeps its own, run after run
+    assert test_in(tmp_path / "b" / "robot") == second
+    b = load_settings(environ={"XDG_CACHE_HOME": str(tmp_path / "cache"),
+                               "BUILD_CONTEXT": str(tmp_path / "b" / "robot")},
+                      project_dir=tmp_path / "b" / "robot")
+    assert b.workspace == str(second.parent)
+    assert b.source_of("workspace") == (
+        f"derived: {cache / 'robot'} is the workspace of {tmp_path / 'a' / 'robot'}")
+    with pytest.raises(pipeline.TaskError, match=(
+            f"src/target points to {tmp_path / 'a' / 'robot'}, not to "
+            f"{tmp_path / 'b' / 'robot'}; set WORKSPACE to another folder")):
+        test_in(tmp_path / "b" / "robot", WORKSPACE=str(cache / "robot"))

@@ -66,6 +66,18 @@ def images_host(builder: Builder, cli_host: str) -> Optional[str]:
     return None
 
 
+def images_cli(builder: Builder, cli_host: str) -> List[str]:
+    """The docker command that reaches the engine holding the built images (for the `docker
+    run`s we run and print): the CLI's own, or `docker --context NAME` for a docker context of
+    another engine (`docker --host` if the builder names no context)."""
+    host = images_host(builder, cli_host)
+    if host is None:
+        return ["docker"]
+    if builder.name in ("", "default"):
+        return ["docker", "--host", host]
+    return ["docker", "--context", builder.name]
+
+
 def describe(builder: Builder, cli_host: str, cache_to: bool) -> str:
     """The one line naming the builder, what --load means there and the cache choice."""
     if builder.driver in CONTAINER_DRIVERS:

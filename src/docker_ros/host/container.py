@@ -15,6 +15,7 @@ import dataclasses
 import hashlib
 import io
 import json
+import os
 import shlex
 import subprocess
 import sys
@@ -26,7 +27,7 @@ from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, T
 
 import docker
 
-from docker_ros.host import build, engine
+from docker_ros.host import build, builder, engine
 from docker_ros.in_image.runtime.workspace import StepError
 from docker_ros.in_image.settings import Settings, env_name
 from docker_ros.in_image.steps import BY_NAME, PHASED, STEPS
@@ -188,8 +189,15 @@ def shown(command: Command) -> str:
     return " ".join(shlex.quote(a) for a in STEP_MODULE + command)
 
 
-def docker_run_line(image: str, mounts: Sequence[str], args: Sequence[str], *, tty: bool) -> str:
-    argv = ["docker", "run", "--rm"] + (["-it"] if tty else [])
+def docker_cli(settings: Settings) -> List[str]:
+    """The docker command whose engine holds the images this run built (builder.images_cli)."""
+    return builder.images_cli(build.selected_builder(settings), engine.cli_host(os.environ))
+
+
+def docker_run_line(image: str, mounts: Sequence[str], args: Sequence[str], *, tty: bool,
+                    cli: Sequence[str] = ("docker",)) -> str:
+    """A `docker run` to print (cli: docker_cli, the engine that has image)."""
+    argv = [*cli, "run", "--rm"] + (["-it"] if tty else [])
     for mount in mounts:
         argv += ["-v", mount]
     return " ".join(shlex.quote(a) for a in [*argv, image, *args])
@@ -291,7 +299,7 @@ class Session:
                            f"docker-ros {step}: a shell in the state just before it; run it "
                            "again with the line above, `exit` to leave\n")
             self.out.flush()
-            argv = ["docker", "run", "--rm", "-it", "-w", WORKDIR]
+            argv = [*docker_cli(self.settings), "run", "--rm", "-it", "-w", WORKDIR]
             for mount in self.mounts:
                 argv += ["-v", mount]
             subprocess.call(argv + [snapshot, "bash"])
@@ -299,11 +307,13 @@ class Session:
         tag = tag_of(self.settings, "failed", step)
         self.client.images.get(snapshot).tag(*tag.rsplit(":", 1))
         mounts = [m for m in self.mounts if not m.endswith("/run/secrets:ro")]
+        cli = docker_cli(self.settings)
+        rerun = [*STEP_MODULE, *command]
         self.out.write(
             f"docker-ros {step}: no terminal for a shell; the state just before the failed "
             f"command is {tag}\n"
-            f"  enter it:  {docker_run_line(tag, mounts, ['bash'], tty=True)}\n"
-            f"  re-run it: {docker_run_line(tag, mounts, [*STEP_MODULE, *command], tty=False)}\n"
+            f"  enter it:  {docker_run_line(tag, mounts, ['bash'], tty=True, cli=cli)}\n"
+            f"  re-run it: {docker_run_line(tag, mounts, rerun, tty=False, cli=cli)}\n"
         )
         self.out.flush()
         return True

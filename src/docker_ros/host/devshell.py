@@ -8,9 +8,9 @@ import os
 import re
 import struct
 import subprocess
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterator, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.in_image.runtime.files import read_list_file
 from docker_ros.in_image.runtime.workspace import StepError
@@ -241,14 +241,105 @@ def blacklisted_names(settings: Settings) -> List[str]:
     return listed_names(lines)
 
 
-def write_colcon_defaults(names: Sequence[str], destination: Path) -> str:
+def write_colcon_defaults(names: Sequence[str], destination: Path,
+                          user: Optional[Mapping[str, Any]] = None) -> str:
     """A colcon defaults file (JSON is YAML) that leaves names out of every verb selecting
-    packages; its path, or '' when there is nothing to leave out."""
+    packages, with the user's defaults (merged_defaults); its path, or '' when there is nothing
+    to leave out."""
     if not names:
         return ""
-    ignore = {"packages-ignore": list(names)}
-    destination.write_text(json.dumps({verb: ignore for verb in COLCON_SELECTING_VERBS}) + "\n")
+    destination.write_text(json.dumps(merged_defaults(user or {}, names)) + "\n")
     return str(destination)
+
+
+def merged_defaults(user: Mapping[str, Any], names: Sequence[str]) -> Dict[str, Any]:
+    """The user's colcon defaults with names added to the packages-ignore of every verb that
+    selects packages (their other settings, and their ignored packages, stay)."""
+    out = dict(user)
+    for verb in COLCON_SELECTING_VERBS:
+        section = dict(out[verb]) if isinstance(out.get(verb), dict) else {}
+        given = section.get("packages-ignore")
+        given = [n for n in given if isinstance(n, str)] if isinstance(given, list) else []
+        section["packages-ignore"] = list(dict.fromkeys(given + list(names)))
+        out[verb] = section
+    return out
+
+
+def given_defaults_file(env: Sequence[str], environ: Mapping[str, str]) -> Optional[str]:
+    """The COLCON_DEFAULTS_FILE the user's --env gives the shell (the last, as docker takes
+    it; `NAME` alone passes this machine's value), or None."""
+    found: Optional[str] = None
+    for spec in env:
+        name, equals, value = spec.partition("=")
+        if name == "COLCON_DEFAULTS_FILE":
+            found = value if equals else environ.get(name)
+    return found or None
+
+
+def host_file(path: str, binds: Sequence[Tuple[str, str]]) -> Optional[Path]:
+    """The host file a container path is mounted from (binds: host path, container path; the
+    deepest container path first), None when no bind holds it."""
+    for host, inside in sorted(binds, key=lambda b: len(b[1]), reverse=True):
+        inside = inside.rstrip("/")
+        if path == inside or path.startswith(inside + "/"):
+            return Path(host + path[len(inside):])
+    return None
+
+
+def read_defaults(path: Path) -> Optional[Dict[str, Any]]:
+    """A colcon defaults file's mapping (YAML; JSON is YAML), None when it is not readable as
+    one."""
+    try:
+        text = path.read_text()
+        data = json.loads(text)
+    except OSError:
+        return None
+    except ValueError:
+        try:
+            import yaml  # colcon's own dependency (the host extra), not docker-ros's
+        except ImportError:
+            return None
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError:
+            return None
+    return {} if data is None else data if isinstance(data, dict) else None
+
+
+def shell_colcon_defaults(names: Sequence[str], options: ShellOptions, repository: Path,
+                          cwd: Path, environ: Mapping[str, str], destination: Path
+                          ) -> Tuple[ShellOptions, str]:
+    """The shell's options with colcon defaults ignoring the blacklisted names, and a line
+    for the user ('' if none). A COLCON_DEFAULTS_FILE of the user's (--env) in the repository
+    or a --volume is merged into ours (its --env dropped, the line says so); one we cannot
+    read stays in force (after ours), and the line warns that colcon then builds the
+    blacklisted packages."""
+    if not names:
+        return options, ""
+    given = given_defaults_file(options.env, environ)
+    user: Optional[Dict[str, Any]] = {}
+    if given:
+        binds = [(str(repository), TARGET)]
+        for volume in options.volumes:
+            host, _, rest = host_path(volume, cwd).partition(":")
+            if host.startswith("/"):
+                binds.append((host, rest.split(":")[0]))
+        source = host_file(given, binds)
+        user = read_defaults(source) if source else None
+    if user is None:
+        return (replace(options, colcon_defaults=write_colcon_defaults(names, destination)),
+                f"docker-ros dev-shell: warning: COLCON_DEFAULTS_FILE={given} (--env) is no "
+                "colcon defaults file of the repository or a --volume that docker-ros can read,"
+                " so colcon in the shell uses it alone and builds the blacklisted packages "
+                f"{', '.join(names)} (add them to its packages-ignore)")
+    if not given:
+        return replace(options, colcon_defaults=write_colcon_defaults(names, destination)), ""
+    env = [e for e in options.env if e.partition("=")[0] != "COLCON_DEFAULTS_FILE"]
+    return (replace(options, env=env,
+                    colcon_defaults=write_colcon_defaults(names, destination, user)),
+            f"docker-ros dev-shell: COLCON_DEFAULTS_FILE={given} (--env) is merged into the "
+            "shell's colcon defaults, which also ignore the blacklisted packages "
+            f"{', '.join(names)}")
 
 
 def write_cookie(display: str, environ: Mapping[str, str], destination: Path) -> str:

@@ -13,7 +13,18 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable, Collection, Dict, Iterator, List, Mapping, Optional, Sequence
+from typing import (
+    Any,
+    Callable,
+    Collection,
+    Dict,
+    Iterator,
+    List,
+    Mapping,
+    Optional,
+    Sequence,
+    Tuple,
+)
 
 from docker_ros.host import build, builder, container, devshell, engine, slim
 from docker_ros.host.build import BuiltImage
@@ -90,14 +101,7 @@ def link_repository(ws: Workspace, repository: Path) -> None:
 def host_workspace(settings: Settings, *, dry_run: bool) -> Iterator[Workspace]:
     """The host workspace. A dry run before the first real run uses a throw-away workspace,
     so that it can show what would happen without creating WORKSPACE."""
-    assert settings.workspace
-    ws = Workspace(Path(settings.workspace).expanduser())
-    repository = Path(settings.build_context).resolve()
-    root = ws.root.resolve()
-    problem = workspace_problem(root, repository, os.listdir(root) if root.is_dir() else [],
-                                ws.target.is_symlink())
-    if problem:
-        raise TaskError(problem)
+    ws, repository = checked_workspace(settings)
     if dry_run and not ws.target.is_symlink():
         with tempfile.TemporaryDirectory(prefix="docker-ros-dry-run-") as tmp:
             print(f"[dry-run] would create {ws.root} with src/target -> {repository}"
@@ -106,12 +110,31 @@ def host_workspace(settings: Settings, *, dry_run: bool) -> Iterator[Workspace]:
             link_repository(temporary, repository)
             yield temporary
         return
+    claim_workspace(settings, ws, repository)
+    yield ws
+
+
+def checked_workspace(settings: Settings) -> Tuple[Workspace, Path]:
+    """WORKSPACE and the repository, refused (TaskError) when it cannot be the workspace."""
+    assert settings.workspace
+    ws = Workspace(Path(settings.workspace).expanduser())
+    repository = Path(settings.build_context).resolve()
+    root = ws.root.resolve()
+    problem = workspace_problem(root, repository, os.listdir(root) if root.is_dir() else [],
+                                ws.target.is_symlink())
+    if problem:
+        raise TaskError(problem)
+    return ws, repository
+
+
+def claim_workspace(settings: Settings, ws: Workspace, repository: Path) -> None:
+    """src/target -> the repository: the workspace is this repository's from now on (another
+    of the same folder name gets a default WORKSPACE of its own, settings.default_workspace)."""
     try:
         link_repository(ws, repository)
     except OSError as exc:
         raise TaskError(f"WORKSPACE '{settings.workspace}' cannot be created/used: "
                         f"{exc.strerror or exc}; give a writable folder") from None
-    yield ws
 
 
 def host_options(step: str, ws: Workspace) -> Dict[str, str]:
@@ -144,8 +167,8 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
     runs_command = plan.start == "run" or ("command",) in plan.commands
     require(settings, ["base_image"] + (["command"] if runs_command else []))
     check_inputs(settings, ("run",) if runs_command else ("dev",))
-    mount = f" -v {Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
-    mount = mount if plan.sources else ""
+    repository = f"{Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
+    mount = f" -v {repository}" if plan.sources else ""
     if dry_run:
         argv = build.plan_shown(settings, target=plan.start, platform=settings.platform[0],
                                 tag=container.tag_of(settings, "stage", plan.start))
@@ -160,7 +183,9 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
         tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
-    print(f"tagged {tag}\n  enter it: docker run --rm -it{mount} {tag} bash")
+    line = container.docker_run_line(tag, [repository] if plan.sources else [], ["bash"],
+                                     tty=True, cli=container.docker_cli(settings))
+    print(f"tagged {tag}\n  enter it: {line}")
     return tag
 
 
@@ -308,6 +333,11 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
     require(settings, ["base_image"])
     root = results_root(settings, results_dir)
     origin = results_origin(settings, results_dir)
+    if not (results_dir or settings.test_results_dir):
+        # the results go into WORKSPACE: refused as the host steps refuse it, and claimed
+        ws, repository = checked_workspace(settings)
+        if not dry_run:
+            claim_workspace(settings, ws, repository)
     warning = results_in_context(root, Path(settings.build_context), origin)
     if warning:
         print(warning)
@@ -374,7 +404,9 @@ def build_until(settings: Settings, step: str, *, dry_run: bool,
     tag = run_in_container(settings, plan, dry_run=dry_run, shell_on_failure=shell_on_failure)
     following = container.next_command(step)
     if following and not dry_run:
-        print(f"  next step: docker run --rm {tag} {container.shown(following)}")
+        line = container.docker_run_line(tag, [], [*container.STEP_MODULE, *following],
+                                         tty=False, cli=container.docker_cli(settings))
+        print(f"  next step: {line}")
 
 
 def push_and_report(
@@ -474,10 +506,13 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
                              tty=sys.stdin.isatty() and sys.stdout.isatty())
     with tempfile.TemporaryDirectory(prefix="docker-ros-dev-shell-") as tmp:
         cookie = devshell.write_cookie(display, os.environ, Path(tmp) / "xauth") if display else ""
-        defaults = devshell.write_colcon_defaults(blacklisted, Path(tmp) / "colcon-defaults.yaml")
+        shell, note = devshell.shell_colcon_defaults(
+            blacklisted, options, Path(settings.build_context).resolve(), user.cwd, os.environ,
+            Path(tmp) / "colcon-defaults.yaml")
+        if note:
+            print(note, file=sys.stderr, flush=True)
         argv = devshell.dev_shell_argv(settings, ref, dataclasses.replace(
-            options, gpus=gpus, x11_display=display, xauthority=cookie,
-            colcon_defaults=defaults), user)
+            shell, gpus=gpus, x11_display=display, xauthority=cookie), user)
         if dry_run:
             print(format_argv(argv))
             return 0

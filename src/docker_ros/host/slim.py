@@ -29,7 +29,7 @@ from docker.models.containers import Container
 from docker_ros.host.build import PACKAGE_DIR, image_ref, image_size, platform_ref
 from docker_ros.host.engine import client, inspect_image, signals_held, tag
 from docker_ros.host.lock import LOCK_LABEL, lock_labels, lock_path
-from docker_ros.in_image.settings import Settings, host_platform
+from docker_ros.in_image.settings import SLIM_BUILD_ARGS_DEFAULT, Settings, host_platform
 
 TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
 EXCHANGE = "/docker-ros-slim"  # the tracer and its results inside the trace container
@@ -103,6 +103,7 @@ class SlimOptions:
     exclude: Tuple[str, ...] = ()
     executables: Tuple[str, ...] = ()
     binaries: Tuple[str, ...] = ()  # --include-bin (also in include)
+    paths: Tuple[Tuple[str, str], ...] = ()  # (--include-path or --preserve-path, path)
     continue_after: float = 10.0  # the longest window
     settle: float = SETTLE_SECONDS  # the window ends this long after the last new file
     env: Tuple[str, ...] = ()
@@ -165,6 +166,8 @@ def parse_slim_args(text: str, additional: str = "") -> SlimOptions:
         exclude=tuple(values["--exclude-pattern"]),
         executables=tuple(values["--include-exe"]),
         binaries=tuple(values["--include-bin"]),
+        paths=tuple((option, value) for option in ("--include-path", "--preserve-path")
+                    for value in values[option]),
         continue_after=continue_after,
         settle=settle,
         env=tuple(values["--env"]),
@@ -187,6 +190,11 @@ def seconds_option(name: str, given: Sequence[Tuple[str, str]], default: float) 
             raise SlimError(f"{variable}: {name}={raw!r}: give a number of seconds, 0 or more"
                             " (docker-slim's enter/signal/probe modes do not apply)")
     return seconds
+
+
+# The paths docker-ros's default SLIM_BUILD_ARGS keeps when they are there: its /opt/ros is
+# missing from Debian's ROS images (ROS in /usr), and that must not stop the defaults.
+DEFAULT_PATHS = frozenset(path for _, path in parse_slim_args(SLIM_BUILD_ARGS_DEFAULT).paths)
 
 
 def slim_options(settings: Settings) -> SlimOptions:
@@ -226,9 +234,11 @@ def tracer_spec(config: Mapping, options: SlimOptions) -> Dict[str, object]:
         "exclude": list(options.exclude),
         "executables": list(ESSENTIAL_EXECUTABLES) + list(options.executables),
         "path": path,
-        # what the options ask for by name: the tracer reports those the image lacks
+        # what the options ask for by name: the tracer reports those the image lacks (a path
+        # of the default SLIM_BUILD_ARGS is kept when it is there, and never asked for)
         "requested": [["--include-exe", name] for name in options.executables]
-        + [["--include-bin", name] for name in options.binaries],
+        + [["--include-bin", name] for name in options.binaries]
+        + [[option, path] for option, path in options.paths if path not in DEFAULT_PATHS],
         # the host stops the trace; this only bounds a trace whose host went away
         "max_seconds": options.continue_after + 900,
         "settle_seconds": options.settle,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import hashlib
 import os
 import re
 import shlex
@@ -302,7 +303,8 @@ class Settings:
     workspace: Optional[str] = setting(
         None,
         "Host workspace of the step tasks and `--host` composites (repository at src/target)",
-        default_doc="`~/.cache/docker-ros/ws/<repository folder name>`",
+        default_doc="`~/.cache/docker-ros/ws/<repository folder name>` (`<name>-<hash of its"
+        " path>` when that one is the workspace of another repository of the same name)",
         group="ours", build="none", flags=("host",),
     )
     test_results_dir: Optional[str] = setting(
@@ -696,7 +698,9 @@ def derived_defaults(
         out["platform"] = ((host_platform(),), "")
     if not values.get("workspace"):
         cache = Path(environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-        out["workspace"] = (str(cache / "docker-ros" / "ws" / project_dir.resolve().name), "")
+        out["workspace"] = default_workspace(
+            cache / "docker-ros" / "ws", project_dir.resolve().name,
+            Path(str(values.get("build_context") or ".")).expanduser().resolve())
     if not values.get("registry"):
         if environ.get("GITHUB_ACTIONS"):
             out["registry"] = ("ghcr.io", "derived from GITHUB_ACTIONS (environment)")
@@ -716,6 +720,20 @@ def derived_defaults(
         out["build_state_from"] = (ci_build_state_refs(merged),
                                    "derived from the CI pipeline (the build state it pushes)")
     return out
+
+
+def default_workspace(folder: Path, name: str, repository: Path) -> Tuple[str, str]:
+    """WORKSPACE's default and its provenance: folder/<repository folder name>, unless that
+    workspace is another repository's (its src/target link names another folder: ~/a/robot and
+    ~/b/robot); then folder/<name>-<8 hex digits of the repository's path>, so that each
+    repository keeps its own workspace and test results."""
+    plain = folder / name
+    link = plain / "src" / "target"
+    if not link.is_symlink() or link.resolve() == repository:
+        return str(plain), ""
+    digest = hashlib.sha256(str(repository).encode()).hexdigest()[:8]
+    return (str(folder / f"{name}-{digest}"),
+            f"derived: {plain} is the workspace of {os.readlink(link)}")
 
 
 def unpostfixed_tags(values: Mapping[str, object], tag: str) -> List[str]:

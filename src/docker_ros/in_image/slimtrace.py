@@ -548,13 +548,26 @@ def interpreter(path: str) -> List[str]:
     return [words[0].decode(errors="replace")] if words else []
 
 
+def path_matches(pattern: str) -> bool:
+    """Whether a path of this image matches an --include-path/--preserve-path (a glob: as the
+    keep set matches it, searched below its folder without a glob character)."""
+    if not any(c in pattern for c in "*?"):
+        return os.path.lexists(pattern)
+    top = pattern[:min(pattern.find(c) for c in "*?" if c in pattern)].rpartition("/")[0]
+    regex = globs_regex([pattern])
+    return any(matches_any(p, regex) for p, _, _ in walk(top or "/", set(SKIP_DIRS)))
+
+
 def missing_requests(spec: Dict[str, Any]) -> List[str]:
-    """The --include-exe names not on PATH and --include-bin files that do not exist, as
-    "OPTION VALUE" (those options would keep nothing)."""
+    """The --include-exe names not on PATH, --include-bin files that do not exist and
+    --include-path/--preserve-path paths nothing matches, as "OPTION VALUE" (those options
+    would keep nothing)."""
     path_env = spec.get("path", "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin")
     missing = []
     for option, value in spec.get("requested", []):
-        found = which(value, path_env) if option == "--include-exe" else os.path.lexists(value)
+        found = (which(value, path_env) if option == "--include-exe"
+                 else os.path.lexists(value) if option == "--include-bin"
+                 else path_matches(value))
         if not found:
             missing.append(f"{option} {value}")
     return missing
