@@ -205,6 +205,67 @@ def test_pip_tls_failure_is_recognised_with_the_hint() -> None:
     assert pip.tls_failure("Collecting tomli-w") == ""
 
 
+# pip 23's output for a requirement whose metadata cannot be made (its setup.py raises), and
+# for one whose C extension does not compile (shortened: the traceback's frames left out)
+PIP_METADATA_FAILURE = """\
+Processing ./badmeta
+  Preparing metadata (pyproject.toml): started
+  Preparing metadata (pyproject.toml): finished with status 'error'
+  error: subprocess-exited-with-error
+
+  × Preparing metadata (pyproject.toml) did not run successfully.
+  │ exit code: 1
+  ╰─> [18 lines of output]
+      Traceback (most recent call last):
+        File "<string>", line 1, in <module>
+      RuntimeError: boom: this package needs libfoo
+      [end of output]
+
+  note: This error originates from a subprocess, and is likely not a problem with pip.
+error: metadata-generation-failed
+
+× Encountered error while generating package metadata.
+╰─> See above for output.
+
+note: This is an issue with the package mentioned above, not pip.
+hint: See above for details.
+""".splitlines()
+PIP_WHEEL_FAILURE = """\
+  × python setup.py bdist_wheel did not run successfully.
+  │ exit code: 1
+  ╰─> [14 lines of output]
+      running build_ext
+      gcc -c nope.c -o build/temp.linux-x86_64-cpython-311/nope.o
+      nope.c:2:10: fatal error: nosuch.h: No such file or directory
+      compilation terminated.
+      error: command '/usr/bin/gcc' failed with exit code 1
+      [end of output]
+
+  note: This error originates from a subprocess, and is likely not a problem with pip.
+  ERROR: Failed building wheel for badbuild
+  Running setup.py clean for badbuild
+Failed to build badbuild
+ERROR: Could not build wheels for badbuild, which is required to install pyproject.toml-based \
+projects
+""".splitlines()
+
+
+def test_a_pip_requirement_that_fails_to_build_is_named_with_its_error() -> None:
+    """pip's last line for a package it cannot build says `hint: See above for details.`
+    (before: the whole cause in the message); the message names the requirement and the
+    build's own error line."""
+    assert pip.pip_reason(PIP_METADATA_FAILURE) == (
+        "Encountered error while generating package metadata (./badmeta); the build's output "
+        "says: RuntimeError: boom: this package needs libfoo")
+    assert pip.pip_reason(PIP_WHEEL_FAILURE) == (
+        "Could not build wheels for badbuild, which is required to install "
+        "pyproject.toml-based projects; the build's output says: nope.c:2:10: fatal error: "
+        "nosuch.h: No such file or directory")
+    assert pip.pip_reason(["Collecting nosuch==9", "ERROR: No matching distribution found for "
+                           "nosuch==9"]) == "No matching distribution found for nosuch==9"
+    assert pip.pip_reason([]) == "no output"
+
+
 def test_crlf_scripts_get_a_hint() -> None:
     assert "CRLF" in script_hint(b"#!/bin/bash\r\necho hi\r\n")
     assert script_hint(b"#!/bin/bash\necho hi\n") == ""
