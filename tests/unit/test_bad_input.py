@@ -179,6 +179,34 @@ def test_git_errors_keep_their_cause_and_loopback_hint() -> None:
         assert clone.url_host(url) == host
 
 
+def test_a_clone_that_wants_credentials_says_which_to_set() -> None:
+    """git says `terminal prompts disabled` or `Permission denied (publickey)`; the message
+    says which settings give it the login (and when GIT_HTTPS_SERVER names another host)."""
+    url = "https://git.example.com/group/private.git"
+    prompt = ["Could not clone repository 'https://git.example.com/group/private.git': Cloning "
+              "into '.'...", "fatal: could not read Username for 'https://git.example.com': "
+              "terminal prompts disabled"]
+    assert clone.login_hint(url, prompt, {}) == (
+        " (the server asks for a login: set GIT_HTTPS_SERVER=git.example.com, GIT_HTTPS_USER "
+        "and GIT_HTTPS_PASSWORD in the environment or .env)")
+    other = {"DOCKER_ROS_GIT_HTTPS_HOST": "gitlab.example.com:8443"}
+    assert clone.login_hint(url, prompt, other) == (
+        " (the server asks for a login; GIT_HTTPS_SERVER is gitlab.example.com:8443, and the "
+        "password is given to that host only: set it to git.example.com)")
+    refused = ["remote: HTTP Basic: Access denied", "fatal: Authentication failed for "
+               f"'{url}/'"]
+    assert "check GIT_HTTPS_USER and GIT_HTTPS_PASSWORD" in clone.login_hint(url, refused, other)
+    denied = ["git@git.example.com: Permission denied (publickey).",
+              "fatal: Could not read from remote repository."]
+    ssh = "git@git.example.com:group/private.git"
+    assert "set GIT_SSH_PRIVATE_KEY" in clone.login_hint(ssh, denied, {})
+    assert "refused GIT_SSH_PRIVATE_KEY" in clone.login_hint(
+        ssh, denied, {"GIT_SSH_COMMAND": "ssh -i /tmp/x/id"})
+    assert "`ssh-keyscan git.example.com`" in clone.login_hint(
+        ssh, ["Host key verification failed."], {})
+    assert clone.login_hint(url, ["fatal: invalid reference: v9"], {}) == ""
+
+
 def test_a_local_repository_url_in_an_image_build_gets_a_hint() -> None:
     """A .repos URL to a folder of this machine cannot be cloned in an image build: the
     failure says why and what to do (git only says it is no git repository)."""
