@@ -199,11 +199,15 @@ def test_a_clone_that_wants_credentials_says_which_to_set() -> None:
     denied = ["git@git.example.com: Permission denied (publickey).",
               "fatal: Could not read from remote repository."]
     ssh = "git@git.example.com:group/private.git"
-    assert "set GIT_SSH_PRIVATE_KEY" in clone.login_hint(ssh, denied, {})
-    assert "refused GIT_SSH_PRIVATE_KEY" in clone.login_hint(
-        ssh, denied, {"GIT_SSH_COMMAND": "ssh -i /tmp/x/id"})
-    assert "`ssh-keyscan git.example.com`" in clone.login_hint(
-        ssh, ["Host key verification failed."], {})
+    unknown = ["Host key verification failed.", "fatal: Could not read from remote repository."]
+    for output in (denied, unknown):  # (without a key, the known host keys are not used)
+        assert clone.login_hint(ssh, output, {}) == (
+            " (the server wants an SSH login: set GIT_SSH_PRIVATE_KEY and GIT_SSH_KNOWN_HOST_KEYS"
+            " (its lines from `ssh-keyscan git.example.com`) in the environment or .env)")
+    key = {"GIT_SSH_COMMAND": "ssh -i /tmp/x/id"}
+    assert "refused GIT_SSH_PRIVATE_KEY" in clone.login_hint(ssh, denied, key)
+    assert "set GIT_SSH_KNOWN_HOST_KEYS to its lines from `ssh-keyscan git.example.com`" in (
+        clone.login_hint(ssh, unknown, key))
     assert clone.login_hint(url, ["fatal: invalid reference: v9"], {}) == ""
 
 

@@ -166,14 +166,17 @@ def login_hint(url: str, output: Sequence[str], env: Mapping[str, str]) -> str:
     if _LOGIN_REFUSED.search(text):
         return (" (the server refused the login: check GIT_HTTPS_USER and GIT_HTTPS_PASSWORD, "
                 "and that the user may read the repository)")
+    keyscan = f"`ssh-keyscan {host or 'HOST'}`"
+    if (_KEY_REFUSED.search(text) or _HOST_KEY_UNKNOWN.search(text)) \
+            and "GIT_SSH_COMMAND" not in env:
+        # (without a key, GIT_SSH_KNOWN_HOST_KEYS is not used either)
+        return (" (the server wants an SSH login: set GIT_SSH_PRIVATE_KEY and "
+                f"GIT_SSH_KNOWN_HOST_KEYS (its lines from {keyscan}) in the environment or .env)")
     if _KEY_REFUSED.search(text):
-        if "GIT_SSH_COMMAND" in env:
-            return " (the server refused GIT_SSH_PRIVATE_KEY: give a key it accepts)"
-        return (" (the server wants an SSH key: set GIT_SSH_PRIVATE_KEY in the environment or "
-                ".env, and GIT_SSH_KNOWN_HOST_KEYS)")
+        return " (the server refused GIT_SSH_PRIVATE_KEY: give a key it accepts)"
     if _HOST_KEY_UNKNOWN.search(text):
         return (" (the server's SSH host key is not known: set GIT_SSH_KNOWN_HOST_KEYS to its "
-                f"lines from `ssh-keyscan {host or 'HOST'}`)")
+                f"lines from {keyscan})")
     return ""
 
 
