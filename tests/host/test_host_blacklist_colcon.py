@@ -96,7 +96,7 @@ def test_colcon_failure_names_the_package(packages):
     assert "broken_pkg" in err.value.message
     assert err.value.returncode != 0
     # the compiler's first error line, with the file and line, is in the message itself
-    assert re.search(r"failed to build \(exit code 2\): \S*broken/src/\w+\.cpp:1:\d+: error: ",
+    assert re.search(r"failed to build \(exit code 2\): broken/\w+\.cpp:1:\d+: error: ",
                      err.value.message), err.value.message
 
 
