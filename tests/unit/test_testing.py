@@ -68,6 +68,10 @@ def test_verdict_names_the_failed_test_cases_and_the_build_error(tmp_path: Path)
     (tmp_path / "my_pkg" / "test_results" / "my_pkg" / "gtest.xml").write_text(GTEST_XML)
     cases = testing.failed_cases(tmp_path)
     assert cases == ["my_pkg: t.test_fails (boom)", "my_pkg: b (crash)"]
+    # colcon's pytest reports name the package already: `my_pkg.test.test_x`
+    (tmp_path / "my_pkg" / "pytest.xml").write_text(PYTEST_XML.replace('classname="t"',
+                                                                       'classname="my_pkg.t"'))
+    assert testing.failed_cases(tmp_path)[0] == "my_pkg.t.test_fails (boom)"
     ok = {"colcon_build": 0, "colcon_test": 0, "colcon_test_result": 0}
     assert testing.verdict(ok, testing.summarize(tmp_path), cases) == (
         "2 test(s) failed: my_pkg: t.test_fails (boom), my_pkg: b (crash)")

@@ -76,18 +76,21 @@ def summarize(root: Path) -> Counts:
 def failed_cases(root: Path) -> List[str]:
     """`<package>: <classname>.<name> (<first line of the failure's message>)` of each failed
     test case in the JUnit reports below root (the package: the report's first folder, as
-    colcon's build/ has them)."""
+    colcon's build/ has them; left out when the class name starts with it, as colcon's pytest
+    names them)."""
     found = []
     for path in junit_files(root):
         parts = path.relative_to(root).parts
-        package = f"{parts[0]}: " if len(parts) > 1 else ""
+        package = parts[0] if len(parts) > 1 else ""
         for case in ElementTree.fromstring(path.read_text(errors="replace")).iter("testcase"):
             failures = [child for child in case if child.tag in ("failure", "error")]
             if not failures:
                 continue
             name = ".".join(n for n in (case.get("classname"), case.get("name")) if n) or "?"
+            if package and not name.startswith(package + "."):
+                name = f"{package}: {name}"
             message = (failures[0].get("message") or "").strip().split("\n")[0][:150]
-            found.append(package + name + (f" ({message})" if message else ""))
+            found.append(name + (f" ({message})" if message else ""))
     return found
 
 
