@@ -293,6 +293,17 @@ def test_a_pip_requirement_that_fails_to_build_is_named_with_its_error() -> None
         "Could not build wheels for badbuild, which is required to install "
         "pyproject.toml-based projects; the build's output says: nope.c:2:10: fatal error: "
         "nosuch.h: No such file or directory")
+    # psycopg2 from source in an image without libpq-dev (pip 23.0.1 of Debian 12)
+    psycopg2 = ["Collecting psycopg2==2.9.9", "  × python setup.py egg_info did not run "
+                "successfully.", "  ╰─> [23 lines of output]", "      running egg_info",
+                "      Error: pg_config executable not found.", "      or with the pg_config "
+                "option in 'setup.cfg'.", "      [end of output]",
+                "error: metadata-generation-failed",
+                "× Encountered error while generating package metadata.",
+                "hint: See above for details."]
+    assert pip.pip_reason(psycopg2) == (
+        "Encountered error while generating package metadata (psycopg2==2.9.9); the build's "
+        "output says: Error: pg_config executable not found.")
     assert pip.pip_reason(["Collecting nosuch==9", "ERROR: No matching distribution found for "
                            "nosuch==9"]) == "No matching distribution found for nosuch==9"
     assert pip.pip_reason([]) == "no output"

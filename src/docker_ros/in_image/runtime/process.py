@@ -12,7 +12,7 @@ from docker_ros.in_image.runtime.workspace import LOG, StepError, dry, format_ar
 
 # A line in which a compiler, the linker, make, CMake or Python says what is wrong (not make's
 # `*** [...] Error 2`, which only says that something was)
-ERROR_LINE = re.compile(r"(^|:\s?)(fatal )?error:\s|^CMake Error|undefined reference to|"
+ERROR_LINE = re.compile(r"(^|:\s?)(fatal )?[Ee]rror:\s|^CMake Error|undefined reference to|"
                         r"No rule to make target|^\S+Error: ")
 
 
