@@ -79,7 +79,7 @@ def test_verdict_names_the_failed_test_cases_and_the_build_error(tmp_path: Path)
     assert testing.verdict(ok, Counts(0, 7, 0), many) == (
         "7 test(s) failed: p: t.case0, p: t.case1, p: t.case2, p: t.case3, p: t.case4 and 2 more")
     assert testing.verdict({**ok, "colcon_build": 2}, Counts(), [], "package x failed to build "
-                           "(exit code 2): x.cpp:1:1: error: y") == (
+                           "(exit code 2): x.cpp:1:1: error: y; see the output above") == (
         "colcon build failed (exit code 2): no tests ran (package x failed to build (exit code "
         "2): x.cpp:1:1: error: y)")
 

@@ -23,6 +23,7 @@ OUTCOME = "outcome.json"
 JUNIT = "junit"
 TEST_RESULT_LOG = "test-result.txt"
 BUILD_ERROR = "colcon-build-error.txt"  # the colcon step's one-line error, when the build failed
+SEE_ABOVE = "; see the output above"
 CASES_SHOWN = 5  # failed test cases named in the verdict (all of them are in the JUnit XML)
 
 
@@ -103,8 +104,10 @@ def verdict(outcome: Dict[str, int], counts: Counts, cases: Sequence[str] = (),
     """None when everything passed, else what failed (one line): the failed test cases
     (failed_cases) or the colcon step's error (BUILD_ERROR) named."""
     if outcome.get("colcon_build", 0) != 0:
+        # (the task's message says it once at its end)
+        cause = build_error[:-len(SEE_ABOVE)] if build_error.endswith(SEE_ABOVE) else build_error
         return (f"colcon build failed (exit code {outcome['colcon_build']}): no tests ran"
-                + (f" ({build_error})" if build_error else ""))
+                + (f" ({cause})" if cause else ""))
     if counts.failed:
         shown = ", ".join(cases[:CASES_SHOWN]) + (
             f" and {len(cases) - CASES_SHOWN} more" if len(cases) > CASES_SHOWN else "")
