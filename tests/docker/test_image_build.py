@@ -240,7 +240,9 @@ def test_base_image_that_does_not_exist(tmp_path: Path) -> None:
     [
         ("custom", "custom", ["docker/custom.sh", "exit code 3"]),
         ("rosdep", "rosdep", ["no_such_rosdep_key", "needs_missing"]),
-        ("colcon", "colcon", ["broken_pkg"]),
+        # the compiler's error line itself, with the file as the repository has it
+        ("colcon", "colcon", ["package broken_pkg failed to build (exit code 2): "
+                              "broken_pkg/src/main.cpp:1:", ": error: "]),
         ("debs", "debs", ["apt has no package no-such-deb-xyz (check the name"]),
         ("command", "command", ["`rosrun no_such_pkg node`: package no_such_pkg is not in the "
                                 "run image", "`pkg_typo` is not a program on PATH"]),

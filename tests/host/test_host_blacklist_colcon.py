@@ -1,6 +1,7 @@
 """blacklist, colcon and command with real colcon/cmake builds of cmake packages."""
 
 import logging
+import re
 import subprocess
 
 import pytest
@@ -94,6 +95,19 @@ def test_colcon_failure_names_the_package(packages):
         colcon.main(packages.ws, packages.settings())
     assert "broken_pkg" in err.value.message
     assert err.value.returncode != 0
+    # the compiler's first error line, with the file and line, is in the message itself
+    assert re.search(r"failed to build \(exit code 2\): broken/\w+\.cpp:1:\d+: error: ",
+                     err.value.message), err.value.message
+
+
+def test_a_missing_cmake_package_is_named_with_cmakes_error(packages):
+    make_package(packages.repo / "lost", "lost_pkg",
+                 cmake_extra="find_package(no_such_dep_docker_ros REQUIRED)\n")
+    with pytest.raises(StepError) as err:
+        colcon.main(packages.ws, packages.settings())
+    assert "package lost_pkg failed to build" in err.value.message
+    assert "CMake Error at CMakeLists.txt:" in err.value.message, err.value.message
+    assert '"no_such_dep_docker_ros"' in err.value.message, err.value.message
 
 
 def test_command_exit_code_is_the_steps(project):

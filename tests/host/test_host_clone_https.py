@@ -47,6 +47,14 @@ def test_https_credentials_clone_without_leaking(project, private_remote, caplog
     with pytest.raises(StepError) as err:
         clone.main(project.ws, project.settings())
     assert "repository 'private_lib'" in err.value.message
+    assert err.value.message.endswith("(the server asks for a login: set GIT_HTTPS_SERVER="
+                                      "127.0.0.1, GIT_HTTPS_USER and GIT_HTTPS_PASSWORD in the "
+                                      "environment or .env)"), err.value.message
+    with pytest.raises(StepError) as err:
+        clone.main(project.ws, project.settings(git_https_server=private_remote,
+                                                git_https_user=USER, git_https_password="x"))
+    assert "(the server refused the login: check GIT_HTTPS_USER" in err.value.message, (
+        err.value.message)
 
     settings = project.settings(
         git_https_server=private_remote, git_https_user=USER, git_https_password=PASSWORD

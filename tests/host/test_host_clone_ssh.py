@@ -56,6 +56,9 @@ def test_ssh_without_key_fails_naming_the_repository(project, ssh_remote):
     with pytest.raises(StepError) as err:
         clone.main(project.ws, project.settings(git_ssh_known_host_keys=known_hosts))
     assert f"repository 'private_lib' ({url}" in err.value.message
+    assert err.value.message.endswith(" (the server wants an SSH login: set GIT_SSH_PRIVATE_KEY "
+                                      "and GIT_SSH_KNOWN_HOST_KEYS (its lines from `ssh-keyscan "
+                                      "127.0.0.1`) in the environment or .env)"), err.value.message
     assert not (project.ws.upstream / "private_lib").exists()
 
 

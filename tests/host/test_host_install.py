@@ -225,6 +225,22 @@ def test_pip_failure_names_the_file(project, venv_python, environ):
     assert "exit code" in err.value.message
 
 
+def test_a_requirement_that_fails_to_build_is_named_with_its_error(project, venv_python,
+                                                                   environ, tmp_path):
+    """A package whose setup.py fails: pip ends with `hint: See above for details.`; the
+    message names the requirement and the error the build printed (real pip)."""
+    broken = tmp_path / "broken_dist"
+    broken.mkdir()
+    (broken / "setup.py").write_text("raise RuntimeError('needs libfoo-dev')\n")
+    (project.repo / "docker").mkdir()
+    (project.repo / "docker" / "additional-pip-requirements.txt").write_text(f"{broken}\n")
+    environ({"DOCKER_ROS_PYTHON": str(venv_python)})
+    with pytest.raises(StepError) as err:
+        pip.main(project.ws, project.settings())
+    assert str(broken) in err.value.message, err.value.message
+    assert err.value.message.endswith("RuntimeError: needs libfoo-dev"), err.value.message
+
+
 def test_an_invalid_requirement_is_named_by_its_line(project, venv_python, environ):
     """pip names a bad line by its number in our temporary file, gone after the step: the
     message shows the line itself (real pip: it refuses the file before any download)."""

@@ -179,6 +179,38 @@ def test_git_errors_keep_their_cause_and_loopback_hint() -> None:
         assert clone.url_host(url) == host
 
 
+def test_a_clone_that_wants_credentials_says_which_to_set() -> None:
+    """git says `terminal prompts disabled` or `Permission denied (publickey)`; the message
+    says which settings give it the login (and when GIT_HTTPS_SERVER names another host)."""
+    url = "https://git.example.com/group/private.git"
+    prompt = ["Could not clone repository 'https://git.example.com/group/private.git': Cloning "
+              "into '.'...", "fatal: could not read Username for 'https://git.example.com': "
+              "terminal prompts disabled"]
+    assert clone.login_hint(url, prompt, {}) == (
+        " (the server asks for a login: set GIT_HTTPS_SERVER=git.example.com, GIT_HTTPS_USER "
+        "and GIT_HTTPS_PASSWORD in the environment or .env)")
+    other = {"DOCKER_ROS_GIT_HTTPS_HOST": "gitlab.example.com:8443"}
+    assert clone.login_hint(url, prompt, other) == (
+        " (the server asks for a login; GIT_HTTPS_SERVER is gitlab.example.com:8443, and the "
+        "password is given to that host only: set it to git.example.com)")
+    refused = ["remote: HTTP Basic: Access denied", "fatal: Authentication failed for "
+               f"'{url}/'"]
+    assert "check GIT_HTTPS_USER and GIT_HTTPS_PASSWORD" in clone.login_hint(url, refused, other)
+    denied = ["git@git.example.com: Permission denied (publickey).",
+              "fatal: Could not read from remote repository."]
+    ssh = "git@git.example.com:group/private.git"
+    unknown = ["Host key verification failed.", "fatal: Could not read from remote repository."]
+    for output in (denied, unknown):  # (without a key, the known host keys are not used)
+        assert clone.login_hint(ssh, output, {}) == (
+            " (the server wants an SSH login: set GIT_SSH_PRIVATE_KEY and GIT_SSH_KNOWN_HOST_KEYS"
+            " (its lines from `ssh-keyscan git.example.com`) in the environment or .env)")
+    key = {"GIT_SSH_COMMAND": "ssh -i /tmp/x/id"}
+    assert "refused GIT_SSH_PRIVATE_KEY" in clone.login_hint(ssh, denied, key)
+    assert "set GIT_SSH_KNOWN_HOST_KEYS to its lines from `ssh-keyscan git.example.com`" in (
+        clone.login_hint(ssh, unknown, key))
+    assert clone.login_hint(url, ["fatal: invalid reference: v9"], {}) == ""
+
+
 def test_a_local_repository_url_in_an_image_build_gets_a_hint() -> None:
     """A .repos URL to a folder of this machine cannot be cloned in an image build: the
     failure says why and what to do (git only says it is no git repository)."""
@@ -203,6 +235,78 @@ def test_pip_tls_failure_is_recognised_with_the_hint() -> None:
             "issuer certificate (_ssl.c:1006)'))': /simple/tomli-w/")
     assert "set EXTRA_CA_CERTS" in pip.tls_failure(line)
     assert pip.tls_failure("Collecting tomli-w") == ""
+
+
+# pip 23's output for a requirement whose metadata cannot be made (its setup.py raises), and
+# for one whose C extension does not compile (shortened: the traceback's frames left out)
+PIP_METADATA_FAILURE = """\
+Processing ./badmeta
+  Preparing metadata (pyproject.toml): started
+  Preparing metadata (pyproject.toml): finished with status 'error'
+  error: subprocess-exited-with-error
+
+  × Preparing metadata (pyproject.toml) did not run successfully.
+  │ exit code: 1
+  ╰─> [18 lines of output]
+      Traceback (most recent call last):
+        File "<string>", line 1, in <module>
+      RuntimeError: boom: this package needs libfoo
+      [end of output]
+
+  note: This error originates from a subprocess, and is likely not a problem with pip.
+error: metadata-generation-failed
+
+× Encountered error while generating package metadata.
+╰─> See above for output.
+
+note: This is an issue with the package mentioned above, not pip.
+hint: See above for details.
+""".splitlines()
+PIP_WHEEL_FAILURE = """\
+  × python setup.py bdist_wheel did not run successfully.
+  │ exit code: 1
+  ╰─> [14 lines of output]
+      running build_ext
+      gcc -c nope.c -o build/temp.linux-x86_64-cpython-311/nope.o
+      nope.c:2:10: fatal error: nosuch.h: No such file or directory
+      compilation terminated.
+      error: command '/usr/bin/gcc' failed with exit code 1
+      [end of output]
+
+  note: This error originates from a subprocess, and is likely not a problem with pip.
+  ERROR: Failed building wheel for badbuild
+  Running setup.py clean for badbuild
+Failed to build badbuild
+ERROR: Could not build wheels for badbuild, which is required to install pyproject.toml-based \
+projects
+""".splitlines()
+
+
+def test_a_pip_requirement_that_fails_to_build_is_named_with_its_error() -> None:
+    """pip's last line for a package it cannot build says `hint: See above for details.`
+    (before: the whole cause in the message); the message names the requirement and the
+    build's own error line."""
+    assert pip.pip_reason(PIP_METADATA_FAILURE) == (
+        "Encountered error while generating package metadata (./badmeta); the build's output "
+        "says: RuntimeError: boom: this package needs libfoo")
+    assert pip.pip_reason(PIP_WHEEL_FAILURE) == (
+        "Could not build wheels for badbuild, which is required to install "
+        "pyproject.toml-based projects; the build's output says: nope.c:2:10: fatal error: "
+        "nosuch.h: No such file or directory")
+    # psycopg2 from source in an image without libpq-dev (pip 23.0.1 of Debian 12)
+    psycopg2 = ["Collecting psycopg2==2.9.9", "  × python setup.py egg_info did not run "
+                "successfully.", "  ╰─> [23 lines of output]", "      running egg_info",
+                "      Error: pg_config executable not found.", "      or with the pg_config "
+                "option in 'setup.cfg'.", "      [end of output]",
+                "error: metadata-generation-failed",
+                "× Encountered error while generating package metadata.",
+                "hint: See above for details."]
+    assert pip.pip_reason(psycopg2) == (
+        "Encountered error while generating package metadata (psycopg2==2.9.9); the build's "
+        "output says: Error: pg_config executable not found.")
+    assert pip.pip_reason(["Collecting nosuch==9", "ERROR: No matching distribution found for "
+                           "nosuch==9"]) == "No matching distribution found for nosuch==9"
+    assert pip.pip_reason([]) == "no output"
 
 
 def test_crlf_scripts_get_a_hint() -> None:

@@ -101,6 +101,19 @@ def test_log_folding_per_ci():
     assert plain.getvalue() == "".join(lines)
 
 
+def test_colcons_package_lines_are_not_folded():
+    """colcon's `Starting >>> <package>` lines look like our steps' ones: folded, they opened a
+    group per package inside the colcon step's (GitHub cannot nest groups), and the failed
+    package's `Failed <<<` closed them, so the compiler's errors were folded under its name."""
+    lines = ["#9 0.1 Starting >>> colcon\n", "#9 0.2 Starting >>> broken_pkg\n",
+             "#9 0.3 --- output: broken_pkg\n", "#9 0.4 Failed   <<< broken_pkg [0.2s, exited "
+             "with code 2]\n", "#9 0.5 Failed   <<< colcon [0.4s]\n"]
+    out = io.StringIO()
+    build.stream_build(iter(lines), out, {"GITHUB_ACTIONS": "true"})
+    groups = [line for line in out.getvalue().splitlines() if line.startswith("::")]
+    assert groups == ["::group::colcon", "::endgroup::"]
+
+
 def test_step_errors_are_collected_from_the_log():
     out = io.StringIO()
     errors = build.stream_build(

@@ -1,6 +1,9 @@
 """docker-ros's CI tag rules, from the variables GitHub Actions and GitLab CI set."""
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -10,6 +13,7 @@ from docker_ros.host.push import plan_outputs, plan_push, push_targets
 from docker_ros.in_image.ci import (
     Pipeline,
     detect_pipeline,
+    error_annotation,
     github_default_branch,
     github_slug,
     missing_tasks,
@@ -18,6 +22,8 @@ from docker_ros.in_image.ci import (
     tag_postfix,
 )
 from docker_ros.in_image.settings import load_settings
+
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 GITHUB = {"GITHUB_ACTIONS": "true", "GITHUB_DEFAULT_BRANCH": "main"}
 GITLAB = {"GITLAB_CI": "true", "CI_DEFAULT_BRANCH": "main"}
@@ -194,3 +200,31 @@ def test_ci_jobs_start_from_the_pushed_build_state_then_the_default_branchs() ->
     outputs = plan_outputs(feature, push_targets(feature), pushed)
     assert outputs["images"] == "" and outputs["build-state-image"] == pushed[0]
     assert load_settings(environ={}, project_dir=Path("/tmp/p")).build_state_from == ()
+
+
+def test_a_failed_task_is_a_github_error_annotation(tmp_path) -> None:
+    """On GitHub a failed task's message is also an error annotation, which the run's summary
+    page shows (otherwise it shows `Process completed with exit code 1` only); escaped as the
+    runner reads workflow commands. Elsewhere nothing."""
+    assert error_annotation({"GITHUB_ACTIONS": "true"}, "docker-ros build",
+                            "failed: 100% of it\n  a: b") == (
+        "::error title=docker-ros build::failed: 100%25 of it%0A  a: b")
+    assert error_annotation({"GITHUB_ACTIONS": "true"}, "a:b,c", "x") == (
+        "::error title=a%3Ab%2Cc::x")
+    assert error_annotation({"GITLAB_CI": "true"}, "docker-ros build", "failed") == ""
+    env = {**os.environ, "GITHUB_ACTIONS": "true", "PYTHONPATH": str(SRC)}
+    env.pop("TARGET", None)
+    env.pop("COMMAND", None)
+    task = subprocess.run([sys.executable, "-m", "docker_ros", "build", "--set", "TARGET="],
+                          cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert task.returncode == 1
+    assert task.stdout.startswith("::error title=docker-ros build::invalid configuration:%0A  "
+                                  "TARGET='' is empty"), task.stdout
+    # `docker-ros ci`: one annotation, its failed task's (not also `build failed` from ci)
+    job = subprocess.run([sys.executable, "-m", "docker_ros", "ci", "--set", "BASE_IMAGE=b:1",
+                          "--set", "IMAGE=docker-ros-test/none:1"],
+                         cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert job.returncode == 1
+    assert [line for line in job.stdout.splitlines() if line.startswith("::error")] == [
+        "::error title=docker-ros build::missing required configuration: COMMAND (set them in "
+        ".env, the environment, invoke.yaml under docker_ros: or as flags)"], job.stdout

@@ -489,6 +489,80 @@ def test_colcon_failed_packages():
     assert colcon.failed_packages(lines) == ["broken_pkg"]
 
 
+# colcon build of three packages, one of which does not compile, another finds no CMake
+# package (console_cohesion+'s blocks, then console_stderr's, then the summary; an image build)
+COLCON_FAILURE = """\
+Starting >>> base_pkg
+--- output: base_pkg
+-- The CXX compiler identification is GNU 12.2.0
+[100%] Built target base_node
+---
+Finished <<< base_pkg [2.1s]
+Starting >>> broken_pkg
+Starting >>> lost_pkg
+--- output: broken_pkg
+[ 50%] Building CXX object CMakeFiles/node.dir/src/node.cpp.o
+/docker-ros/ws/src/target/broken/src/node.cpp: In function 'int main()':
+/docker-ros/ws/src/target/broken/src/node.cpp:3:3: error: 'undeclared' was not declared in \
+this scope
+    3 |   undeclared();
+      |   ^~~~~~~~~~
+/docker-ros/ws/src/target/broken/src/node.cpp:4:10: error: expected ';' before '}' token
+gmake[2]: *** [CMakeFiles/node.dir/build.make:76: CMakeFiles/node.dir/src/node.cpp.o] Error 1
+gmake: *** [Makefile:136: all] Error 2
+---
+--- stderr: broken_pkg
+/docker-ros/ws/src/target/broken/src/node.cpp:3:3: error: 'undeclared' was not declared in \
+this scope
+---
+Failed   <<< broken_pkg [3.0s, exited with code 2]
+--- output: lost_pkg
+CMake Error at CMakeLists.txt:4 (find_package):
+  By not providing "Findno_such_dep.cmake" in CMAKE_MODULE_PATH this project
+  has asked CMake to find a package configuration file provided by
+  "no_such_dep", but CMake did not find one.
+
+-- Configuring incomplete, errors occurred!
+---
+Failed   <<< lost_pkg [1.0s, exited with code 1]
+
+Summary: 1 package finished [4.1s]
+  2 packages failed: broken_pkg lost_pkg
+  2 packages had stderr output: broken_pkg lost_pkg
+""".splitlines()
+
+
+def test_colcon_failure_names_the_packages_and_their_first_errors():
+    """The one-line error of a failed colcon build quotes the compiler's and CMake's first
+    error lines (in an image build the output is far above, between BuildKit's lines), with
+    the repository's paths as the user knows them."""
+    ws = Workspace("/docker-ros/ws")
+    assert colcon.error_lines(COLCON_FAILURE, ["broken_pkg", "lost_pkg"]) == [
+        "/docker-ros/ws/src/target/broken/src/node.cpp:3:3: error: 'undeclared' was not "
+        "declared in this scope",
+        "/docker-ros/ws/src/target/broken/src/node.cpp:4:10: error: expected ';' before '}' "
+        "token",
+        'CMake Error at CMakeLists.txt:4 (find_package): By not providing '
+        '"Findno_such_dep.cmake" in CMAKE_MODULE_PATH this project has asked CMake to find a '
+        'package configuration file provided by "no_such_dep", but CMake did not find one.',
+    ]
+    assert colcon.failure_message(ws, COLCON_FAILURE, 2) == (
+        "package broken_pkg, lost_pkg failed to build (exit code 2): broken/src/node.cpp:3:3: "
+        "error: 'undeclared' was not declared in this scope | broken/src/node.cpp:4:10: error: "
+        "expected ';' before '}' token (and 1 more error line); see the output above")
+    lost = COLCON_FAILURE[COLCON_FAILURE.index("--- output: lost_pkg"):]
+    assert colcon.failure_message(ws, lost, 1) == (
+        "package lost_pkg failed to build (exit code 1): CMake Error at CMakeLists.txt:4 "
+        '(find_package): By not providing "Findno_such_dep.cmake" in CMAKE_MODULE_PATH this '
+        "project has asked CMake to find a package configuration file provided by "
+        '"no_such_dep", but CMake did not find one.; a dependency CMake cannot find is '
+        "installed when the package.xml declares it (<depend>, <build_depend>: rosdep "
+        "installs it) or ADDITIONAL_DEBS_FILE lists it; see the output above")
+    assert colcon.error_lines(COLCON_FAILURE, ["base_pkg"]) == []
+    assert colcon.failure_message(ws, ["Summary: 0 packages finished"], 1) == (
+        "colcon build failed (exit code 1); see the output above")
+
+
 # --- common ---
 
 

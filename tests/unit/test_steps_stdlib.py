@@ -176,3 +176,29 @@ def test_apt_reason_names_the_packages_apt_does_not_know() -> None:
     assert apt_reason(["E: Could not get lock /var/lib/dpkg/lock"]) == (
         "; apt: Could not get lock /var/lib/dpkg/lock")
     assert apt_reason(["done"]) == ""
+
+
+def test_apt_reason_names_the_sources_apt_get_update_could_not_reach() -> None:
+    """An unreachable mirror: `apt-get update` only warns and exits 0, and install then says
+    the package does not exist; the message names the unreachable source instead of only
+    blaming the package's name. A failed download is named, not apt's advice to update."""
+    from docker_ros.in_image.runtime.apt import apt_reason
+    update = ["Err:1 http://127.0.0.1:9/debian bookworm InRelease",
+              "  Could not connect to 127.0.0.1:9 (127.0.0.1). - connect (111: Connection "
+              "refused)",
+              "W: Failed to fetch http://127.0.0.1:9/debian/dists/bookworm/InRelease  Could not "
+              "connect to 127.0.0.1:9 (127.0.0.1). - connect (111: Connection refused)",
+              "W: Some index files failed to download. They have been ignored, or old ones used "
+              "instead."]
+    assert apt_reason(["E: Unable to locate package corp-tool"], update) == (
+        "; apt has no package corp-tool, and `apt-get update` could not reach "
+        "http://127.0.0.1:9/debian/dists/bookworm/InRelease (Could not connect to 127.0.0.1:9 "
+        "(127.0.0.1). - connect (111: Connection refused)): check that apt source and the "
+        "network (BUILD_NETWORK, a proxy), or the package's name")
+    download = ["E: Failed to fetch http://deb.debian.org/debian/pool/main/j/jq/jq_1.6.deb  "
+                "Temporary failure resolving 'deb.debian.org'",
+                "E: Unable to fetch some archives, maybe run apt-get update or try with "
+                "--fix-missing?"]
+    assert apt_reason(download) == (
+        "; apt: Failed to fetch http://deb.debian.org/debian/pool/main/j/jq/jq_1.6.deb  "
+        "Temporary failure resolving 'deb.debian.org'")

@@ -60,6 +60,30 @@ def test_verdict_names_what_failed():
     assert "test-result" in str(testing.verdict({**ok, "colcon_test_result": 1}, Counts(1, 0, 0)))
 
 
+def test_verdict_names_the_failed_test_cases_and_the_build_error(tmp_path: Path):
+    """`inv test`'s last line says which tests failed (package: class.name, as the JUnit XML
+    under junit/<package>/ has them), or why colcon build failed, not only how many."""
+    (tmp_path / "my_pkg" / "test_results" / "my_pkg").mkdir(parents=True)
+    (tmp_path / "my_pkg" / "pytest.xml").write_text(PYTEST_XML)
+    (tmp_path / "my_pkg" / "test_results" / "my_pkg" / "gtest.xml").write_text(GTEST_XML)
+    cases = testing.failed_cases(tmp_path)
+    assert cases == ["my_pkg: t.test_fails (boom)", "my_pkg: b (crash)"]
+    # colcon's pytest reports name the package already: `my_pkg.test.test_x`
+    (tmp_path / "my_pkg" / "pytest.xml").write_text(PYTEST_XML.replace('classname="t"',
+                                                                       'classname="my_pkg.t"'))
+    assert testing.failed_cases(tmp_path)[0] == "my_pkg.t.test_fails (boom)"
+    ok = {"colcon_build": 0, "colcon_test": 0, "colcon_test_result": 0}
+    assert testing.verdict(ok, testing.summarize(tmp_path), cases) == (
+        "2 test(s) failed: my_pkg: t.test_fails (boom), my_pkg: b (crash)")
+    many = [f"p: t.case{n}" for n in range(7)]
+    assert testing.verdict(ok, Counts(0, 7, 0), many) == (
+        "7 test(s) failed: p: t.case0, p: t.case1, p: t.case2, p: t.case3, p: t.case4 and 2 more")
+    assert testing.verdict({**ok, "colcon_build": 2}, Counts(), [], "package x failed to build "
+                           "(exit code 2): x.cpp:1:1: error: y; see the output above") == (
+        "colcon build failed (exit code 2): no tests ran (package x failed to build (exit code "
+        "2): x.cpp:1:1: error: y)")
+
+
 def test_results_folder_is_replaced_only_when_empty_or_ours(tmp_path: Path):
     assert testing.check_results_dir(tmp_path / "new") is None
     assert testing.check_results_dir(tmp_path) is None  # empty
@@ -218,6 +242,7 @@ def test_a_failed_build_reports_no_earlier_runs_tests(tmp_path: Path,
     assert testing.summarize(results / testing.JUNIT) == Counts(0, 0, 0)
     assert not (results / testing.JUNIT).exists()
     assert (results / "log" / "build" / "events.log").is_file()
+    assert testing.read_build_error(results) == "package pkg failed to build (exit code 2)"
 
 
 def test_repositories_of_the_same_folder_name_keep_their_own_results(

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import os
 import signal
 import subprocess
 import sys
@@ -25,6 +26,7 @@ from docker_ros.host.config import config_table, input_problems, read_settings
 from docker_ros.host.lock import lock, lock_status
 from docker_ros.host.pipeline import (
     TaskError,
+    TaskFailed,
     build_targets,
     build_until,
     check_slim_options,
@@ -41,7 +43,7 @@ from docker_ros.host.pipeline import (
     slimmed_here,
 )
 from docker_ros.host.push import manifest, push, push_targets
-from docker_ros.in_image.ci import plan_ci_job
+from docker_ros.in_image.ci import error_annotation, plan_ci_job
 from docker_ros.in_image.runtime.lock import LockError
 from docker_ros.in_image.runtime.workspace import StepError, setup_logging
 from docker_ros.in_image.settings import (
@@ -197,6 +199,9 @@ def settings_task(
                 code = getattr(exc, "returncode", 1) or 1
                 where = exc.step if isinstance(exc, StepError) else name
                 text = exc.message if isinstance(exc, StepError) else str(exc)
+                annotation = error_annotation(os.environ, f"docker-ros {where}", text)
+                if annotation and not isinstance(exc, TaskFailed):  # (the task's is there)
+                    print(annotation, flush=True)
                 raise Exit(f"docker-ros {where}: {text}", code=code) from None
 
         keyword = inspect.Parameter.KEYWORD_ONLY

@@ -34,6 +34,7 @@ from docker_ros.in_image.settings import (
     env_name,
     explicitly_set,
 )
+from docker_ros.in_image.steps import IMAGE_STEPS, STEPS
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
@@ -48,8 +49,11 @@ SCRATCH_FOLDER = ".gitlab-ci-local"  # gitlab-ci-local's copies of the repositor
 # the last, the GitLab template's copy of the tests' results, is an artifact of an earlier job.
 LEFT_OUT = (".env", ".git", ".gitlab-ci-local-variables.yml", "docker-ros-test-results")
 STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
-STEP_START = re.compile(r"Starting >>> (\w+)")
-STEP_END = re.compile(r"(Finished|Failed  ) <<< (\w+)")
+# our steps' Starting/Finished lines (colcon's own, `Starting >>> <package>`, look the same:
+# folded too, they opened a group per package and closed the step's early)
+_FOLDED = "|".join((*STEPS, *IMAGE_STEPS))
+STEP_START = re.compile(rf"Starting >>> ({_FOLDED})$")
+STEP_END = re.compile(rf"(Finished|Failed  ) <<< ({_FOLDED}) \[")
 # buildx's own lines (not a build step's output, `#N ...`) when the engine went away mid-build
 ENGINE_LOST = re.compile(
     r"code = Unavailable|error reading from server: EOF|transport is closing|"

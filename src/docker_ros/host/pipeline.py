@@ -59,6 +59,10 @@ class TaskError(Exception):
         self.returncode = returncode
 
 
+class TaskFailed(TaskError):
+    """A task process of `docker-ros ci` failed: it told why (on GitHub, in an annotation)."""
+
+
 # What the steps, colcon and `inv test` make in a workspace (src/ with the src/target link).
 WORKSPACE_ENTRIES = ("src", STATE_DIR_NAME, "additional-files", "build", "install", "log",
                      "test-results")
@@ -366,6 +370,8 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
             except (build.BuildError, FileNotFoundError) as exc:
                 raise TaskError(str(exc)) from None
             counts = testing.summarize(Path(tmp) / testing.JUNIT)
+            cases = testing.failed_cases(Path(tmp) / testing.JUNIT)
+            build_error = testing.read_build_error(Path(tmp))
             try:
                 testing.install_results(Path(tmp), dest)
             except OSError as exc:
@@ -373,7 +379,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
                                 f"{exc.strerror or exc}; give a writable folder") from None
         print(f"docker-ros test ({platform}): {testing.format_summary(counts)} "
               f"(JUnit XML and logs in {dest})")
-        failed = testing.verdict(outcome, counts)
+        failed = testing.verdict(outcome, counts, cases, build_error)
         if failed:
             failures.append(f"{failed} ({platform})")
     if failures:
@@ -470,8 +476,8 @@ def run_ci_plan(settings: Settings, plan: Sequence[Sequence[str]], *, dry_run: b
             let_end(task)
             raise
         if code != 0:
-            raise TaskError(f"`docker-ros {argv[0]}` failed with exit code {code}; "
-                            "nothing after it ran")
+            raise TaskFailed(f"`docker-ros {argv[0]}` failed with exit code {code}; "
+                             "nothing after it ran")
 
 
 def let_end(task: subprocess.Popen, grace: float = 10.0) -> None:

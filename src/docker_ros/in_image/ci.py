@@ -126,6 +126,21 @@ def github_default_branch(environ: Mapping[str, str]) -> str:
     return branch if isinstance(branch, str) else ""
 
 
+def error_annotation(environ: Mapping[str, str], title: str, message: str) -> str:
+    """A failed task's message as a GitHub Actions error annotation (`::error title=...::...`,
+    shown on the run's summary page, where otherwise only `exit code 1` is); '' elsewhere."""
+    if environ.get("GITHUB_ACTIONS") != "true":
+        return ""
+
+    def escaped(text: str, extra: str = "") -> str:
+        for char, code in (("%", "%25"), ("\r", "%0D"), ("\n", "%0A"), *(
+                (c, f"%{ord(c):02X}") for c in extra)):
+            text = text.replace(char, code)
+        return text
+
+    return f"::error title={escaped(title, ':,')}::{escaped(message)}"
+
+
 # Tasks a CI job may need that not every docker-ros has, and the setting that asks for them.
 OPTIONAL_TASKS = {"test": "ENABLE_INDUSTRIAL_CI", "slim": "ENABLE_SLIM"}
 # The build before test/slim leaves both to the explicit calls that follow it.

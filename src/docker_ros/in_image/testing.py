@@ -22,6 +22,9 @@ MARKER = ".docker-ros-test-results"  # a results folder we made (and may replace
 OUTCOME = "outcome.json"
 JUNIT = "junit"
 TEST_RESULT_LOG = "test-result.txt"
+BUILD_ERROR = "colcon-build-error.txt"  # the colcon step's one-line error, when the build failed
+SEE_ABOVE = "; see the output above"
+CASES_SHOWN = 5  # failed test cases named in the verdict (all of them are in the JUnit XML)
 
 
 class Counts(NamedTuple):
@@ -71,16 +74,44 @@ def summarize(root: Path) -> Counts:
     return total
 
 
+def failed_cases(root: Path) -> List[str]:
+    """`<package>: <classname>.<name> (<first line of the failure's message>)` of each failed
+    test case in the JUnit reports below root (the package: the report's first folder, as
+    colcon's build/ has them; left out when the class name starts with it, as colcon's pytest
+    names them)."""
+    found = []
+    for path in junit_files(root):
+        parts = path.relative_to(root).parts
+        package = parts[0] if len(parts) > 1 else ""
+        for case in ElementTree.fromstring(path.read_text(errors="replace")).iter("testcase"):
+            failures = [child for child in case if child.tag in ("failure", "error")]
+            if not failures:
+                continue
+            name = ".".join(n for n in (case.get("classname"), case.get("name")) if n) or "?"
+            if package and not name.startswith(package + "."):
+                name = f"{package}: {name}"
+            message = (failures[0].get("message") or "").strip().split("\n")[0][:150]
+            found.append(name + (f" ({message})" if message else ""))
+    return found
+
+
 def format_summary(counts: Counts) -> str:
     return f"{counts.passed} passed, {counts.failed} failed, {counts.skipped} skipped"
 
 
-def verdict(outcome: Dict[str, int], counts: Counts) -> Optional[str]:
-    """None when everything passed, else what failed (one line)."""
+def verdict(outcome: Dict[str, int], counts: Counts, cases: Sequence[str] = (),
+            build_error: str = "") -> Optional[str]:
+    """None when everything passed, else what failed (one line): the failed test cases
+    (failed_cases) or the colcon step's error (BUILD_ERROR) named."""
     if outcome.get("colcon_build", 0) != 0:
-        return f"colcon build failed (exit code {outcome['colcon_build']}): no tests ran"
+        # (the task's message says it once at its end)
+        cause = build_error[:-len(SEE_ABOVE)] if build_error.endswith(SEE_ABOVE) else build_error
+        return (f"colcon build failed (exit code {outcome['colcon_build']}): no tests ran"
+                + (f" ({cause})" if cause else ""))
     if counts.failed:
-        return f"{counts.failed} test(s) failed"
+        shown = ", ".join(cases[:CASES_SHOWN]) + (
+            f" and {len(cases) - CASES_SHOWN} more" if len(cases) > CASES_SHOWN else "")
+        return f"{counts.failed} test(s) failed" + (f": {shown}" if shown else "")
     if outcome.get("colcon_test", 0) != 0:
         return f"colcon test failed (exit code {outcome['colcon_test']})"
     if outcome.get("colcon_test_result", 0) != 0:
@@ -131,6 +162,7 @@ def run_in_image(ws_root: Path, destination: Path, environ: Dict[str, str]) -> D
     except StepError as exc:
         LOG.error("docker-ros %s: %s", STEP, exc.message)
         outcome["colcon_build"] = exc.returncode or 1
+        (destination / BUILD_ERROR).write_text(exc.message + "\n")
     if outcome["colcon_build"] == 0:
         env = sourced_env(ros_setup_files(settings), step=STEP)
         run_tee(DELETE_RESULTS_ARGV, step=STEP, cwd=ws.root, env=env)
@@ -155,6 +187,12 @@ def read_outcome(results: Path) -> Dict[str, int]:
         raise FileNotFoundError(f"{path} not found: the test stage did not record its outcome")
     data = json.loads(path.read_text())
     return {str(k): int(v) for k, v in data.items()}
+
+
+def read_build_error(results: Path) -> str:
+    """The colcon step's error the test stage recorded ('' when the build did not fail)."""
+    path = results / BUILD_ERROR
+    return path.read_text().strip() if path.is_file() else ""
 
 
 def check_results_dir(path: Path) -> Optional[str]:

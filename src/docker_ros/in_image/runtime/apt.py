@@ -13,6 +13,9 @@ from docker_ros.in_image.runtime.workspace import LOG, StepError, format_argv
 # apt's words for a package it does not know (the name in one of the groups)
 MISSING = re.compile(r"^E: (?:Unable to locate package (\S+)|Package '([^']+)' has no "
                      r"installation candidate|Version '([^']+)' for '([^']+)' was not found)")
+# apt's line for a source or file it could not download: `W: Failed to fetch URL  reason`
+# (`E:` when installing)
+FETCH_FAILED = re.compile(r"^[WE]: Failed to fetch (\S+)\s+(.*)$")
 # dpkg's record of what is installed
 DPKG_STATUS = Path("/var/lib/dpkg/status")
 
@@ -58,27 +61,57 @@ def apt_install(packages: Sequence[str], *, step: str, dry_run: bool, what: str 
             run(update, step=step, dry_run=True)
         run(install, step=step, dry_run=True)
         return
+    updated: List[str] = []
     if not apt_lists_present():
-        run(update, step=step, env=apt_env())
+        updated = apt_update(update, step=step, what=what)
     code, lines = run_tee(install, step=step, env=apt_env())
     if code != 0:
         # Stale lists (host, or an apt cache mount) make apt miss packages: update once, retry.
         LOG.info("%s: apt-get install failed, updating package lists and retrying", step)
-        run(update, step=step, env=apt_env())
+        updated = apt_update(update, step=step, what=what)
         code, lines = run_tee(install, step=step, env=apt_env())
     if code != 0:
         raise StepError(step, f"{what + ' ' if what else ''}failed with exit code {code}: "
-                        f"{format_argv(install)}{apt_reason(lines)}", code)
+                        f"{format_argv(install)}{apt_reason(lines, updated)}", code)
 
 
-def apt_reason(lines: Sequence[str]) -> str:
-    """apt's own reason, for the one-line error: the packages it cannot find, else its last
-    `E:` line ('' when it gave none)."""
+def apt_update(update: Sequence[str], *, step: str, what: str) -> List[str]:
+    """apt-get update; its output lines (apt_reason reads the sources it could not reach)."""
+    code, lines = run_tee(update, step=step, env=apt_env())
+    if code != 0:
+        raise StepError(step, f"{what + ' ' if what else ''}failed with exit code {code}: "
+                        f"{format_argv(update)}{apt_reason(lines)}", code)
+    return lines
+
+
+def unreachable(lines: Sequence[str]) -> List[str]:
+    """`URL (apt's reason)` of each source `apt-get update` could not fetch: apt warns
+    (`W: Failed to fetch URL  reason`), goes on with the lists it has, and exits 0."""
+    found = []
+    for line in lines:
+        match = FETCH_FAILED.search(line)
+        if match:
+            found.append(f"{match.group(1)} ({match.group(2).strip()})")
+    return list(dict.fromkeys(found))
+
+
+def apt_reason(lines: Sequence[str], update_lines: Sequence[str] = ()) -> str:
+    """apt's own reason, for the one-line error: the packages it cannot find (and the sources
+    `apt-get update` could not reach, which may have them), else its first `Failed to fetch`
+    line (a download that failed; its last line only says to run `apt-get update`), else its
+    last `E:` line ('' when it gave none)."""
     found = [m.groups() for m in map(MISSING.search, lines) if m]
     missing = [name or candidate or f"{package}={version}"
                for name, candidate, version, package in found]
+    failed = unreachable(update_lines)
+    if missing and failed:
+        return (f"; apt has no package {', '.join(dict.fromkeys(missing))}, and `apt-get "
+                f"update` could not reach {'; '.join(failed[:3])}: check that apt source and "
+                "the network (BUILD_NETWORK, a proxy), or the package's name")
     if missing:
         return (f"; apt has no package {', '.join(dict.fromkeys(missing))} (check the name, "
                 "and the apt sources of the base image)")
-    errors = [line[3:].strip() for line in lines if line.startswith("E: ")]
-    return f"; apt: {errors[-1]}" if errors else ""
+    fetch = [line[3:].strip() for line in lines
+             if line.startswith("E: ") and FETCH_FAILED.search(line)]
+    errors = fetch or [line[3:].strip() for line in lines if line.startswith("E: ")][-1:]
+    return f"; apt: {errors[0]}" if errors else ""

@@ -2,12 +2,18 @@
 Standard library only, Python 3.8+ (runs inside images)."""
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any, Callable, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.in_image.runtime.workspace import LOG, StepError, dry, format_argv
+
+# A line in which a compiler, the linker, make, CMake or Python says what is wrong (not make's
+# `*** [...] Error 2`, which only says that something was)
+ERROR_LINE = re.compile(r"(^|:\s?)(fatal )?[Ee]rror:\s|^CMake Error|undefined reference to|"
+                        r"No rule to make target|^\S+Error: ")
 
 
 def run(

@@ -67,9 +67,8 @@ _FAILURE = re.compile(
 # --- vcs output ---
 
 
-def parse_vcs_failures(lines: Sequence[str], dest: Path, names: Sequence[str]) -> Dict[str, str]:
-    """Repositories whose `=== path (type) ===` block in vcs output reports an error, with
-    vcstool's reason (first error line)."""
+def vcs_blocks(lines: Sequence[str], dest: Path, names: Sequence[str]) -> Dict[str, List[str]]:
+    """The non-empty lines of each repository's `=== path (type) ===` block in vcs output."""
     blocks: Dict[str, List[str]] = {}
     current: Optional[List[str]] = None
     for line in lines:
@@ -80,8 +79,14 @@ def parse_vcs_failures(lines: Sequence[str], dest: Path, names: Sequence[str]) -
             current = blocks.setdefault(name, []) if name else None
         elif current is not None and line.strip():
             current.append(line.strip())
+    return blocks
+
+
+def parse_vcs_failures(lines: Sequence[str], dest: Path, names: Sequence[str]) -> Dict[str, str]:
+    """Repositories whose `=== path (type) ===` block in vcs output reports an error, with
+    vcstool's reason (first error line)."""
     failures = {}
-    for name, text in blocks.items():
+    for name, text in vcs_blocks(lines, dest, names).items():
         bad = [line for line in text if _FAILURE.search(line)]
         if not bad:
             continue
@@ -133,6 +138,45 @@ def failure_hint(url: str, reason: str, *, in_image: bool) -> str:
         return (" (in an image build a file:// URL or a path names a folder in the build "
                 "container, not on this machine: serve the repository over HTTP(S) or SSH, "
                 "with BUILD_NETWORK=host for a server on this machine)")
+    return ""
+
+
+# git's words when the server wants a login it did not get, refused the one it got, refused
+# the SSH key, or its SSH host key is unknown
+_LOGIN_WANTED = re.compile(r"could not read (username|password) for|terminal prompts disabled",
+                           re.IGNORECASE)
+_LOGIN_REFUSED = re.compile(r"authentication failed for|HTTP Basic: Access denied|"
+                            r"returned error: 40[13]", re.IGNORECASE)
+_KEY_REFUSED = re.compile(r"permission denied \(publickey", re.IGNORECASE)
+_HOST_KEY_UNKNOWN = re.compile(r"host key verification failed", re.IGNORECASE)
+
+
+def login_hint(url: str, output: Sequence[str], env: Mapping[str, str]) -> str:
+    """What to do when a repository's clone failed for want of credentials (its vcs output
+    lines; env: the clone's credential environment, see git_credentials), '' otherwise."""
+    text = "\n".join(output)
+    host = url_host(url)
+    given = env.get("DOCKER_ROS_GIT_HTTPS_HOST", "")
+    if _LOGIN_WANTED.search(text):
+        if given and given.split(":")[0] != host:
+            return (f" (the server asks for a login; GIT_HTTPS_SERVER is {given}, and the "
+                    f"password is given to that host only: set it to {host})")
+        return (f" (the server asks for a login: set GIT_HTTPS_SERVER={host}, GIT_HTTPS_USER "
+                "and GIT_HTTPS_PASSWORD in the environment or .env)")
+    if _LOGIN_REFUSED.search(text):
+        return (" (the server refused the login: check GIT_HTTPS_USER and GIT_HTTPS_PASSWORD, "
+                "and that the user may read the repository)")
+    keyscan = f"`ssh-keyscan {host or 'HOST'}`"
+    if (_KEY_REFUSED.search(text) or _HOST_KEY_UNKNOWN.search(text)) \
+            and "GIT_SSH_COMMAND" not in env:
+        # (without a key, GIT_SSH_KNOWN_HOST_KEYS is not used either)
+        return (" (the server wants an SSH login: set GIT_SSH_PRIVATE_KEY and "
+                f"GIT_SSH_KNOWN_HOST_KEYS (its lines from {keyscan}) in the environment or .env)")
+    if _KEY_REFUSED.search(text):
+        return " (the server refused GIT_SSH_PRIVATE_KEY: give a key it accepts)"
+    if _HOST_KEY_UNKNOWN.search(text):
+        return (" (the server's SSH host key is not known: set GIT_SSH_KNOWN_HOST_KEYS to its "
+                f"lines from {keyscan})")
     return ""
 
 
@@ -312,6 +356,7 @@ def import_file(
     if returncode == 0:
         return
     failures = parse_vcs_failures(lines, ws.upstream, names)
+    blocks = vcs_blocks(lines, ws.upstream, names)
     doomed = [n for n in names if n not in existed and (n in failures or not failures)]
     for name in doomed:
         remove_tree(ws.upstream / name, step=STEP, dry_run=False)
@@ -322,6 +367,7 @@ def import_file(
             + f"): {reason}"
             + failure_hint(repos[name].get("url", ""), reason,
                            in_image=os.environ.get("DOCKER_ROS") == "1")
+            + login_hint(repos[name].get("url", ""), blocks.get(name, []), env)
             for name, reason in sorted(failures.items())
         )
     else:

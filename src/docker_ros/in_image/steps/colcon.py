@@ -13,7 +13,7 @@ from typing import Dict, List, Mapping, Optional, Sequence, Set, Tuple
 
 from docker_ros.in_image.runtime.apt import DPKG_STATUS
 from docker_ros.in_image.runtime.packages import Package, find_packages
-from docker_ros.in_image.runtime.process import run, run_tee
+from docker_ros.in_image.runtime.process import ERROR_LINE, run, run_tee
 from docker_ros.in_image.runtime.rosenv import ros_setup_files, sourced_env
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, dry, phases, step_log
 from docker_ros.in_image.settings import Settings
@@ -30,6 +30,11 @@ INSTALL_RECORD = ".docker-ros-install.json"
 BUILD_STATE_SEED = Path("/docker-ros/build-state")
 LOG = logging.getLogger(__name__)
 _FAILED = re.compile(r"^Failed\s+<<<\s+(\S+)")
+# console_cohesion's block of a package's output (and console_stderr's of its stderr)
+_OUTPUT_BLOCK = re.compile(r"^--- (?:output|stderr): (\S+)$")
+# CMake's words for a find_package() that found nothing
+_NOT_FOUND = re.compile(r"\(find_package\)|Could NOT find|Could not find a package configuration")
+ERRORS_SHOWN = 2  # error lines in the one-line message; the whole output is above it
 
 
 def cmake_arguments(cmake_args: str) -> List[str]:
@@ -170,6 +175,44 @@ def failed_packages(lines: Sequence[str]) -> List[str]:
     return out
 
 
+def error_lines(lines: Sequence[str], packages: Sequence[str]) -> List[str]:
+    """The error lines of the compiler, linker or CMake in the output colcon printed for the
+    packages (console_cohesion's `--- output: pkg` blocks), each once, in order. A CMake error
+    comes with the first paragraph of its explanation (`By not providing "Findfoo.cmake"...`)."""
+    found: List[str] = []
+    current: Optional[str] = None
+    for index, line in enumerate(lines):
+        header = _OUTPUT_BLOCK.match(line)
+        if header or line == "---":
+            current = header.group(1) if header and header.group(1) in packages else None
+            continue
+        if current is None or not ERROR_LINE.search(line):
+            continue
+        text = line.strip()
+        if text.startswith("CMake Error"):
+            paragraph = []
+            for following in lines[index + 1:]:
+                if not following.startswith("  ") or not following.strip():
+                    break
+                paragraph.append(following.strip())
+            text = " ".join([text, *paragraph])
+        if text not in found:
+            found.append(text)
+    return found
+
+
+def shown_errors(errors: Sequence[str], ws: Workspace, limit: int = ERRORS_SHOWN) -> str:
+    """The first error lines for the one-line message: paths in the workspace shortened (the
+    repository's relative to it, as the user knows them), each at most 300 characters."""
+    shown = []
+    for text in errors[:limit]:
+        for prefix in (f"{ws.target}/", f"{ws.root}/"):
+            text = text.replace(prefix, "")
+        shown.append(text if len(text) <= 300 else text[:297] + "...")
+    more = len(errors) - len(shown)
+    return " | ".join(shown) + (f" (and {more} more error line{'s' * (more > 1)})" if more else "")
+
+
 def main(
     ws: Workspace,
     settings: Settings,
@@ -228,11 +271,22 @@ def main(
 def build(ws: Workspace, argv: Sequence[str], env: Optional[Mapping[str, str]] = None) -> None:
     returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env=env)
     if returncode != 0:
-        failed = failed_packages(lines)
-        what = (("package " + ", ".join(failed) + " failed to build") if failed
-                else "colcon build failed")
-        raise StepError(STEP, f"{what} (exit code {returncode}); see the output above",
-                        returncode)
+        raise StepError(STEP, failure_message(ws, lines, returncode), returncode)
+
+
+def failure_message(ws: Workspace, lines: Sequence[str], returncode: int) -> str:
+    """What failed, for the one-line error: the packages colcon names and the first error
+    lines of their output (in an image build, the rest is far above, between BuildKit's)."""
+    failed = failed_packages(lines)
+    what = (("package " + ", ".join(failed) + " failed to build") if failed
+            else "colcon build failed")
+    errors = error_lines(lines, failed)
+    cause = f": {shown_errors(errors, ws)}" if errors else ""
+    if any(_NOT_FOUND.search(error) for error in errors[:ERRORS_SHOWN]):
+        cause += ("; a dependency CMake cannot find is installed when the package.xml declares "
+                  "it (<depend>, <build_depend>: rosdep installs it) or ADDITIONAL_DEBS_FILE "
+                  "lists it")
+    return f"{what} (exit code {returncode}){cause}; see the output above"
 
 
 def restore_install(ws: Workspace, copy: Path) -> None:

@@ -14,7 +14,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.in_image.runtime.files import find_special_files, unique
 from docker_ros.in_image.runtime.lock import locked_arguments
-from docker_ros.in_image.runtime.process import is_root, probe, run, run_tee
+from docker_ros.in_image.runtime.process import ERROR_LINE, is_root, probe, run, run_tee
 from docker_ros.in_image.runtime.requirements import read_requirement_file
 from docker_ros.in_image.runtime.workspace import (
     LOG,
@@ -171,9 +171,45 @@ def pip_install(arguments: Sequence[str], *, step: str, dry_run: bool, what: str
     returncode, lines = run_tee(argv, step=step, on_line=lambda line: bool(tls_failure(line)))
     if returncode != 0:
         tls = [tls_failure(line) for line in lines if tls_failure(line)]
-        cause = tls[0] if tls else (lines[-1].strip() if lines else "no output")
+        cause = tls[0] if tls else pip_reason(lines)
         raise StepError(step, f"{what + ' ' if what else ''}failed with exit code {returncode}: "
                         f"{format_argv(argv)}: {cause}", returncode or 1)
+
+
+def pip_reason(lines: Sequence[str]) -> str:
+    """pip's reason for the one-line error: its last `ERROR:` line, else its `× ...` summary
+    (a package whose metadata could not be made ends with `hint: See above for details.`)
+    with the requirement it was collecting; and the failed build's own first error line, else
+    its last (`RuntimeError: ...`, `fatal error: Python.h: No such file or directory`)."""
+    text = [line.strip() for line in lines if line.strip()]
+    if not text:
+        return "no output"
+    errors = [line for line in text if line.startswith("ERROR: ")]
+    summaries = [line[1:].strip() for line in text if line.startswith("×")]
+    collecting = [m.group(1) for m in (re.match(r"^(?:Collecting|Processing) (\S+)", line)
+                                       for line in text) if m]
+    if errors:
+        cause = errors[-1][len("ERROR: "):]
+    elif summaries:
+        cause = summaries[-1].rstrip(".") + (f" ({collecting[-1]})" if collecting else "")
+    else:
+        cause = text[-1]
+    output = build_output(text)
+    named = [line for line in output if ERROR_LINE.search(line)]
+    shown = (named or output or [""])[0 if named else -1]
+    if shown and shown not in cause:
+        cause += f"; the build's output says: {shown}"
+    return cause
+
+
+def build_output(text: Sequence[str]) -> List[str]:
+    """The lines of the last failed build step pip shows (`╰─> [N lines of output]` ... `[end
+    of output]`), stripped."""
+    ends = [i for i, line in enumerate(text) if line == "[end of output]"]
+    if not ends:
+        return []
+    starts = [i for i, line in enumerate(text[:ends[-1]]) if line.startswith("╰─> [")]
+    return list(text[starts[-1] + 1 if starts else ends[-1]:ends[-1]])
 
 
 def tls_failure(line: str) -> str:
