@@ -75,7 +75,8 @@ def test_failing_test_fails_the_task_and_results_reach_the_host(
     result = docker_ros(project, "test", "--results-dir", str(results))
     assert result.returncode != 0, result.stdout[-3000:]
     assert "docker-ros test (amd64): 1 passed, 1 failed, 1 skipped" in result.stdout
-    assert "docker-ros test: 1 test(s) failed (amd64)" in result.stdout
+    assert "docker-ros test: 1 test(s) failed: pkg_tests: " in result.stdout
+    assert "test_fails (amd64)" in result.stdout
     junit = results / "junit" / "pkg_tests" / "pytest.xml"
     assert "deliberately failing" in junit.read_text()
     assert (summarize(results / "junit")) == (1, 1, 1)

@@ -336,6 +336,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
             except (build.BuildError, FileNotFoundError) as exc:
                 raise TaskError(str(exc)) from None
             counts = testing.summarize(Path(tmp) / testing.JUNIT)
+            failed_names = testing.failed_tests(Path(tmp) / testing.JUNIT)
             try:
                 testing.install_results(Path(tmp), dest)
             except OSError as exc:
@@ -343,7 +344,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
                                 f"{exc.strerror or exc}; give a writable folder") from None
         print(f"docker-ros test ({platform}): {testing.format_summary(counts)} "
               f"(JUnit XML and logs in {dest})")
-        failed = testing.verdict(outcome, counts)
+        failed = testing.verdict(outcome, counts, failed_names)
         if failed:
             failures.append(f"{failed} ({platform})")
     if failures:

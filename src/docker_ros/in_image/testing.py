@@ -14,7 +14,7 @@ import shutil
 import sys
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
-from typing import Dict, Iterator, List, NamedTuple, Optional, Sequence
+from typing import Dict, Iterator, List, NamedTuple, Optional, Sequence, Tuple
 
 LOG = logging.getLogger(__name__)
 STEP = "test"
@@ -33,8 +33,14 @@ class Counts(NamedTuple):
         return Counts(*(a + b for a, b in zip(self, other)))
 
 
-def parse_junit(text: str) -> Optional[Counts]:
-    """Count the test cases of a JUnit/xUnit XML document (failure or error: failed); None
+# rostest's own test case for each <test> of a .test file ("did the test node run and write its
+# results"): when it passes, the node's results file (rosunit-<name>.xml) holds the real cases
+ROSTEST_WRAPPER = "rostest.runner.RosTest"
+
+
+def junit_cases(text: str) -> Optional[List[Tuple[str, str]]]:
+    """(name, outcome: passed, failed or skipped) of each test case of a JUnit/xUnit XML
+    document, a passing rostest wrapper case left out (its test's own file counts them); None
     when the XML is not a JUnit report (e.g. CTest's own Test.xml, a package.xml)."""
     try:
         root = ElementTree.fromstring(text)
@@ -42,16 +48,32 @@ def parse_junit(text: str) -> Optional[Counts]:
         return None
     if root.tag not in ("testsuites", "testsuite"):
         return None
-    passed = failed = skipped = 0
+    cases = []
     for case in root.iter("testcase"):
         children = {child.tag for child in case}
+        classname = case.get("classname", "")
         if children & {"failure", "error"}:
-            failed += 1
+            outcome = "failed"
         elif "skipped" in children or case.get("status") in ("notrun", "disabled"):
-            skipped += 1
+            outcome = "skipped"
+        elif classname == ROSTEST_WRAPPER:
+            continue
         else:
-            passed += 1
-    return Counts(passed, failed, skipped)
+            outcome = "passed"
+        prefix = classname[len("__main__."):] if classname.startswith("__main__.") else classname
+        cases.append((f"{prefix}.{case.get('name', '')}" if prefix else case.get("name", ""),
+                      outcome))
+    return cases
+
+
+def parse_junit(text: str) -> Optional[Counts]:
+    """Count the test cases of a JUnit/xUnit XML document (failure or error: failed); None
+    when the XML is not a JUnit report."""
+    cases = junit_cases(text)
+    if cases is None:
+        return None
+    outcomes = [outcome for _, outcome in cases]
+    return Counts(*(outcomes.count(kind) for kind in ("passed", "failed", "skipped")))
 
 
 def junit_files(root: Path) -> Iterator[Path]:
@@ -71,16 +93,30 @@ def summarize(root: Path) -> Counts:
     return total
 
 
+def failed_tests(root: Path) -> List[str]:
+    """`package: test` of every failed test case below root (a results folder's junit/, whose
+    first level is the package)."""
+    names = []
+    for path in junit_files(root):
+        package = path.relative_to(root).parts[0]
+        names += [f"{package}: {name}" for name, outcome in
+                  junit_cases(path.read_text(errors="replace")) or () if outcome == "failed"]
+    return names
+
+
 def format_summary(counts: Counts) -> str:
     return f"{counts.passed} passed, {counts.failed} failed, {counts.skipped} skipped"
 
 
-def verdict(outcome: Dict[str, int], counts: Counts) -> Optional[str]:
-    """None when everything passed, else what failed (one line)."""
+def verdict(outcome: Dict[str, int], counts: Counts, failed: Sequence[str] = ()) -> Optional[str]:
+    """None when everything passed, else what failed (one line; failed: the failed tests'
+    names, the first five of them named)."""
     if outcome.get("colcon_build", 0) != 0:
         return f"colcon build failed (exit code {outcome['colcon_build']}): no tests ran"
     if counts.failed:
-        return f"{counts.failed} test(s) failed"
+        named = ", ".join(failed[:5]) + (f" and {len(failed) - 5} more" if len(failed) > 5
+                                         else "")
+        return f"{counts.failed} test(s) failed" + (f": {named}" if named else "")
     if outcome.get("colcon_test", 0) != 0:
         return f"colcon test failed (exit code {outcome['colcon_test']})"
     if outcome.get("colcon_test_result", 0) != 0:
@@ -140,7 +176,7 @@ def run_in_image(ws_root: Path, destination: Path, environ: Dict[str, str]) -> D
         outcome["colcon_test_result"], lines = run_tee(
             TEST_RESULT_ARGV, step=STEP, cwd=ws.root, env=env
         )
-        (destination / TEST_RESULT_LOG).write_text("".join(lines))
+        (destination / TEST_RESULT_LOG).write_text("".join(line + "\n" for line in lines))
     # a failed build ran no test: the reports in the build/ cache mount are an earlier run's
     copy_results(ws.root, destination, junit=outcome["colcon_build"] == 0)
     (destination / OUTCOME).write_text(json.dumps(outcome, sort_keys=True) + "\n")
