@@ -90,6 +90,9 @@ def test_a_rostest_counts_its_test_cases_not_its_wrapper(tmp_path: Path):
     assert testing.failed_tests(tmp_path / "junit") == [
         "demo_nodes: Utils.Multiplies", "demo_nodes: GreetingTest.test_add_two"]
     assert testing.parse_junit(ROSTEST_NO_RESULTS_XML) == Counts(0, 1, 0)
+    (results / "rostest-test_demo.xml").write_text(ROSTEST_NO_RESULTS_XML)
+    (results / "rosunit-greeting_test.xml").unlink()
+    assert "demo_nodes: rostest greeting_test" in testing.failed_tests(tmp_path / "junit")
 
 
 def test_the_verdict_names_the_failed_tests():

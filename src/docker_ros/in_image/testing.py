@@ -60,10 +60,18 @@ def junit_cases(text: str) -> Optional[List[Tuple[str, str]]]:
             continue
         else:
             outcome = "passed"
-        prefix = classname[len("__main__."):] if classname.startswith("__main__.") else classname
-        cases.append((f"{prefix}.{case.get('name', '')}" if prefix else case.get("name", ""),
-                      outcome))
+        cases.append((case_name(classname, case.get("name", "")), outcome))
     return cases
+
+
+def case_name(classname: str, name: str) -> str:
+    """`Class.name` (a script's `__main__.` dropped); rostest's case for a <test>, which
+    rostest names `test<test-name>`, is `rostest <test-name>`."""
+    if classname == ROSTEST_WRAPPER:
+        return "rostest " + (name[len("test"):] if name.startswith("test") else name)
+    if classname.startswith("__main__."):
+        classname = classname[len("__main__."):]
+    return f"{classname}.{name}" if classname else name
 
 
 def parse_junit(text: str) -> Optional[Counts]:
