@@ -1,13 +1,18 @@
-"""`docker-ros test` on a ROS 1 (catkin) repository: a message package, and a rostest and a
-gtest with one failing case each (tests/rosfixtures.py make_ros1_repo). One dev image."""
+"""`docker-ros test` and the dev shell on a ROS 1 (catkin) repository: a message package, and a
+rostest and a gtest with one failing case each (tests/rosfixtures.py make_ros1_repo). One dev
+image."""
 
 from __future__ import annotations
 
+import subprocess
 from pathlib import Path
 from typing import Iterator
 
 import pytest
 
+from docker_ros.host.build import image_ref
+from docker_ros.host.devshell import HostUser, ShellOptions, dev_shell_argv
+from docker_ros.in_image.settings import load_settings
 from tests.docker.buildhelp import docker_ros, remove_image, write_env
 from tests.rosfixtures import make_ros1_repo
 
@@ -41,3 +46,21 @@ def test_rostest_and_gtest_failures_are_counted_and_named(project: Path, tmp_pat
         "gtest-utils_test.xml", "rostest-test_demo.xml", "rosunit-greeting_test.xml"]
     lines = (results / "test-result.txt").read_text().splitlines()
     assert any(line.startswith("Summary: ") for line in lines), lines
+
+
+def test_catkin_make_works_in_the_dev_shell_as_a_host_user(project: Path) -> None:
+    """A host user (uid 1234; the tests run as root) may write the workspace's src/ folder,
+    where catkin_make puts its toplevel CMakeLists.txt (before: Permission denied), and the
+    messages it generates reach Python."""
+    settings = load_settings(environ={"BUILD_CONTEXT": str(project), "IMAGE": IMAGE},
+                             project_dir=project)
+    script = ("catkin_make >/tmp/catkin_make.log 2>&1 || { tail -20 /tmp/catkin_make.log; "
+              "exit 1; }; source devel/setup.bash && rospack find demo_nodes && "
+              "python3 -c 'from demo_msgs.srv import AddTwo; print(AddTwo._type)' && "
+              "stat -c %U src/target/demo_nodes")
+    argv = dev_shell_argv(settings, image_ref(settings, "dev"), ShellOptions(command=script),
+                          HostUser(1234, 1234, "alice"))
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "/docker-ros/ws/src/target/demo_nodes\ndemo_msgs/AddTwo\n" in result.stdout
+    assert result.stdout.splitlines()[-1] != "alice"  # the mounted repository keeps its owner
