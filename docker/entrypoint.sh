@@ -67,9 +67,15 @@ _dros_map_user() {
             echo "$user ALL=(ALL) NOPASSWD:ALL" > "/etc/sudoers.d/docker-ros-$uid" 2>/dev/null || true
         fi
     fi
-    # The user may build in the workspace (build/, install/, log/); its contents, and any
-    # folder mounted into it, keep their owners.
-    if [[ -d "${WORKSPACE:-}" ]]; then chown "$uid:$gid" "$WORKSPACE" 2>/dev/null || true; fi
+    # The user may build in the workspace (build/, install/, log/; catkin_make: devel/ and the
+    # toplevel src/CMakeLists.txt); the contents of src/, and any folder mounted into the
+    # workspace, keep their owners.
+    local folder
+    for folder in "${WORKSPACE:-}" "${WORKSPACE:-}/src"; do
+        if [[ -n "${WORKSPACE:-}" && -d "$folder" ]]; then
+            chown "$uid:$gid" "$folder" 2>/dev/null || true
+        fi
+    done
     DOCKER_ROS_RUN_AS="$user"
 }
 

@@ -385,3 +385,175 @@ def file_http_server(root: Union[str, Path]) -> ThreadingHTTPServer:
     server = ThreadingHTTPServer(("127.0.0.1", 0), partial(Quiet, directory=str(root)))
     threading.Thread(target=server.serve_forever, daemon=True).start()
     return server
+
+
+ROS1_FILES = {
+    "demo_msgs/package.xml": """<?xml version="1.0"?>
+<package format="3">
+  <name>demo_msgs</name>
+  <version>0.1.0</version>
+  <description>A message and a service (docker-ros test package)</description>
+  <maintainer email="tests@docker-ros.invalid">tests</maintainer>
+  <license>MIT</license>
+  <buildtool_depend>catkin</buildtool_depend>
+  <build_depend>message_generation</build_depend>
+  <depend>std_msgs</depend>
+  <exec_depend>message_runtime</exec_depend>
+</package>
+""",
+    "demo_msgs/CMakeLists.txt": """cmake_minimum_required(VERSION 3.10)
+project(demo_msgs)
+find_package(catkin REQUIRED COMPONENTS message_generation std_msgs)
+add_message_files(FILES Greeting.msg)
+add_service_files(FILES AddTwo.srv)
+generate_messages(DEPENDENCIES std_msgs)
+catkin_package(CATKIN_DEPENDS message_runtime std_msgs)
+""",
+    "demo_msgs/msg/Greeting.msg": "std_msgs/Header header\nstring text\nint32 count\n",
+    "demo_msgs/srv/AddTwo.srv": "int64 a\nint64 b\n---\nint64 sum\n",
+    "demo_nodes/package.xml": """<?xml version="1.0"?>
+<package format="3">
+  <name>demo_nodes</name>
+  <version>0.1.0</version>
+  <description>Nodes, a rostest and a gtest (docker-ros test package)</description>
+  <maintainer email="tests@docker-ros.invalid">tests</maintainer>
+  <license>MIT</license>
+  <buildtool_depend>catkin</buildtool_depend>
+  <depend>roscpp</depend>
+  <depend>demo_msgs</depend>
+  <exec_depend>rospy</exec_depend>
+  <exec_depend>roslaunch</exec_depend>
+  <test_depend>rostest</test_depend>
+  <test_depend>rosunit</test_depend>
+</package>
+""",
+    "demo_nodes/CMakeLists.txt": """cmake_minimum_required(VERSION 3.10)
+project(demo_nodes)
+find_package(catkin REQUIRED COMPONENTS roscpp demo_msgs)
+catkin_package()
+include_directories(${catkin_INCLUDE_DIRS})
+add_executable(talker src/talker.cpp)
+target_link_libraries(talker ${catkin_LIBRARIES})
+add_dependencies(talker ${catkin_EXPORTED_TARGETS})
+catkin_install_python(PROGRAMS scripts/listener.py
+  DESTINATION ${CATKIN_PACKAGE_BIN_DESTINATION})
+install(TARGETS talker RUNTIME DESTINATION ${CATKIN_PACKAGE_BIN_DESTINATION})
+install(DIRECTORY launch config DESTINATION ${CATKIN_PACKAGE_SHARE_DESTINATION})
+if(CATKIN_ENABLE_TESTING)
+  find_package(rostest REQUIRED)
+  add_rostest(test/demo.test)
+  catkin_add_gtest(utils_test test/utils_test.cpp)
+endif()
+""",
+    "demo_nodes/src/talker.cpp": """#include <ros/ros.h>
+#include <demo_msgs/AddTwo.h>
+#include <demo_msgs/Greeting.h>
+
+bool add(demo_msgs::AddTwo::Request& req, demo_msgs::AddTwo::Response& res) {
+  res.sum = req.a + req.b;
+  return true;
+}
+
+int main(int argc, char** argv) {
+  ros::init(argc, argv, "talker");
+  ros::NodeHandle nh;
+  ros::NodeHandle pnh("~");
+  std::string text;
+  pnh.param<std::string>("text", text, "hello");
+  ros::Publisher pub = nh.advertise<demo_msgs::Greeting>("greeting", 10);
+  ros::ServiceServer srv = nh.advertiseService("add_two", add);
+  ros::Rate rate(5);
+  for (int count = 0; ros::ok(); ++count) {
+    demo_msgs::Greeting msg;
+    msg.header.stamp = ros::Time::now();
+    msg.text = text;
+    msg.count = count;
+    pub.publish(msg);
+    ros::spinOnce();
+    rate.sleep();
+  }
+  return 0;
+}
+""",
+    "demo_nodes/scripts/listener.py": """#!/usr/bin/env python3
+import rospy
+from demo_msgs.msg import Greeting
+from demo_msgs.srv import AddTwo
+
+
+def heard(msg):
+    rospy.loginfo("heard: %s #%d", msg.text, msg.count)
+
+
+if __name__ == "__main__":
+    rospy.init_node("listener")
+    rospy.Subscriber("greeting", Greeting, heard)
+    rospy.wait_for_service("add_two")
+    rospy.loginfo("sum: %d", rospy.ServiceProxy("add_two", AddTwo)(2, 3).sum)
+    rospy.spin()
+""",
+    "demo_nodes/launch/demo.launch": """<launch>
+  <node pkg="demo_nodes" type="talker" name="talker" output="screen">
+    <rosparam command="load" file="$(find demo_nodes)/config/params.yaml"/>
+  </node>
+  <node pkg="demo_nodes" type="listener.py" name="listener" output="screen"/>
+</launch>
+""",
+    "demo_nodes/config/params.yaml": 'text: "hello from yaml"\n',
+    "demo_nodes/test/demo.test": """<launch>
+  <node pkg="demo_nodes" type="talker" name="talker"/>
+  <test test-name="greeting_test" pkg="demo_nodes" type="greeting_test.py" time-limit="60"/>
+</launch>
+""",
+    "demo_nodes/test/greeting_test.py": """#!/usr/bin/env python3
+import unittest
+
+import rospy
+import rostest
+from demo_msgs.msg import Greeting
+from demo_msgs.srv import AddTwo
+
+
+class GreetingTest(unittest.TestCase):
+    def test_greeting_arrives(self):
+        msg = rospy.wait_for_message("greeting", Greeting, timeout=30)
+        self.assertTrue(msg.text.startswith("hello"))
+
+    def test_add_two(self):
+        rospy.wait_for_service("add_two", timeout=30)
+        self.assertEqual(rospy.ServiceProxy("add_two", AddTwo)(2, 3).sum, 5)
+
+
+if __name__ == "__main__":
+    rospy.init_node("greeting_test")
+    rostest.rosrun("demo_nodes", "greeting_test", GreetingTest)
+""",
+    "demo_nodes/test/utils_test.cpp": """#include <gtest/gtest.h>
+TEST(Utils, Adds) { EXPECT_EQ(2 + 3, 5); }
+TEST(Utils, Multiplies) { EXPECT_EQ(2 * 3, 6); }
+int main(int argc, char** argv) {
+  testing::InitGoogleTest(&argc, argv);
+  return RUN_ALL_TESTS();
+}
+""",
+}
+ROS1_EXECUTABLES = ("demo_nodes/scripts/listener.py", "demo_nodes/test/greeting_test.py")
+
+
+def make_ros1_repo(repo: Union[str, Path], *, failing: bool = False) -> Path:
+    """A typical ROS 1 (catkin) repository: demo_msgs (a message and a service,
+    message_generation) and demo_nodes (a C++ talker publishing /greeting and serving
+    /add_two, a Python listener installed with catkin_install_python, demo.launch loading
+    config/params.yaml, a rostest of two Python unittest cases and a gtest of two cases).
+    failing: one case of each test fails (GreetingTest.test_add_two, Utils.Multiplies)."""
+    repo = Path(repo)
+    for name, text in ROS1_FILES.items():
+        if failing:
+            text = text.replace("(2, 3).sum, 5)", "(2, 3).sum, 6)")
+            text = text.replace("EXPECT_EQ(2 * 3, 6)", "EXPECT_EQ(2 * 3, 7)")
+        target = repo / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(text)
+    for name in ROS1_EXECUTABLES:
+        (repo / name).chmod(0o755)
+    return repo

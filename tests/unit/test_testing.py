@@ -49,6 +49,62 @@ def test_summary_adds_every_report_below_a_folder(tmp_path: Path):
         "0 passed, 0 failed, 0 skipped")
 
 
+# What a rostest (.test file with one <test> of a Python unittest node, one of its two cases
+# failing) and a catkin_add_gtest write in build/<pkg>/test_results/<pkg>/ (Debian's ROS 1,
+# output trimmed): rostest's own case for the <test> passes whenever the node wrote results.
+ROSTEST_WRAPPER_XML = """<?xml version="1.0" encoding="utf-8"?>
+<testsuite errors="0" failures="0" name="unittest.suite.TestSuite" tests="1" time="1.717">\
+<testcase classname="rostest.runner.RosTest" name="testgreeting_test" time="1.7165" />\
+<system-out/><system-err/></testsuite>"""
+ROSTEST_NO_RESULTS_XML = """<?xml version="1.0" encoding="utf-8"?>
+<testsuite errors="0" failures="1" name="unittest.suite.TestSuite" tests="1" time="2.1">\
+<testcase classname="rostest.runner.RosTest" name="testgreeting_test" time="2.1">\
+<failure type="AssertionError">test [greeting_test] did not generate test results</failure>\
+</testcase></testsuite>"""
+ROSUNIT_XML = """<?xml version="1.0" encoding="utf-8"?>
+<testsuite errors="0" failures="1" name="unittest.suite.TestSuite" tests="2" time="0.397">\
+<testcase classname="__main__.GreetingTest" name="test_add_two" time="0.1898">\
+<failure type="AssertionError">5 != 6</failure></testcase>\
+<testcase classname="__main__.GreetingTest" name="test_greeting_arrives" time="0.2068" />\
+<system-out/><system-err/></testsuite>"""
+CATKIN_GTEST_XML = """<?xml version="1.0" encoding="UTF-8"?>
+<testsuites tests="2" failures="1" disabled="0" errors="0" time="0.001" name="AllTests">
+  <testsuite name="Utils" tests="2" failures="1" disabled="0" skipped="0" errors="0" time="0">
+    <testcase name="Adds" status="run" result="completed" time="0" classname="Utils" />
+    <testcase name="Multiplies" status="run" result="completed" time="0" classname="Utils">
+      <failure message="utils_test.cpp:3" type=""><![CDATA[utils_test.cpp:3]]></failure>
+    </testcase>
+  </testsuite>
+</testsuites>"""
+
+
+def test_a_rostest_counts_its_test_cases_not_its_wrapper(tmp_path: Path):
+    """A rostest with two cases, one failing, is 1 passed and 1 failed (before: rostest's own
+    passing case made it 2 passed); a test node that wrote no results is its wrapper's failure."""
+    results = tmp_path / "junit" / "demo_nodes" / "test_results" / "demo_nodes"
+    results.mkdir(parents=True)
+    (results / "rostest-test_demo.xml").write_text(ROSTEST_WRAPPER_XML)
+    (results / "rosunit-greeting_test.xml").write_text(ROSUNIT_XML)
+    (results / "gtest-utils_test.xml").write_text(CATKIN_GTEST_XML)
+    assert testing.summarize(tmp_path / "junit") == Counts(2, 2, 0)
+    assert testing.failed_cases(tmp_path / "junit") == [
+        "demo_nodes: Utils.Multiplies (utils_test.cpp:3)", "demo_nodes: GreetingTest.test_add_two"]
+    assert testing.parse_junit(ROSTEST_NO_RESULTS_XML) == Counts(0, 1, 0)
+    (results / "rostest-test_demo.xml").write_text(ROSTEST_NO_RESULTS_XML)
+    (results / "rosunit-greeting_test.xml").unlink()
+    assert "demo_nodes: rostest greeting_test" in testing.failed_cases(tmp_path / "junit")
+
+
+def test_the_verdict_names_the_failed_tests():
+    ok = {"colcon_build": 0, "colcon_test": 0, "colcon_test_result": 0}
+    names = ["demo_nodes: Utils.Multiplies", "demo_nodes: GreetingTest.test_add_two"]
+    assert testing.verdict(ok, Counts(2, 2, 0), names) == (
+        "2 test(s) failed: demo_nodes: Utils.Multiplies, demo_nodes: GreetingTest.test_add_two")
+    many = [f"p: t{i}" for i in range(7)]
+    assert testing.verdict(ok, Counts(0, 7, 0), many) == (
+        "7 test(s) failed: p: t0, p: t1, p: t2, p: t3, p: t4 and 2 more")
+
+
 def test_verdict_names_what_failed():
     ok = {"colcon_build": 0, "colcon_test": 0, "colcon_test_result": 0}
     assert testing.verdict(ok, Counts(3, 0, 1)) is None

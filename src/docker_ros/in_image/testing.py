@@ -14,7 +14,7 @@ import shutil
 import sys
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
-from typing import Dict, Iterator, List, NamedTuple, Optional, Sequence
+from typing import Dict, Iterator, List, NamedTuple, Optional, Sequence, Tuple
 
 LOG = logging.getLogger(__name__)
 STEP = "test"
@@ -36,25 +36,59 @@ class Counts(NamedTuple):
         return Counts(*(a + b for a, b in zip(self, other)))
 
 
-def parse_junit(text: str) -> Optional[Counts]:
-    """Count the test cases of a JUnit/xUnit XML document (failure or error: failed); None
-    when the XML is not a JUnit report (e.g. CTest's own Test.xml, a package.xml)."""
+# rostest's own test case for each <test> of a .test file ("did the test node run and write its
+# results"): when it passes, the node's results file (rosunit-<name>.xml) holds the real cases
+ROSTEST_WRAPPER = "rostest.runner.RosTest"
+
+
+def junit_cases(text: str) -> Optional[List[Tuple[str, str, str]]]:
+    """(name, outcome: passed, failed or skipped, the first line of a failure's message) of
+    each test case of a JUnit/xUnit XML document, a passing rostest wrapper case left out (its
+    test's own file counts them); None when the XML is not a JUnit report (e.g. CTest's own
+    Test.xml, a package.xml)."""
     try:
         root = ElementTree.fromstring(text)
     except ElementTree.ParseError:
         return None
     if root.tag not in ("testsuites", "testsuite"):
         return None
-    passed = failed = skipped = 0
+    cases = []
     for case in root.iter("testcase"):
         children = {child.tag for child in case}
-        if children & {"failure", "error"}:
-            failed += 1
+        classname = case.get("classname", "")
+        failures = [child for child in case if child.tag in ("failure", "error")]
+        message = (failures[0].get("message") or "").strip().split("\n")[0][:150] \
+            if failures else ""
+        if failures:
+            outcome = "failed"
         elif "skipped" in children or case.get("status") in ("notrun", "disabled"):
-            skipped += 1
+            outcome = "skipped"
+        elif classname == ROSTEST_WRAPPER:
+            continue
         else:
-            passed += 1
-    return Counts(passed, failed, skipped)
+            outcome = "passed"
+        cases.append((case_name(classname, case.get("name", "")), outcome, message))
+    return cases
+
+
+def case_name(classname: str, name: str) -> str:
+    """`Class.name` (a script's `__main__.` dropped); rostest's case for a <test>, which
+    rostest names `test<test-name>`, is `rostest <test-name>`."""
+    if classname == ROSTEST_WRAPPER:
+        return "rostest " + (name[len("test"):] if name.startswith("test") else name)
+    if classname.startswith("__main__."):
+        classname = classname[len("__main__."):]
+    return f"{classname}.{name}" if classname else name
+
+
+def parse_junit(text: str) -> Optional[Counts]:
+    """Count the test cases of a JUnit/xUnit XML document (failure or error: failed); None
+    when the XML is not a JUnit report."""
+    cases = junit_cases(text)
+    if cases is None:
+        return None
+    outcomes = [outcome for _, outcome, _ in cases]
+    return Counts(*(outcomes.count(kind) for kind in ("passed", "failed", "skipped")))
 
 
 def junit_files(root: Path) -> Iterator[Path]:
@@ -75,22 +109,18 @@ def summarize(root: Path) -> Counts:
 
 
 def failed_cases(root: Path) -> List[str]:
-    """`<package>: <classname>.<name> (<first line of the failure's message>)` of each failed
-    test case in the JUnit reports below root (the package: the report's first folder, as
-    colcon's build/ has them; left out when the class name starts with it, as colcon's pytest
-    names them)."""
+    """`<package>: <test> (<first line of the failure's message>)` of each failed test case in
+    the JUnit reports below root (the package: the report's first folder, as colcon's build/
+    has them; left out when the test's name starts with it, as colcon's pytest names them)."""
     found = []
     for path in junit_files(root):
         parts = path.relative_to(root).parts
         package = parts[0] if len(parts) > 1 else ""
-        for case in ElementTree.fromstring(path.read_text(errors="replace")).iter("testcase"):
-            failures = [child for child in case if child.tag in ("failure", "error")]
-            if not failures:
+        for name, outcome, message in junit_cases(path.read_text(errors="replace")) or ():
+            if outcome != "failed":
                 continue
-            name = ".".join(n for n in (case.get("classname"), case.get("name")) if n) or "?"
             if package and not name.startswith(package + "."):
                 name = f"{package}: {name}"
-            message = (failures[0].get("message") or "").strip().split("\n")[0][:150]
             found.append(name + (f" ({message})" if message else ""))
     return found
 
@@ -172,7 +202,7 @@ def run_in_image(ws_root: Path, destination: Path, environ: Dict[str, str]) -> D
         outcome["colcon_test_result"], lines = run_tee(
             TEST_RESULT_ARGV, step=STEP, cwd=ws.root, env=env
         )
-        (destination / TEST_RESULT_LOG).write_text("".join(lines))
+        (destination / TEST_RESULT_LOG).write_text("".join(line + "\n" for line in lines))
     # a failed build ran no test: the reports in the build/ cache mount are an earlier run's
     copy_results(ws.root, destination, junit=outcome["colcon_build"] == 0)
     (destination / OUTCOME).write_text(json.dumps(outcome, sort_keys=True) + "\n")
