@@ -112,6 +112,8 @@ def failed_cases(root: Path) -> List[str]:
     """`<package>: <test> (<first line of the failure's message>)` of each failed test case in
     the JUnit reports below root (the package: the report's first folder, as colcon's build/
     has them; left out when the test's name starts with it, as colcon's pytest names them)."""
+    from docker_ros.in_image.runtime.workspace import DEFAULT_WORKSPACE
+
     found = []
     for path in junit_files(root):
         parts = path.relative_to(root).parts
@@ -121,6 +123,7 @@ def failed_cases(root: Path) -> List[str]:
                 continue
             if package and not name.startswith(package + "."):
                 name = f"{package}: {name}"
+            message = message.replace(f"{DEFAULT_WORKSPACE}/src/target/", "")  # as in the repo
             found.append(name + (f" ({message})" if message else ""))
     return found
 
