@@ -594,3 +594,16 @@ def test_include_paths_the_image_lacks_are_named_but_not_the_defaults(tmp_path: 
     assert slimtrace.missing_requests(spec) == [
         f"--include-path {tmp_path}/lib/*/liby*", f"--preserve-path {tmp_path}/etc/my.conf"]
     assert f"{tmp_path}/etc/my.conf" in options.include  # still kept where it is there
+
+
+def test_only_ignored_options_of_the_users_are_told(monkeypatch, capsys) -> None:
+    """Every slim printed `ignoring options that do not apply here: --sensor-ipc-mode,
+    --show-clogs, --http-probe`: options of docker-ros's default SLIM_BUILD_ARGS, which the user
+    never chose. Only other ignored options are told now."""
+    for additional, told in (("", ""), ("--http-probe-cmd /x --show-clogs", "--http-probe-cmd")):
+        settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform(),
+                                          "ADDITIONAL_SLIM_BUILD_ARGS": additional})
+        slim.slim_image(settings, slim.host_platform(), dry_run=True)
+        lines = [line for line in capsys.readouterr().out.splitlines() if "ignoring" in line]
+        assert lines == ([f"docker-ros slim: ignoring options that do not apply here: {told}"]
+                         if told else [])

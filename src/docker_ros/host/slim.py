@@ -195,6 +195,8 @@ def seconds_option(name: str, given: Sequence[Tuple[str, str]], default: float) 
 # The paths docker-ros's default SLIM_BUILD_ARGS keeps when they are there: its /opt/ros is
 # missing from Debian's ROS images (ROS in /usr), and that must not stop the defaults.
 DEFAULT_PATHS = frozenset(path for _, path in parse_slim_args(SLIM_BUILD_ARGS_DEFAULT).paths)
+# docker-slim options of that default that do not apply here: not worth a line on every slim
+DEFAULT_IGNORED = frozenset(parse_slim_args(SLIM_BUILD_ARGS_DEFAULT).ignored)
 
 
 def slim_options(settings: Settings) -> SlimOptions:
@@ -685,9 +687,10 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
     run_ref = platform_ref(image_ref(settings, "run"), platform, settings.platform)
     slim_ref = platform_ref(image_ref(settings, "slim"), platform, settings.platform)
     options = slim_options(settings)
-    if options.ignored:
+    ignored = [option for option in options.ignored if option not in DEFAULT_IGNORED]
+    if ignored:
         print("docker-ros slim: ignoring options that do not apply here: "
-              + ", ".join(options.ignored), flush=True)
+              + ", ".join(ignored), flush=True)
     if dry_run:
         print(f"[dry-run] slim: trace {run_ref} for at most {options.continue_after:g} s (until "
               f"no new file for {options.settle:g} s), keep what it uses, check and tag "
