@@ -73,12 +73,25 @@ _dros_map_user() {
     DOCKER_ROS_RUN_AS="$user"
 }
 
+# ROS writes its logs to ~/.ros: a HOME that is not writable (`--user` with an ID the image has
+# no user for gives HOME=/, `--read-only` makes /root read-only) becomes /tmp, with a warning.
+_dros_writable_home() {
+    if [[ -n "${HOME:-}" && -d "$HOME" && -w "$HOME" ]]; then return 0; fi
+    if [[ -d /tmp && -w /tmp ]]; then
+        _dros_warn "HOME (${HOME:-unset}) is not writable; using HOME=/tmp (ROS writes its logs to ~/.ros)"
+        export HOME=/tmp
+    else
+        _dros_warn "HOME (${HOME:-unset}) and /tmp are not writable: ROS cannot write its logs" \
+            "(~/.ros); with --read-only, add --tmpfs /tmp"
+    fi
+}
+
 _dros_source_ros
 
 # Sourced (from /etc/bash.bashrc: interactive shells such as `docker exec -it <container> bash`):
 # the ROS environment only, as docker-ros's ~/.bashrc gave it; no user mapping, no exec.
 if [[ "${BASH_SOURCE[0]}" != "$0" ]]; then
-    unset -f _dros_source _dros_source_ros _dros_warn _dros_map_user
+    unset -f _dros_source _dros_source_ros _dros_warn _dros_map_user _dros_writable_home
     return 0
 fi
 
@@ -101,4 +114,5 @@ if [[ -n "${DOCKER_UID:-}" && "$(id -u)" == "0" ]]; then
     # setpriv ships with util-linux in every Debian/Ubuntu image; no su/sudo/gosu needed.
     exec setpriv --reuid="$DOCKER_UID" --regid="$gid" "${groups[@]}" -- "$@"
 fi
+_dros_writable_home
 exec "$@"

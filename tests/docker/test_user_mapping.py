@@ -108,3 +108,38 @@ def test_sourced_entrypoint_only_sets_up_the_environment(
     assert result.returncode == 0, result.stderr
     # (no function and no variable of the entrypoint's is left in the shell)
     assert result.stdout.split() == ["yes", "0", "setup=unset"], result.stdout + result.stderr
+
+
+def unmapped(base: str, *docker_args: str) -> subprocess.CompletedProcess:
+    """The entrypoint without DOCKER_UID: writes ~/.ros as roslaunch does and prints HOME."""
+    return subprocess.run(
+        ["docker", "run", "--rm", "--network", "none",
+         "-v", f"{ENTRYPOINT}:/docker-ros/entrypoint.sh:ro",
+         "--entrypoint", "/docker-ros/entrypoint.sh", *docker_args, base,
+         "bash", "-c", 'mkdir -p "$HOME/.ros/log" && echo "$HOME"'],
+        capture_output=True, text=True, timeout=120,
+    )
+
+
+@pytest.mark.parametrize("docker_args,home", [
+    pytest.param(("--user", "1000:1000"), "/", id="user-without-passwd-entry"),
+    pytest.param(("--read-only", "--tmpfs", "/tmp"), "/root", id="read-only-root"),
+])
+def test_unwritable_home_becomes_tmp_so_ros_can_log(
+    ros1_base_image: str, docker_args: tuple, home: str
+) -> None:
+    """`docker run --user 1000:1000` (HOME=/) or `--read-only` (/root read-only): roslaunch's
+    ~/.ros would fail with a PermissionError; the entrypoint uses HOME=/tmp and says so."""
+    result = unmapped(ros1_base_image, *docker_args)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "/tmp"
+    assert f"HOME ({home}) is not writable; using HOME=/tmp" in result.stderr
+    # a writable HOME stays, without a word
+    plain = unmapped(ros1_base_image)
+    assert (plain.returncode, plain.stdout.strip(), plain.stderr) == (0, "/root", "")
+
+
+def test_read_only_without_a_writable_tmp_names_the_tmpfs(ros1_base_image: str) -> None:
+    result = unmapped(ros1_base_image, "--read-only")
+    assert result.returncode != 0
+    assert "ROS cannot write its logs (~/.ros); with --read-only, add --tmpfs /tmp" in result.stderr
