@@ -25,9 +25,12 @@ _dros_warn() { echo "docker-ros: $*" >&2; }
 # name taken with another ID gets an _<id> suffix, and a failed useradd/groupadd only warns.
 _dros_map_user() {
     local user="${DOCKER_USER:-dockeruser}" uid="$DOCKER_UID" gid="${DOCKER_GID:-$DOCKER_UID}"
-    local group="$user"
-    if getent group "$gid" >/dev/null; then
-        _dros_warn "GID $gid exists already ($(getent group "$gid" | cut -d: -f1)); reusing it"
+    local group="$user" found
+    if found="$(getent group "$gid" | cut -d: -f1)" && [[ -n "$found" ]]; then
+        # (silent when it is this mapping's group: a restarted container has it from before)
+        if [[ "$found" != "$group" && "$found" != "${group}_$gid" ]]; then
+            _dros_warn "GID $gid exists already ($found); reusing it"
+        fi
     else
         if getent group "$group" >/dev/null; then
             _dros_warn "group '$group' exists with another GID; creating '${group}_$gid'"
@@ -44,8 +47,11 @@ _dros_map_user() {
     local groups=()
     if [[ ${#extra[@]} -gt 0 ]]; then groups=(--groups "$(IFS=,; echo "${extra[*]}")"); fi
     if getent passwd "$uid" >/dev/null; then
-        user="$(getent passwd "$uid" | cut -d: -f1)"
-        _dros_warn "UID $uid exists already ($user); running as that user"
+        found="$(getent passwd "$uid" | cut -d: -f1)"
+        if [[ "$found" != "$user" && "$found" != "${user}_$uid" ]]; then
+            _dros_warn "UID $uid exists already ($found); running as that user"
+        fi
+        user="$found"
         if [[ ${#extra[@]} -gt 0 ]]; then
             usermod --append "${groups[@]}" "$user" >/dev/null 2>&1 \
                 || _dros_warn "could not add $user to the groups ${extra[*]}"
