@@ -25,9 +25,12 @@ _dros_warn() { echo "docker-ros: $*" >&2; }
 # name taken with another ID gets an _<id> suffix, and a failed useradd/groupadd only warns.
 _dros_map_user() {
     local user="${DOCKER_USER:-dockeruser}" uid="$DOCKER_UID" gid="${DOCKER_GID:-$DOCKER_UID}"
-    local group="$user"
-    if getent group "$gid" >/dev/null; then
-        _dros_warn "GID $gid exists already ($(getent group "$gid" | cut -d: -f1)); reusing it"
+    local group="$user" found
+    if found="$(getent group "$gid" | cut -d: -f1)" && [[ -n "$found" ]]; then
+        # (silent when it is this mapping's group: a restarted container has it from before)
+        if [[ "$found" != "$group" && "$found" != "${group}_$gid" ]]; then
+            _dros_warn "GID $gid exists already ($found); reusing it"
+        fi
     else
         if getent group "$group" >/dev/null; then
             _dros_warn "group '$group' exists with another GID; creating '${group}_$gid'"
@@ -44,8 +47,11 @@ _dros_map_user() {
     local groups=()
     if [[ ${#extra[@]} -gt 0 ]]; then groups=(--groups "$(IFS=,; echo "${extra[*]}")"); fi
     if getent passwd "$uid" >/dev/null; then
-        user="$(getent passwd "$uid" | cut -d: -f1)"
-        _dros_warn "UID $uid exists already ($user); running as that user"
+        found="$(getent passwd "$uid" | cut -d: -f1)"
+        if [[ "$found" != "$user" && "$found" != "${user}_$uid" ]]; then
+            _dros_warn "UID $uid exists already ($found); running as that user"
+        fi
+        user="$found"
         if [[ ${#extra[@]} -gt 0 ]]; then
             usermod --append "${groups[@]}" "$user" >/dev/null 2>&1 \
                 || _dros_warn "could not add $user to the groups ${extra[*]}"
@@ -79,12 +85,25 @@ _dros_map_user() {
     DOCKER_ROS_RUN_AS="$user"
 }
 
+# ROS writes its logs to ~/.ros: a HOME that is not writable (`--user` with an ID the image has
+# no user for gives HOME=/, `--read-only` makes /root read-only) becomes /tmp, with a warning.
+_dros_writable_home() {
+    if [[ -n "${HOME:-}" && -d "$HOME" && -w "$HOME" ]]; then return 0; fi
+    if [[ -d /tmp && -w /tmp ]]; then
+        _dros_warn "HOME (${HOME:-unset}) is not writable; using HOME=/tmp (ROS writes its logs to ~/.ros)"
+        export HOME=/tmp
+    else
+        _dros_warn "HOME (${HOME:-unset}) and /tmp are not writable: ROS cannot write its logs" \
+            "(~/.ros); with --read-only, add --tmpfs /tmp"
+    fi
+}
+
 _dros_source_ros
 
 # Sourced (from /etc/bash.bashrc: interactive shells such as `docker exec -it <container> bash`):
 # the ROS environment only, as docker-ros's ~/.bashrc gave it; no user mapping, no exec.
 if [[ "${BASH_SOURCE[0]}" != "$0" ]]; then
-    unset -f _dros_source _dros_source_ros _dros_warn _dros_map_user
+    unset -f _dros_source _dros_source_ros _dros_warn _dros_map_user _dros_writable_home
     return 0
 fi
 
@@ -107,4 +126,5 @@ if [[ -n "${DOCKER_UID:-}" && "$(id -u)" == "0" ]]; then
     # setpriv ships with util-linux in every Debian/Ubuntu image; no su/sudo/gosu needed.
     exec setpriv --reuid="$DOCKER_UID" --regid="$gid" "${groups[@]}" -- "$@"
 fi
+_dros_writable_home
 exec "$@"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import time
 import uuid
 from pathlib import Path
 
@@ -84,6 +85,33 @@ def test_default_cmd_replaces_the_command_as_in_docker_ros(example: dict) -> Non
     )
     assert result.returncode == 0, result.stdout + result.stderr
     assert result.stdout.strip().endswith("/share/docker_ros_example")
+
+
+def test_docker_stop_shuts_the_node_down_cleanly(example: dict) -> None:
+    """`docker stop` of the default command: SIGTERM (through tini and the entrypoint) reaches
+    roslaunch, which stops its nodes and exits 0 at once. (Under `eval` in a bash only the
+    shell got it: exit 143, and the nodes were SIGKILLed with the container, no shutdown.)"""
+    name = f"docker-ros-test-stop-{uuid.uuid4().hex[:8]}"
+    subprocess.run(["docker", "run", "-d", "--name", name, example["run"]],
+                   capture_output=True, text=True, check=True)
+    try:
+        deadline = time.monotonic() + 60
+        logs = ""
+        while "I heard" not in logs and time.monotonic() < deadline:
+            time.sleep(1)
+            logs = subprocess.run(["docker", "logs", name], capture_output=True,
+                                  text=True).stdout
+        assert "I heard" in logs, logs[-3000:]
+        started = time.monotonic()
+        subprocess.run(["docker", "stop", name], capture_output=True, check=True)
+        took = time.monotonic() - started
+        code = subprocess.run(["docker", "inspect", "-f", "{{.State.ExitCode}}", name],
+                              capture_output=True, text=True, check=True).stdout.strip()
+        logs = subprocess.run(["docker", "logs", name], capture_output=True, text=True).stdout
+    finally:
+        subprocess.run(["docker", "rm", "-f", name], capture_output=True)
+    assert code == "0" and took < 8, (code, took, logs[-2000:])
+    assert "shutting down processing monitor complete" in logs, logs[-2000:]
 
 
 def test_images_have_docker_ros_environment(example: dict) -> None:

@@ -5,6 +5,7 @@ runs in the ROS 1 base image (Debian bookworm's passwd/group), no image build ne
 from __future__ import annotations
 
 import subprocess
+import uuid
 from pathlib import Path
 from typing import List, Optional
 
@@ -20,11 +21,11 @@ PROBE = ('u=$(getent passwd "$(id -u)" | cut -d: -f1); g=$(getent group "$(id -g
 
 
 def mapped(base: str, user: str, uid: int, gid: Optional[int], *docker_args: str,
-           script: str = PROBE) -> subprocess.CompletedProcess:
+           script: str = PROBE, rm: bool = True) -> subprocess.CompletedProcess:
     env: List[str] = ["-e", f"DOCKER_USER={user}", "-e", f"DOCKER_UID={uid}"]
     env += ["-e", f"DOCKER_GID={gid}"] if gid is not None else []
     return subprocess.run(
-        ["docker", "run", "--rm", "--network", "none",
+        ["docker", "run", *(["--rm"] if rm else []), "--network", "none",
          "-v", f"{ENTRYPOINT}:/docker-ros/entrypoint.sh:ro",
          "--entrypoint", "/docker-ros/entrypoint.sh", *env, *docker_args, base,
          "bash", "-c", script],
@@ -45,7 +46,9 @@ TABLE = [
                  id="uid-exists"),
     pytest.param("staff", 1239, 1239, "1239 1239 staff staff_1239",
                  "group 'staff' exists with another GID", id="group-name-exists"),
-    pytest.param("root", 0, 0, "0 0 root root", "UID 0 exists already (root)", id="root"),
+    pytest.param("root", 0, 0, "0 0 root root", None, id="root"),
+    pytest.param("dockeruser", 0, 0, "0 0 root root", "UID 0 exists already (root)",
+                 id="uid-0-for-another-name"),
     pytest.param("bad:name", 1240, 1240, "1240 1240 - -", "could not create user",
                  id="useradd-fails-runs-unnamed"),
 ]
@@ -63,6 +66,25 @@ def test_user_mapping_collisions_warn_and_go_on(
         assert warning in result.stderr
     else:
         assert result.stderr == ""
+
+
+@pytest.mark.parametrize("user,uid", [("robot", 1244), ("daemon", 1245), ("staff", 1246)])
+def test_restarted_container_maps_again_without_warnings(
+    ros1_base_image: str, user: str, uid: int
+) -> None:
+    """`docker restart` and `--restart unless-stopped` run the entrypoint again in the same
+    container: the user and group it made at the first start (also renamed ones) are no
+    collision, and a robot's logs get no warning at each restart."""
+    name = f"docker-ros-test-remap-{uuid.uuid4().hex[:8]}"
+    first = mapped(ros1_base_image, user, uid, uid, "--name", name, rm=False)
+    try:
+        again = subprocess.run(["docker", "start", "-a", name], capture_output=True, text=True,
+                               timeout=120)
+    finally:
+        subprocess.run(["docker", "rm", "-f", name], capture_output=True)
+    assert first.returncode == 0 and again.returncode == 0, first.stderr + again.stderr
+    assert again.stdout == first.stdout, (first.stdout, again.stdout)
+    assert again.stderr == "", again.stderr
 
 
 def test_renamed_user_owns_the_files_it_writes_in_a_mount(
@@ -108,3 +130,38 @@ def test_sourced_entrypoint_only_sets_up_the_environment(
     assert result.returncode == 0, result.stderr
     # (no function and no variable of the entrypoint's is left in the shell)
     assert result.stdout.split() == ["yes", "0", "setup=unset"], result.stdout + result.stderr
+
+
+def unmapped(base: str, *docker_args: str) -> subprocess.CompletedProcess:
+    """The entrypoint without DOCKER_UID: writes ~/.ros as roslaunch does and prints HOME."""
+    return subprocess.run(
+        ["docker", "run", "--rm", "--network", "none",
+         "-v", f"{ENTRYPOINT}:/docker-ros/entrypoint.sh:ro",
+         "--entrypoint", "/docker-ros/entrypoint.sh", *docker_args, base,
+         "bash", "-c", 'mkdir -p "$HOME/.ros/log" && echo "$HOME"'],
+        capture_output=True, text=True, timeout=120,
+    )
+
+
+@pytest.mark.parametrize("docker_args,home", [
+    pytest.param(("--user", "1000:1000"), "/", id="user-without-passwd-entry"),
+    pytest.param(("--read-only", "--tmpfs", "/tmp"), "/root", id="read-only-root"),
+])
+def test_unwritable_home_becomes_tmp_so_ros_can_log(
+    ros1_base_image: str, docker_args: tuple, home: str
+) -> None:
+    """`docker run --user 1000:1000` (HOME=/) or `--read-only` (/root read-only): roslaunch's
+    ~/.ros would fail with a PermissionError; the entrypoint uses HOME=/tmp and says so."""
+    result = unmapped(ros1_base_image, *docker_args)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "/tmp"
+    assert f"HOME ({home}) is not writable; using HOME=/tmp" in result.stderr
+    # a writable HOME stays, without a word
+    plain = unmapped(ros1_base_image)
+    assert (plain.returncode, plain.stdout.strip(), plain.stderr) == (0, "/root", "")
+
+
+def test_read_only_without_a_writable_tmp_names_the_tmpfs(ros1_base_image: str) -> None:
+    result = unmapped(ros1_base_image, "--read-only")
+    assert result.returncode != 0
+    assert "ROS cannot write its logs (~/.ros); with --read-only, add --tmpfs /tmp" in result.stderr
