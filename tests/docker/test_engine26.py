@@ -19,6 +19,7 @@ from typing import Dict, Iterator, Optional
 import pytest
 
 from docker_ros.host import engine
+from tests import engines
 from tests.ci.cihelp import (
     REPO,
     assert_pulled_image_runs,
@@ -247,3 +248,29 @@ def test_build_server_through_a_docker_context_pushes_to_the_registry(
     assert {tag, f"{tag}-dev", f"{tag}-cache-run-amd64"} <= set(
         registry_tags(local_registry, repository))
     assert_pulled_image_runs(ref)
+
+
+def test_a_build_without_network_on_engine26_names_build_network_host(
+    engine26: str, ros2_base_image: str, tmp_path: Path
+) -> None:
+    """Engine 26 of setup.sh has no outbound NAT: a build step that reaches for the network
+    without BUILD_NETWORK=host (here a hook fetching a file; apt-get only warns, then finds no
+    package) stops the build with a last line naming what failed and the setting. (The ROS 2
+    base has the toolchain: nothing else needs the network before the hook.)"""
+    if not engines.has_image(engine26, ros2_base_image):
+        engines.copy_image(ros2_base_image, engine26)
+    project = tmp_path / "offline"
+    (project / "docker").mkdir(parents=True)
+    (project / "docker" / "before_dependency_installation.sh").write_text(
+        "python3 -c \"import urllib.request; "
+        "urllib.request.urlopen('http://deb.debian.org/debian/', timeout=10)\"\n")
+    write_env(project, BASE_IMAGE=ros2_base_image, IMAGE="docker-ros-test/engine26-offline:1",
+              TARGET="dev")
+    result = docker_ros(project, "build", env={"DOCKER_HOST": engine26})
+    assert result.returncode != 0, result.stdout[-3000:]
+    last = result.stdout.strip().splitlines()[-1]
+    assert last.startswith("docker-ros build: building target 'dev' (amd64) failed in step "
+                           "scripts: "), last
+    assert ("the step could not reach the network (Temporary failure in name resolution): "
+            "on an engine without outbound NAT") in last, last
+    assert last.endswith("set BUILD_NETWORK=host"), last

@@ -176,3 +176,19 @@ def test_apt_reason_names_the_packages_apt_does_not_know() -> None:
     assert apt_reason(["E: Could not get lock /var/lib/dpkg/lock"]) == (
         "; apt: Could not get lock /var/lib/dpkg/lock")
     assert apt_reason(["done"]) == ""
+
+
+def test_apt_reason_says_the_lists_could_not_be_downloaded() -> None:
+    """Without network apt-get update only warns, and install then finds no package: the
+    reason is the download, not the package name (real lines of an engine without NAT)."""
+    from docker_ros.in_image.runtime.apt import apt_reason
+    lines = ["Err:1 http://deb.debian.org/debian trixie InRelease",
+             "  Temporary failure resolving 'deb.debian.org'",
+             "W: Failed to fetch http://deb.debian.org/debian/dists/trixie/InRelease  "
+             "Temporary failure resolving 'deb.debian.org'",
+             "W: Some index files failed to download. They have been ignored, or old ones used "
+             "instead.", "E: Unable to locate package libyaml-cpp-dev"]
+    assert apt_reason(lines) == (
+        "; apt could not download its package lists (Temporary failure resolving "
+        "'deb.debian.org': http://deb.debian.org/debian/dists/trixie/InRelease), so it knows "
+        "none of their packages (libyaml-cpp-dev)")

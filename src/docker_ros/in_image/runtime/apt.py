@@ -13,6 +13,8 @@ from docker_ros.in_image.runtime.workspace import LOG, StepError, format_argv
 # apt's words for a package it does not know (the name in one of the groups)
 MISSING = re.compile(r"^E: (?:Unable to locate package (\S+)|Package '([^']+)' has no "
                      r"installation candidate|Version '([^']+)' for '([^']+)' was not found)")
+# apt-get update's warning for a list it could not download (the URL, apt's reason)
+UNFETCHED = re.compile(r"^[WE]: Failed to fetch (\S+)\s+(.+)$")
 # dpkg's record of what is installed
 DPKG_STATUS = Path("/var/lib/dpkg/status")
 
@@ -58,25 +60,43 @@ def apt_install(packages: Sequence[str], *, step: str, dry_run: bool, what: str 
             run(update, step=step, dry_run=True)
         run(install, step=step, dry_run=True)
         return
+    updated: List[str] = []  # (apt-get update's output: a list it could not fetch is a warning)
     if not apt_lists_present():
-        run(update, step=step, env=apt_env())
+        updated += update_lists(update, step=step)
     code, lines = run_tee(install, step=step, env=apt_env())
-    if code != 0:
-        # Stale lists (host, or an apt cache mount) make apt miss packages: update once, retry.
+    if code != 0 and not any(map(UNFETCHED.search, updated)):
+        # Stale lists (host, or an apt cache mount) make apt miss packages: update once, retry
+        # (not when the update just now could not download them: no network).
         LOG.info("%s: apt-get install failed, updating package lists and retrying", step)
-        run(update, step=step, env=apt_env())
+        updated += update_lists(update, step=step)
         code, lines = run_tee(install, step=step, env=apt_env())
     if code != 0:
         raise StepError(step, f"{what + ' ' if what else ''}failed with exit code {code}: "
-                        f"{format_argv(install)}{apt_reason(lines)}", code)
+                        f"{format_argv(install)}{apt_reason([*updated, *lines])}", code)
+
+
+def update_lists(update: Sequence[str], *, step: str) -> List[str]:
+    """Run apt-get update; its output lines."""
+    code, lines = run_tee(update, step=step, env=apt_env())
+    if code != 0:
+        raise StepError(step, f"failed with exit code {code}: {format_argv(update)}"
+                        f"{apt_reason(lines)}", code)
+    return lines
 
 
 def apt_reason(lines: Sequence[str]) -> str:
-    """apt's own reason, for the one-line error: the packages it cannot find, else its last
-    `E:` line ('' when it gave none)."""
+    """apt's own reason, for the one-line error: the lists it could not download (apt-get
+    update only warns: then it knows none of their packages), else the packages it cannot
+    find, else its last `E:` line ('' when it gave none)."""
     found = [m.groups() for m in map(MISSING.search, lines) if m]
     missing = [name or candidate or f"{package}={version}"
                for name, candidate, version, package in found]
+    unfetched = [m.groups() for m in map(UNFETCHED.search, lines) if m]
+    if unfetched:
+        url, why = unfetched[0]
+        named = f" ({', '.join(dict.fromkeys(missing))})" if missing else ""
+        return (f"; apt could not download its package lists ({why.strip()}: {url}), so it "
+                f"knows none of their packages{named}")
     if missing:
         return (f"; apt has no package {', '.join(dict.fromkeys(missing))} (check the name, "
                 "and the apt sources of the base image)")
