@@ -226,7 +226,7 @@ def test_build_server_through_a_docker_context_pushes_to_the_registry(
 ) -> None:
     """BUILDER names a docker context: the images are built by Engine 26 (nothing of them in
     the shared engine), pushed from there with its registry cache, and run on the shared
-    engine after a pull."""
+    engine after a pull. `slim` finds the run image there (no rebuild) and slims it there."""
     project = tmp_path / "example"
     shutil.copytree(REPO / "example", project)
     ref = f"{local_registry}/docker-ros-test/remote-{uuid.uuid4().hex[:8]}:1"
@@ -235,10 +235,15 @@ def test_build_server_through_a_docker_context_pushes_to_the_registry(
               BUILDER=engine26_context, CACHE_TO=f"{ref}-cache", BUILD_NETWORK="host")
     try:
         result = docker_ros(project, "push")
+        slimmed = docker_ros(project, "slim")
     finally:  # the build server keeps nothing of this test
-        subprocess.run(["docker", "rmi", "-f", ref, f"{ref}-dev"], capture_output=True,
-                       env={**os.environ, "DOCKER_HOST": ENGINE26_HOST})
+        subprocess.run(["docker", "rmi", "-f", ref, f"{ref}-dev", f"{ref}-slim"],
+                       capture_output=True, env={**os.environ, "DOCKER_HOST": ENGINE26_HOST})
     assert result.returncode == 0, result.stdout[-6000:]
+    assert slimmed.returncode == 0, slimmed.stdout[-6000:]
+    assert "neither local nor pullable" not in slimmed.stdout, slimmed.stdout[:3000]
+    assert "==> docker-ros build" not in slimmed.stdout
+    assert f"==> docker-ros slim {ref} -> {ref}-slim" in slimmed.stdout
     assert (f"builder: {engine26_context} (docker driver of the engine at {ENGINE26_HOST}: "
             "--load keeps the images in that engine, not the local one") in result.stdout
     assert REGISTRY_CACHE in result.stdout
