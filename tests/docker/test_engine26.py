@@ -20,6 +20,7 @@ from typing import Dict, Iterator, Optional
 import pytest
 
 from docker_ros.host import engine
+from tests import engines
 from tests.ci.cihelp import (
     REPO,
     assert_pulled_image_runs,
@@ -226,7 +227,7 @@ def test_build_server_through_a_docker_context_pushes_to_the_registry(
 ) -> None:
     """BUILDER names a docker context: the images are built by Engine 26 (nothing of them in
     the shared engine), pushed from there with its registry cache, and run on the shared
-    engine after a pull."""
+    engine after a pull. `slim` finds the run image there (no rebuild) and slims it there."""
     project = tmp_path / "example"
     shutil.copytree(REPO / "example", project)
     ref = f"{local_registry}/docker-ros-test/remote-{uuid.uuid4().hex[:8]}:1"
@@ -235,10 +236,15 @@ def test_build_server_through_a_docker_context_pushes_to_the_registry(
               BUILDER=engine26_context, CACHE_TO=f"{ref}-cache", BUILD_NETWORK="host")
     try:
         result = docker_ros(project, "push")
+        slimmed = docker_ros(project, "slim")
     finally:  # the build server keeps nothing of this test
-        subprocess.run(["docker", "rmi", "-f", ref, f"{ref}-dev"], capture_output=True,
-                       env={**os.environ, "DOCKER_HOST": ENGINE26_HOST})
+        subprocess.run(["docker", "rmi", "-f", ref, f"{ref}-dev", f"{ref}-slim"],
+                       capture_output=True, env={**os.environ, "DOCKER_HOST": ENGINE26_HOST})
     assert result.returncode == 0, result.stdout[-6000:]
+    assert slimmed.returncode == 0, slimmed.stdout[-6000:]
+    assert "neither local nor pullable" not in slimmed.stdout, slimmed.stdout[:3000]
+    assert "==> docker-ros build" not in slimmed.stdout
+    assert f"==> docker-ros slim {ref} -> {ref}-slim" in slimmed.stdout
     assert (f"builder: {engine26_context} (docker driver of the engine at {ENGINE26_HOST}: "
             "--load keeps the images in that engine, not the local one") in result.stdout
     assert REGISTRY_CACHE in result.stdout
@@ -278,3 +284,29 @@ def test_until_on_a_context_builder_prints_commands_that_reach_its_engine(
     finally:  # the build server keeps nothing of this test
         subprocess.run(["docker", "rmi", "-f", until], capture_output=True,
                        env={**os.environ, "DOCKER_HOST": ENGINE26_HOST})
+
+
+def test_a_build_without_network_on_engine26_names_build_network_host(
+    engine26: str, ros2_base_image: str, tmp_path: Path
+) -> None:
+    """Engine 26 of setup.sh has no outbound NAT: a build step that reaches for the network
+    without BUILD_NETWORK=host (here a hook fetching a file; apt-get only warns, then finds no
+    package) stops the build with a last line naming what failed and the setting. (The ROS 2
+    base has the toolchain: nothing else needs the network before the hook.)"""
+    if not engines.has_image(engine26, ros2_base_image):
+        engines.copy_image(ros2_base_image, engine26)
+    project = tmp_path / "offline"
+    (project / "docker").mkdir(parents=True)
+    (project / "docker" / "before_dependency_installation.sh").write_text(
+        "python3 -c \"import urllib.request; "
+        "urllib.request.urlopen('http://deb.debian.org/debian/', timeout=10)\"\n")
+    write_env(project, BASE_IMAGE=ros2_base_image, IMAGE="docker-ros-test/engine26-offline:1",
+              TARGET="dev")
+    result = docker_ros(project, "build", env={"DOCKER_HOST": engine26})
+    assert result.returncode != 0, result.stdout[-3000:]
+    last = result.stdout.strip().splitlines()[-1]
+    assert last.startswith("docker-ros build: building target 'dev' (amd64) failed in step "
+                           "scripts: "), last
+    assert ("the step could not reach the network (Temporary failure in name resolution): "
+            "on an engine without outbound NAT") in last, last
+    assert last.endswith("set BUILD_NETWORK=host"), last

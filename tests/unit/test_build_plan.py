@@ -529,3 +529,35 @@ def test_a_platform_failing_after_another_names_what_that_one_built(monkeypatch,
     with pytest.raises(KeyboardInterrupt) as stopped:
         pipeline.build_targets(s, ("dev", "run"), dry_run=False)
     assert str(stopped.value) == "'dev' was built: img:t-dev-amd64; 'run' was built: img:t-amd64"
+
+
+# A rosdep step on an engine whose containers have no outbound NAT (Engine 26 of setup.sh):
+# apt-get update only warns, then apt finds no package (real lines, shortened).
+NO_NAT = [
+    "#14 [dev dependencies-dev 2/3] RUN python3 -m docker_ros.in_image.steps rosdep\n",
+    "#14 0.9 Err:1 http://deb.debian.org/debian trixie InRelease\n",
+    "#14 0.9   Temporary failure resolving 'deb.debian.org'\n",
+    "#14 1.0 W: Failed to fetch http://deb.debian.org/debian/dists/trixie/InRelease  "
+    "Temporary failure resolving 'deb.debian.org'\n",
+    "#14 1.2 E: Unable to locate package libyaml-cpp-dev\n",
+    "#14 1.3 docker-ros rosdep: apt-get install failed with exit code 100\n",
+    "#14 ERROR: process \"/bin/sh -c python3 -m docker_ros.in_image.steps rosdep\" did not "
+    "complete successfully: exit code: 100\n",
+]
+
+
+def test_a_step_without_network_points_at_build_network_host():
+    reason = build.failure_reason(NO_NAT, ["rosdep: apt-get install failed"], "")
+    assert reason.startswith("failed in step rosdep: apt-get install failed; the step could not "
+                             "reach the network (Temporary failure resolving 'deb.debian.org')")
+    assert reason.endswith("set BUILD_NETWORK=host")
+    assert "BUILD_NETWORK is none" in build.failure_reason(NO_NAT, ["rosdep: x"], "none")
+    assert build.failure_reason(NO_NAT, ["rosdep: x"], "host") == "failed in step rosdep: x"
+    # only the failed step's output counts (an earlier step's warning is no cause)
+    earlier = ["#9 0.5 W: Failed to fetch x  Temporary failure resolving 'deb.debian.org'\n",
+               "#9 DONE 0.6s\n", *NO_NAT[4:]]
+    assert build.network_hint(earlier, "") == ""
+    pip = ["#8 3.0 WARNING: Retrying ... NewConnectionError('<pip._vendor.urllib3.connection."
+           "HTTPSConnection object>: Failed to establish a new connection: [Errno -3] Temporary "
+           "failure in name resolution')\n", "#8 ERROR: process did not complete\n"]
+    assert "(Failed to establish a new connection)" in build.network_hint(pip, "default")

@@ -202,3 +202,20 @@ def test_apt_reason_names_the_sources_apt_get_update_could_not_reach() -> None:
     assert apt_reason(download) == (
         "; apt: Failed to fetch http://deb.debian.org/debian/pool/main/j/jq/jq_1.6.deb  "
         "Temporary failure resolving 'deb.debian.org'")
+
+
+def test_apt_reason_says_the_lists_could_not_be_downloaded() -> None:
+    """Without network apt-get update only warns, and install then finds no package: the
+    reason is the download, not the package name (real lines of an engine without NAT)."""
+    from docker_ros.in_image.runtime.apt import apt_reason
+    lines = ["Err:1 http://deb.debian.org/debian trixie InRelease",
+             "  Temporary failure resolving 'deb.debian.org'",
+             "W: Failed to fetch http://deb.debian.org/debian/dists/trixie/InRelease  "
+             "Temporary failure resolving 'deb.debian.org'",
+             "W: Some index files failed to download. They have been ignored, or old ones used "
+             "instead.", "E: Unable to locate package libyaml-cpp-dev"]
+    assert apt_reason(lines[-1:], lines[:-1]) == (
+        "; apt has no package libyaml-cpp-dev, and `apt-get update` could not reach "
+        "http://deb.debian.org/debian/dists/trixie/InRelease (Temporary failure resolving "
+        "'deb.debian.org'): check that apt source and the network (BUILD_NETWORK, a proxy), or "
+        "the package's name")

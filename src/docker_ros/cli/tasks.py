@@ -413,6 +413,11 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     check_slim_options(settings)
     refs = [build.platform_ref(build.image_ref(settings, "run"), p, settings.platform)
             for p in settings.platform]
+    if not dry_run:
+        try:  # (the builder first: a docker context's engine holds the run image)
+            build.check_engine(settings)
+        except build.BuildError as exc:
+            raise TaskError(str(exc)) from None
     if not dry_run and not all(engine.local_or_pulled(ref) for ref in refs):
         print(f"slim: run image {', '.join(refs)} neither local nor pullable: building it")
         build_targets(settings, ("run",), dry_run=dry_run, slim=True)

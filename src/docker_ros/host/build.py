@@ -64,6 +64,10 @@ BUILDX = ("docker", "buildx")  # the command reaching the default builder
 CACHED_TARGETS = ("dev", "run")
 # a build step of a stage; bake puts the target first: `#7 [run build 1/1]`
 VERTEX = re.compile(r"#(\d+) \[(?:[\w-]+ )?([\w-]+) \d+/\d+\]")
+# A build step's words for a network it cannot reach (apt, pip/urllib, git/curl).
+NO_NETWORK = re.compile(
+    r"Temporary failure (?:resolving '[^']*'|in name resolution)|Could not resolve host:? \S+|"
+    r"Network is unreachable|Failed to establish a new connection|Could not connect to \S+")
 
 
 class BuildError(Exception):
@@ -590,13 +594,39 @@ def tagged_in_log(lines: Sequence[str], ref: str) -> bool:
     return any(f"naming to {name} done" in line for line in lines for name in (full, ref))
 
 
-def failure_reason(lines: Sequence[str], errors: Sequence[str]) -> str:
-    """How a failed buildx run ended, for the one-line message."""
+def failure_reason(lines: Sequence[str], errors: Sequence[str], network: str = "") -> str:
+    """How a failed buildx run ended, for the one-line message (network: BUILD_NETWORK)."""
     lost = engine_lost(lines)
     if lost:
         return (f"failed: the connection to the Docker engine was lost ({lost}); nothing was "
                 "tagged, so rerunning is safe once `docker info` answers")
-    return f"failed in step {errors[-1]}" if errors else "failed (see the BuildKit error above)"
+    reason = f"failed in step {errors[-1]}" if errors else "failed (see the BuildKit error above)"
+    return reason + network_hint(lines, network)
+
+
+def failed_output(lines: Sequence[str]) -> List[str]:
+    """The output of the build steps that failed: every `#N ...` line of a vertex N that
+    ended with `#N ERROR` (bake: one per failed target)."""
+    failed = {line.split(" ", 1)[0] for line in lines if re.match(r"#\d+ ERROR", line)}
+    return [line for line in lines if line.split(" ", 1)[0] in failed]
+
+
+def network_hint(lines: Sequence[str], network: str) -> str:
+    """What to do when a failed build step could not reach the network (its output says so:
+    apt, pip, git, curl, rosdep): '' when it did not say so, or the build has the host's
+    network. On an engine whose containers have no outbound NAT (the Engine 26 of
+    scripts/setup.sh: dockerd --iptables=false) apt only warns that it could not fetch its
+    lists, then finds no package, so the step's own words may name another cause."""
+    if network == "host":
+        return ""
+    seen = next((m.group(0) for m in map(NO_NETWORK.search, failed_output(lines)) if m), "")
+    if not seen:
+        return ""
+    if network == "none":
+        return f"; the step could not reach the network ({seen}): BUILD_NETWORK is none"
+    return (f"; the step could not reach the network ({seen}): on an engine without outbound "
+            "NAT (dockerd --iptables=false, e.g. the Engine 26 of scripts/setup.sh) set "
+            "BUILD_NETWORK=host")
 
 
 def _kept(lines: List[str], line: str) -> str:
@@ -950,7 +980,8 @@ def build_images_locked(
         for names, argv in runs:
             try:
                 seconds = run_buildx(argv, {t: targets[t] for t in names}, platform,
-                                     env=child_env, out=out, environ=environ)
+                                     env=child_env, out=out, environ=environ,
+                                     network=settings.build_network or "")
             except BuildError as exc:
                 raise with_built(exc, built) from None
             except KeyboardInterrupt as exc:
@@ -985,9 +1016,10 @@ def build_image(settings: Settings, *, target: str, platform: str, tag: str,
 
 
 def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *,
-               env: Mapping[str, str], out: IO[str], environ: Mapping[str, str]) -> float:
+               env: Mapping[str, str], out: IO[str], environ: Mapping[str, str],
+               network: str = "") -> float:
     """Run one buildx command (targets: target -> tag), its log folded into out; its seconds,
-    or a BuildError."""
+    or a BuildError (network: BUILD_NETWORK, for the hint of a step that found none)."""
     # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
     header = ", ".join(f"{t} -> {tag}" for t, tag in targets.items())
     out.write(f"==> docker-ros build ({platform}) {header}\n")
@@ -1016,7 +1048,7 @@ def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *
         failed = [t for t in targets if t not in done]
         what = "target" if len(failed) == 1 else "targets"
         raise BuildError(f"building {what} {', '.join(repr(t) for t in failed)} ({platform}) "
-                         f"{failure_reason(lines, errors)}"
+                         f"{failure_reason(lines, errors, network)}"
                          + "".join(f"; {built_note(t, targets[t])}" for t in done),
                          code, stage=stage, step=step)
     return time.monotonic() - began

@@ -372,7 +372,8 @@ class Settings:
     build_network: Optional[str] = setting(
         None,
         "Network of the build's RUN steps (`host` reaches services on this machine's loopback,"
-        " e.g. a local git server)",
+        " e.g. a local git server, and the outside from an engine without outbound NAT, e.g."
+        " the Engine 26 of scripts/setup.sh)",
         choices=("host", "none", "default"), group="ours", build="tool", flags=("image",),
     )
     ros_apt_source_version: str = setting(

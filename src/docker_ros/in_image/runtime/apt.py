@@ -65,8 +65,9 @@ def apt_install(packages: Sequence[str], *, step: str, dry_run: bool, what: str 
     if not apt_lists_present():
         updated = apt_update(update, step=step, what=what)
     code, lines = run_tee(install, step=step, env=apt_env())
-    if code != 0:
-        # Stale lists (host, or an apt cache mount) make apt miss packages: update once, retry.
+    if code != 0 and not unreachable(updated):
+        # Stale lists (host, or an apt cache mount) make apt miss packages: update once, retry
+        # (not when the update just now could not download them: no network).
         LOG.info("%s: apt-get install failed, updating package lists and retrying", step)
         updated = apt_update(update, step=step, what=what)
         code, lines = run_tee(install, step=step, env=apt_env())
