@@ -291,9 +291,10 @@ def read_defaults(path: Path) -> Optional[Dict[str, Any]]:
     one."""
     try:
         text = path.read_text()
-        data = json.loads(text)
-    except OSError:
+    except (OSError, UnicodeDecodeError):  # (not a text file: no defaults file either)
         return None
+    try:
+        data = json.loads(text)
     except ValueError:
         try:
             import yaml  # colcon's own dependency (the host extra), not docker-ros's
