@@ -716,10 +716,12 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         return SlimResult(slim_ref, platform, time.monotonic() - began, True)
     print(f"==> docker-ros slim {run_ref} -> {slim_ref}", flush=True)
     labels = {LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp}
+    traced_at = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="docker-ros-slim-") as tmp, \
             tracing(run["Id"], config, options, Path(tmp)) as traced:
         reference, figures = traced.probe, traced.figures
-        print(trace_report(time.monotonic() - began, reference, figures, options), flush=True)
+        print(trace_report(time.monotonic() - traced_at, reference, figures, options),
+              flush=True)
         if figures.get("missing"):
             raise SlimError(f"{run_ref} has no " + ", ".join(figures["missing"])
                             + ": fix or remove the option in SLIM_BUILD_ARGS or "
