@@ -673,6 +673,26 @@ def made_and_checked(run_id: str, keep: Set[str], changes: Sequence[str], config
     return slim_id, kept, total, checked_at - made_at, time.monotonic() - checked_at, diffs
 
 
+def made_with_later_files(run_id: str, traced: Trace, changes: Sequence[str], config: Mapping,
+                          options: SlimOptions) -> Tuple[str, int, int, float, float, List[str]]:
+    """made_and_checked from the window's keep set; made again with the files a command still
+    running opened meanwhile, if it opened any (the first image is removed then)."""
+    made = made_and_checked(run_id, traced.keep, changes, config, options, traced.probe)
+    if not traced.running:
+        return made
+    later = time.monotonic() - traced.later
+    try:
+        keep, _ = traced.finish()
+    except BaseException:
+        remove_image(made[0])
+        raise
+    if not keep - traced.keep:
+        return made
+    print(later_report(later, keep - traced.keep), flush=True)
+    remove_image(made[0])
+    return made_and_checked(run_id, keep, changes, config, options, traced.probe)
+
+
 @dataclass(frozen=True)
 class SlimResult:
     ref: str
@@ -715,7 +735,7 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         print(f"slim: {slim_ref} is up to date (made from {run_ref}, {run['Id'][7:19]})")
         return SlimResult(slim_ref, platform, time.monotonic() - began, True)
     print(f"==> docker-ros slim {run_ref} -> {slim_ref}", flush=True)
-    labels = {LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp}
+    changes = plan_changes(config, {LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp})
     traced_at = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="docker-ros-slim-") as tmp, \
             tracing(run["Id"], config, options, Path(tmp)) as traced:
@@ -729,20 +749,8 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         if figures.get("overflow"):
             print("docker-ros slim: warning: the trace lost events (queue overflow); the check "
                   "below decides", flush=True)
-        slim_id, kept, total, made_seconds, check_seconds, diffs = made_and_checked(
-            run["Id"], traced.keep, plan_changes(config, labels), config, options, reference)
-        if traced.running:
-            later = time.monotonic() - traced.later
-            try:
-                keep, _ = traced.finish()
-            except BaseException:
-                remove_image(slim_id)
-                raise
-            if keep - traced.keep:
-                print(later_report(later, keep - traced.keep), flush=True)
-                remove_image(slim_id)
-                slim_id, kept, total, made_seconds, check_seconds, diffs = made_and_checked(
-                    run["Id"], keep, plan_changes(config, labels), config, options, reference)
+        slim_id, kept, total, made_seconds, check_seconds, diffs = made_with_later_files(
+            run["Id"], traced, changes, config, options)
     if diffs:
         remove_image(slim_id)
         stale = " (removed the stale " + slim_ref + ")" if existing else ""
