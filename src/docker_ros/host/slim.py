@@ -529,10 +529,13 @@ class Trace:
         self.running, self.later = True, time.monotonic()
 
     def finish(self) -> Tuple[Set[str], dict]:
-        """Stop the command (if it still runs) and the tracer: the final keep set, figures."""
+        """Stop the command (if it still runs) and the tracer: the final keep set, figures. A
+        tracer that ended on its own (its max_seconds, while a big image was made and checked;
+        an error) has written its results or its error: no kill, which would fail."""
         with engine_errors("stopping the trace container"):
             traced = container(self.name)
-            traced.kill(signal="SIGTERM")
+            if traced.attrs["State"]["Running"]:
+                traced.kill(signal="SIGTERM")
             traced.wait(timeout=300)
         self.running = False
         return self.results()
