@@ -491,7 +491,7 @@ class Trace:
         self.keep: Set[str] = set()
         self.figures: dict = {}
         self.running = False
-        self.later = 0.0  # when the window ended (monotonic): the trace went on from there
+        self.window_ended = 0.0  # (monotonic) the trace went on from there
 
     def results(self) -> Tuple[Set[str], dict]:
         """The tracer's keep set and figures, from its exchange folder."""
@@ -526,7 +526,7 @@ class Trace:
         if watch(poll, 300)[0] != "written":
             raise SlimError("the tracer wrote no keep set within 300 s")
         self.keep, self.figures = self.results()
-        self.running, self.later = True, time.monotonic()
+        self.running, self.window_ended = True, time.monotonic()
 
     def finish(self) -> Tuple[Set[str], dict]:
         """Stop the command (if it still runs) and the tracer: the final keep set, figures. A
@@ -683,7 +683,7 @@ def made_with_later_files(run_id: str, traced: Trace, changes: Sequence[str], co
     made = made_and_checked(run_id, traced.keep, changes, config, options, traced.probe)
     if not traced.running:
         return made
-    later = time.monotonic() - traced.later
+    went_on = time.monotonic() - traced.window_ended
     try:
         keep, _ = traced.finish()
     except BaseException:
@@ -691,7 +691,7 @@ def made_with_later_files(run_id: str, traced: Trace, changes: Sequence[str], co
         raise
     if not keep - traced.keep:
         return made
-    print(later_report(later, keep - traced.keep), flush=True)
+    print(later_report(went_on, keep - traced.keep), flush=True)
     remove_image(made[0])
     return made_and_checked(run_id, keep, changes, config, options, traced.probe)
 
