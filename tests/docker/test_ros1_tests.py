@@ -43,7 +43,7 @@ def test_rostest_and_gtest_failures_are_counted_and_named(project: Path, tmp_pat
     verdict = [line for line in result.stdout.splitlines() if line.startswith(first)]
     assert verdict and verdict[0].startswith(  # gtest's failure message: its file and line
         first + " (demo_nodes/test/utils_test.cpp:3), demo_nodes: GreetingTest.test_add_two "
-        "(amd64)"), result.stdout[-3000:]
+        "(5 != 6) (amd64)"), result.stdout[-3000:]
     reports = results / "junit" / "demo_nodes" / "test_results" / "demo_nodes"
     assert sorted(p.name for p in reports.iterdir()) == [
         "gtest-utils_test.xml", "rostest-test_demo.xml", "rosunit-greeting_test.xml"]

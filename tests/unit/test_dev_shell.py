@@ -263,6 +263,11 @@ def test_a_colcon_defaults_file_of_the_users_keeps_the_blacklist(tmp_path):
     assert warning.startswith("docker-ros dev-shell: warning: COLCON_DEFAULTS_FILE=/etc/colcon"
                               ".yaml (--env) is no colcon defaults file of the repository")
     assert "builds the blacklisted packages bad_a, bad_b" in warning
+    # a file of the repository that is no text: as one docker-ros cannot read (it stopped
+    # dev-shell with UnboundLocalError)
+    (repo / "config" / "colcon.bin").write_bytes(b"\xff\xfe\x00")
+    shell, warning = plan((f"COLCON_DEFAULTS_FILE={devshell.TARGET}/config/colcon.bin",))
+    assert warning.startswith("docker-ros dev-shell: warning: ") and len(shell.env) == 1
     # nothing of the user's: ours alone, as before
     shell, warning = plan(())
     assert warning == "" and shell.colcon_defaults == str(tmp_path / "ours.yaml")

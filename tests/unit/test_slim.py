@@ -8,6 +8,7 @@ import json
 import os
 import signal
 import tarfile
+import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, List, Optional, Set, Tuple
 
@@ -566,8 +567,11 @@ def test_files_the_command_opens_after_the_window_are_kept(monkeypatch, capsys, 
 
     calls = slimmed_on(monkeypatch, {"reg/x:v1": {"Id": "sha256:run", "Config": {"Cmd": ["x"]}}},
                        export)
+    stamp = slim.fingerprint
+    monkeypatch.setattr(slim, "fingerprint", lambda *a: (time.sleep(0.3), stamp(*a))[1])
     slim.slim_image(settings, slim.host_platform())
     out = capsys.readouterr().out
+    assert "slim: trace 0.0 s" in out  # the trace's own time, not also what came before it
     if len(later) == 1:
         assert made == [["/bin/sh"]] and "after the window" not in out
         assert calls == [("tag", "sha256:slim1", "reg/x:v1-slim")]
@@ -607,3 +611,34 @@ def test_only_ignored_options_of_the_users_are_told(monkeypatch, capsys) -> None
         lines = [line for line in capsys.readouterr().out.splitlines() if "ignoring" in line]
         assert lines == ([f"docker-ros slim: ignoring options that do not apply here: {told}"]
                          if told else [])
+
+
+def test_a_tracer_that_ended_on_its_own_gives_its_results(monkeypatch, tmp_path) -> None:
+    """The trace goes on while the slim image is made and checked; a tracer that stopped by
+    then (its max_seconds bound, or an error it wrote) was killed anyway, and the engine's
+    `container ... is not running` became the slim's error instead of the tracer's results."""
+    import docker.errors
+
+    exchange = io.BytesIO()
+    with tarfile.open(fileobj=exchange, mode="w") as tar:
+        for name, text in (("keep.txt", "/bin/sh\n"), ("done", '{"kept": 1}')):
+            info = tarfile.TarInfo(f"docker-ros-slim/{name}")
+            info.size = len(text)
+            tar.addfile(info, io.BytesIO(text.encode()))
+
+    class Stopped:
+        attrs = {"State": {"Running": False, "ExitCode": 0}}
+
+        def kill(self, signal: str) -> None:
+            raise docker.errors.APIError("409 Client Error: container is not running")
+
+        def wait(self, timeout: int) -> dict:
+            return {"StatusCode": 0}
+
+        def get_archive(self, path: str) -> Tuple[List[bytes], dict]:
+            return [exchange.getvalue()], {}
+
+    monkeypatch.setattr(slim, "container", lambda name: Stopped())
+    traced = slim.Trace("docker-ros-slim-trace-x", tmp_path)
+    traced.running = True
+    assert traced.finish() == ({"/bin/sh"}, {"kept": 1}) and not traced.running

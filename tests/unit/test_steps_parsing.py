@@ -1,6 +1,7 @@
 """Pure decisions of the steps: list files, rosdep output, pip argv, .repos, vcs/colcon output."""
 
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -561,6 +562,22 @@ def test_colcon_failure_names_the_packages_and_their_first_errors():
     assert colcon.error_lines(COLCON_FAILURE, ["base_pkg"]) == []
     assert colcon.failure_message(ws, ["Summary: 0 packages finished"], 1) == (
         "colcon build failed (exit code 1); see the output above")
+
+
+def test_a_library_the_linker_cannot_find_is_named(tmp_path: Path):
+    """GNU ld says `cannot find -lfoo` without `error:`; the one-line error quoted only
+    collect2's `error: ld returned 1 exit status`, not which library is missing. Real gcc."""
+    gcc = shutil.which("gcc")
+    if not gcc:
+        pytest.skip("no gcc")
+    (tmp_path / "main.c").write_text("int main(void) { return 0; }\n")
+    linked = subprocess.run([gcc, "main.c", "-lno_such_lib_here", "-o", "main"], cwd=tmp_path,
+                            capture_output=True, text=True)
+    assert linked.returncode != 0
+    lines = ["--- output: app_pkg", *linked.stderr.splitlines(), "---",
+             "Failed   <<< app_pkg [1.0s, exited with code 2]"]
+    message = colcon.failure_message(Workspace("/docker-ros/ws"), lines, 2)
+    assert "cannot find -lno_such_lib_here" in message, message
 
 
 # --- common ---

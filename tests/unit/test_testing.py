@@ -88,11 +88,13 @@ def test_a_rostest_counts_its_test_cases_not_its_wrapper(tmp_path: Path):
     (results / "gtest-utils_test.xml").write_text(CATKIN_GTEST_XML)
     assert testing.summarize(tmp_path / "junit") == Counts(2, 2, 0)
     assert testing.failed_cases(tmp_path / "junit") == [
-        "demo_nodes: Utils.Multiplies (utils_test.cpp:3)", "demo_nodes: GreetingTest.test_add_two"]
+        "demo_nodes: Utils.Multiplies (utils_test.cpp:3)",
+        "demo_nodes: GreetingTest.test_add_two (5 != 6)"]  # rosunit's message: the text
     assert testing.parse_junit(ROSTEST_NO_RESULTS_XML) == Counts(0, 1, 0)
     (results / "rostest-test_demo.xml").write_text(ROSTEST_NO_RESULTS_XML)
     (results / "rosunit-greeting_test.xml").unlink()
-    assert "demo_nodes: rostest greeting_test" in testing.failed_cases(tmp_path / "junit")
+    assert ("demo_nodes: rostest greeting_test (test [greeting_test] did not generate test "
+            "results)") in testing.failed_cases(tmp_path / "junit")
 
 
 def test_the_verdict_names_the_failed_tests():

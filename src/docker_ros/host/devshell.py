@@ -291,9 +291,10 @@ def read_defaults(path: Path) -> Optional[Dict[str, Any]]:
     one."""
     try:
         text = path.read_text()
-        data = json.loads(text)
-    except OSError:
+    except (OSError, UnicodeDecodeError):  # (not a text file: no defaults file either)
         return None
+    try:
+        data = json.loads(text)
     except ValueError:
         try:
             import yaml  # colcon's own dependency (the host extra), not docker-ros's
@@ -316,30 +317,35 @@ def shell_colcon_defaults(names: Sequence[str], options: ShellOptions, repositor
     blacklisted packages."""
     if not names:
         return options, ""
+    ours = replace(options, colcon_defaults=write_colcon_defaults(names, destination))
     given = given_defaults_file(options.env, environ)
-    user: Optional[Dict[str, Any]] = {}
-    if given:
-        binds = [(str(repository), TARGET)]
-        for volume in options.volumes:
-            host, _, rest = host_path(volume, cwd).partition(":")
-            if host.startswith("/"):
-                binds.append((host, rest.split(":")[0]))
-        source = host_file(given, binds)
-        user = read_defaults(source) if source else None
+    if not given:
+        return ours, ""
+    source = host_file(given, shell_binds(options, repository, cwd))
+    user = read_defaults(source) if source else None
     if user is None:
-        return (replace(options, colcon_defaults=write_colcon_defaults(names, destination)),
+        return (ours,
                 f"docker-ros dev-shell: warning: COLCON_DEFAULTS_FILE={given} (--env) is no "
                 "colcon defaults file of the repository or a --volume that docker-ros can read,"
                 " so colcon in the shell uses it alone and builds the blacklisted packages "
                 f"{', '.join(names)} (add them to its packages-ignore)")
-    if not given:
-        return replace(options, colcon_defaults=write_colcon_defaults(names, destination)), ""
     env = [e for e in options.env if e.partition("=")[0] != "COLCON_DEFAULTS_FILE"]
     return (replace(options, env=env,
                     colcon_defaults=write_colcon_defaults(names, destination, user)),
             f"docker-ros dev-shell: COLCON_DEFAULTS_FILE={given} (--env) is merged into the "
             "shell's colcon defaults, which also ignore the blacklisted packages "
             f"{', '.join(names)}")
+
+
+def shell_binds(options: ShellOptions, repository: Path, cwd: Path) -> List[Tuple[str, str]]:
+    """(host path, container path) of the repository and of each --volume of a host folder
+    (not of a named volume) in the shell."""
+    binds = [(str(repository), TARGET)]
+    for volume in options.volumes:
+        host, _, rest = host_path(volume, cwd).partition(":")
+        if host.startswith("/"):
+            binds.append((host, rest.split(":")[0]))
+    return binds
 
 
 def write_cookie(display: str, environ: Mapping[str, str], destination: Path) -> str:

@@ -491,7 +491,7 @@ class Trace:
         self.keep: Set[str] = set()
         self.figures: dict = {}
         self.running = False
-        self.later = 0.0  # when the window ended (monotonic): the trace went on from there
+        self.window_ended = 0.0  # (monotonic) the trace went on from there
 
     def results(self) -> Tuple[Set[str], dict]:
         """The tracer's keep set and figures, from its exchange folder."""
@@ -526,13 +526,16 @@ class Trace:
         if watch(poll, 300)[0] != "written":
             raise SlimError("the tracer wrote no keep set within 300 s")
         self.keep, self.figures = self.results()
-        self.running, self.later = True, time.monotonic()
+        self.running, self.window_ended = True, time.monotonic()
 
     def finish(self) -> Tuple[Set[str], dict]:
-        """Stop the command (if it still runs) and the tracer: the final keep set, figures."""
+        """Stop the command (if it still runs) and the tracer: the final keep set, figures. A
+        tracer that ended on its own (its max_seconds, while a big image was made and checked;
+        an error) has written its results or its error: no kill, which would fail."""
         with engine_errors("stopping the trace container"):
             traced = container(self.name)
-            traced.kill(signal="SIGTERM")
+            if traced.attrs["State"]["Running"]:
+                traced.kill(signal="SIGTERM")
             traced.wait(timeout=300)
         self.running = False
         return self.results()
@@ -673,6 +676,26 @@ def made_and_checked(run_id: str, keep: Set[str], changes: Sequence[str], config
     return slim_id, kept, total, checked_at - made_at, time.monotonic() - checked_at, diffs
 
 
+def made_with_later_files(run_id: str, traced: Trace, changes: Sequence[str], config: Mapping,
+                          options: SlimOptions) -> Tuple[str, int, int, float, float, List[str]]:
+    """made_and_checked from the window's keep set; made again with the files a command still
+    running opened meanwhile, if it opened any (the first image is removed then)."""
+    made = made_and_checked(run_id, traced.keep, changes, config, options, traced.probe)
+    if not traced.running:
+        return made
+    went_on = time.monotonic() - traced.window_ended
+    try:
+        keep, _ = traced.finish()
+    except BaseException:
+        remove_image(made[0])
+        raise
+    if not keep - traced.keep:
+        return made
+    print(later_report(went_on, keep - traced.keep), flush=True)
+    remove_image(made[0])
+    return made_and_checked(run_id, keep, changes, config, options, traced.probe)
+
+
 @dataclass(frozen=True)
 class SlimResult:
     ref: str
@@ -715,11 +738,13 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         print(f"slim: {slim_ref} is up to date (made from {run_ref}, {run['Id'][7:19]})")
         return SlimResult(slim_ref, platform, time.monotonic() - began, True)
     print(f"==> docker-ros slim {run_ref} -> {slim_ref}", flush=True)
-    labels = {LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp}
+    changes = plan_changes(config, {LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp})
+    traced_at = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="docker-ros-slim-") as tmp, \
             tracing(run["Id"], config, options, Path(tmp)) as traced:
         reference, figures = traced.probe, traced.figures
-        print(trace_report(time.monotonic() - began, reference, figures, options), flush=True)
+        print(trace_report(time.monotonic() - traced_at, reference, figures, options),
+              flush=True)
         if figures.get("missing"):
             raise SlimError(f"{run_ref} has no " + ", ".join(figures["missing"])
                             + ": fix or remove the option in SLIM_BUILD_ARGS or "
@@ -727,20 +752,8 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         if figures.get("overflow"):
             print("docker-ros slim: warning: the trace lost events (queue overflow); the check "
                   "below decides", flush=True)
-        slim_id, kept, total, made_seconds, check_seconds, diffs = made_and_checked(
-            run["Id"], traced.keep, plan_changes(config, labels), config, options, reference)
-        if traced.running:
-            later = time.monotonic() - traced.later
-            try:
-                keep, _ = traced.finish()
-            except BaseException:
-                remove_image(slim_id)
-                raise
-            if keep - traced.keep:
-                print(later_report(later, keep - traced.keep), flush=True)
-                remove_image(slim_id)
-                slim_id, kept, total, made_seconds, check_seconds, diffs = made_and_checked(
-                    run["Id"], keep, plan_changes(config, labels), config, options, reference)
+        slim_id, kept, total, made_seconds, check_seconds, diffs = made_with_later_files(
+            run["Id"], traced, changes, config, options)
     if diffs:
         remove_image(slim_id)
         stale = " (removed the stale " + slim_ref + ")" if existing else ""

@@ -57,8 +57,7 @@ def junit_cases(text: str) -> Optional[List[Tuple[str, str, str]]]:
         children = {child.tag for child in case}
         classname = case.get("classname", "")
         failures = [child for child in case if child.tag in ("failure", "error")]
-        message = (failures[0].get("message") or "").strip().split("\n")[0][:150] \
-            if failures else ""
+        message = failure_message(failures[0]) if failures else ""
         if failures:
             outcome = "failed"
         elif "skipped" in children or case.get("status") in ("notrun", "disabled"):
@@ -69,6 +68,14 @@ def junit_cases(text: str) -> Optional[List[Tuple[str, str, str]]]:
             outcome = "passed"
         cases.append((case_name(classname, case.get("name", "")), outcome, message))
     return cases
+
+
+def failure_message(failure: ElementTree.Element) -> str:
+    """The first line of a <failure>/<error>'s message: its message attribute (gtest, pytest),
+    else its text (rosunit and rostest write none: `<failure type="AssertionError">5 != 6`)."""
+    text = failure.get("message") or failure.text or ""
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    return lines[0][:150] if lines else ""
 
 
 def case_name(classname: str, name: str) -> str:

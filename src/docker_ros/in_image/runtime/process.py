@@ -11,9 +11,10 @@ from typing import Any, Callable, List, Mapping, Optional, Sequence, Tuple
 from docker_ros.in_image.runtime.workspace import LOG, StepError, dry, format_argv
 
 # A line in which a compiler, the linker, make, CMake or Python says what is wrong (not make's
-# `*** [...] Error 2`, which only says that something was)
+# `*** [...] Error 2`, which only says that something was; GNU ld's `cannot find -lfoo` has no
+# `error:`, and collect2's `error: ld returned 1 exit status` after it does not name the library)
 ERROR_LINE = re.compile(r"(^|:\s?)(fatal )?[Ee]rror:\s|^CMake Error|undefined reference to|"
-                        r"No rule to make target|^\S+Error: ")
+                        r"\bld: cannot find |No rule to make target|^\S+Error: ")
 
 
 def run(

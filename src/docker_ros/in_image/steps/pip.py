@@ -196,7 +196,7 @@ def pip_reason(lines: Sequence[str]) -> str:
         cause = text[-1]
     output = build_output(text)
     named = [line for line in output if ERROR_LINE.search(line)]
-    shown = (named or output or [""])[0 if named else -1]
+    shown = named[0] if named else output[-1] if output else ""
     if shown and shown not in cause:
         cause += f"; the build's output says: {shown}"
     return cause
