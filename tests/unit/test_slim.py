@@ -642,3 +642,15 @@ def test_a_tracer_that_ended_on_its_own_gives_its_results(monkeypatch, tmp_path)
     traced = slim.Trace("docker-ros-slim-trace-x", tmp_path)
     traced.running = True
     assert traced.finish() == ({"/bin/sh"}, {"kept": 1}) and not traced.running
+
+
+def test_the_check_runs_in_a_ros_domain_apart_from_the_traced_run() -> None:
+    """The traced run image goes on while its slim image is checked: on one ROS 2 domain a
+    slim listener heard the traced talker, and a slim image whose talker was broken passed."""
+    options = parse_slim_args("--env A=1")
+    assert slim.apart({}, options).env == ("A=1", "ROS_DOMAIN_ID=1")
+    image = {"Env": ["PATH=/bin", "ROS_DOMAIN_ID=7"]}
+    assert slim.apart(image, options).env[-1] == "ROS_DOMAIN_ID=8"
+    assert slim.apart(image, parse_slim_args("--env ROS_DOMAIN_ID=101 --env B=2")).env == (
+        "B=2", "ROS_DOMAIN_ID=0")
+    assert slim.apart({"Env": ["ROS_DOMAIN_ID="]}, options).env[-1] == "ROS_DOMAIN_ID=1"

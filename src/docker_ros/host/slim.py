@@ -19,7 +19,7 @@ import shlex
 import tarfile
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import IO, Any, Callable, Dict, Iterator, List, Mapping, Optional, Sequence, Set, Tuple
 
@@ -641,9 +641,23 @@ def export_filtered(run_id: str, keep: Set[str], changes: Sequence[str]) -> Tupl
     return imported_id(str(answer)), kept, total
 
 
+def apart(config: Mapping, options: SlimOptions) -> SlimOptions:
+    """The options of the slim image's check: the traced run image's ROS_DOMAIN_ID (--env,
+    else the image's, else 0) plus one. The traced container goes on meanwhile, and ROS 2
+    discovery across the two would let a slim listener hear the traced talker and pass a slim
+    image whose talker is broken; ROS 1 (a roscore in each container) does not care."""
+    given = [e.split("=", 1)[1] for e in [*(config.get("Env") or []), *options.env]
+             if e.startswith("ROS_DOMAIN_ID=")]
+    traced = int(given[-1]) if given and given[-1].strip().isdigit() else 0
+    env = [e for e in options.env if not e.startswith("ROS_DOMAIN_ID=")]
+    return replace(options, env=(*env, f"ROS_DOMAIN_ID={(traced + 1) % 102}"))
+
+
 def check(slim_id: str, config: Mapping, options: SlimOptions, reference: Probe) -> Probe:
-    """Run the slim image as the run image was run (same command, env and window)."""
+    """Run the slim image as the run image was run (same command, env and window, in a ROS 2
+    domain of its own: apart)."""
     name = f"docker-ros-slim-check-{os.getpid()}-{int(time.time() * 1000)}"
+    options = apart(config, options)
     try:
         with engine_errors("starting the slim image"), signals_held():
             client().containers.run(slim_id, detach=True, name=name,
