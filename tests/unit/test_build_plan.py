@@ -112,6 +112,19 @@ def test_colcons_package_lines_are_not_folded():
     build.stream_build(iter(lines), out, {"GITHUB_ACTIONS": "true"})
     groups = [line for line in out.getvalue().splitlines() if line.startswith("::")]
     assert groups == ["::group::colcon", "::endgroup::"]
+    # a package named like one of our steps (`files`) is still colcon's, and the steps of
+    # another build step running beside it (bake's other target, `#12`) are folded
+    lines = ["#9 0.1 Starting >>> colcon\n", "#12 0.1 Starting >>> rosdep\n",
+             "#9 0.2 Starting >>> files\n", "#9 0.3 Finished <<< files [0.1s]\n",
+             "#9 0.4 Starting >>> pkg\n", "#12 0.5 Finished <<< rosdep [0.4s]\n",
+             "#9 0.6 Finished <<< pkg [0.2s]\n", "#9 0.7 Finished <<< colcon [0.6s]\n"]
+    out = io.StringIO()
+    build.stream_build(iter(lines), out, {"GITHUB_ACTIONS": "true"})
+    folded = [line for line in out.getvalue().splitlines()]
+    assert folded.index("::group::colcon") < folded.index("#9 0.2 Starting >>> files")
+    assert [line for line in folded if line.startswith("::")] == [
+        "::group::colcon", "::group::rosdep", "::endgroup::", "::endgroup::"]
+    assert folded[-1] == "::endgroup::" and folded[-2] == "#9 0.7 Finished <<< colcon [0.6s]"
 
 
 def test_step_errors_are_collected_from_the_log():

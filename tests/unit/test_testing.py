@@ -343,3 +343,10 @@ def test_repositories_of_the_same_folder_name_keep_their_own_results(
             f"src/target points to {tmp_path / 'a' / 'robot'}, not to "
             f"{tmp_path / 'b' / 'robot'}; set WORKSPACE to another folder")):
         test_in(tmp_path / "b" / "robot", WORKSPACE=str(cache / "robot"))
+
+
+def test_a_test_case_without_a_name_is_named_as_such(tmp_path: Path):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "r.xml").write_text(
+        '<testsuite><testcase><failure message="boom"/></testcase></testsuite>')
+    assert testing.failed_cases(tmp_path) == ["pkg: (a test case without a name) (boom)"]

@@ -536,14 +536,20 @@ def stream_build(lines: Iterator[str], out: IO[str], environ: Mapping[str, str])
     """Copy the build log to out, each docker-ros step folded; return the step error lines."""
     start, end = fold_markers(environ)
     errors: List[str] = []
+    opened: Dict[str, str] = {}  # build step (`#N`) -> our step running in it
     for line in lines:
+        vertex = line.split(" ", 1)[0] if line.startswith("#") else ""
         begun = STEP_START.search(line)
-        if begun and start:
-            out.write(fold(start, begun.group(1)) + "\n")
+        if begun and vertex not in opened:  # (in our step: colcon's package of that name)
+            opened[vertex] = begun.group(1)
+            if start:
+                out.write(fold(start, begun.group(1)) + "\n")
         out.write(line)
         ended = STEP_END.search(line)
-        if ended and end:
-            out.write(fold(end, ended.group(2)) + "\n")
+        if ended and opened.get(vertex) == ended.group(2):
+            del opened[vertex]
+            if end:
+                out.write(fold(end, ended.group(2)) + "\n")
         failed = STEP_ERROR.search(line)
         if failed and "docker-ros" in line:
             errors.append(f"{failed.group(1)}: {failed.group(2).strip()}")

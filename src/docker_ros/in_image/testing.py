@@ -85,7 +85,7 @@ def case_name(classname: str, name: str) -> str:
         return "rostest " + (name[len("test"):] if name.startswith("test") else name)
     if classname.startswith("__main__."):
         classname = classname[len("__main__."):]
-    return f"{classname}.{name}" if classname else name
+    return f"{classname}.{name}" if classname else name or "(a test case without a name)"
 
 
 def parse_junit(text: str) -> Optional[Counts]:
