@@ -268,6 +268,9 @@ def test_base_image_that_does_not_exist(tmp_path: Path) -> None:
     [
         ("custom", "custom", ["docker/custom.sh", "exit code 3"]),
         ("rosdep", "rosdep", ["no_such_rosdep_key", "needs_missing"]),
+        # a rule of the repository's resolving to a package apt does not have: the key named
+        ("rosdep-rule", "rosdep", ["apt has no package no-such-deb-of-a-rule (rosdep key "
+                                   "my_sdk of needs_sdk)"]),
         # the compiler's error line itself, with the file as the repository has it
         ("colcon", "colcon", ["package broken_pkg failed to build (exit code 2): "
                               "broken_pkg/src/main.cpp:1:", ": error: "]),
@@ -288,6 +291,11 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
         (tmp_path / "docker" / "custom.sh").write_text("echo failing on purpose\nexit 3\n")
     elif case == "rosdep":
         cmake_package(tmp_path, "needs_missing", depends=("no_such_rosdep_key",))
+    elif case == "rosdep-rule":
+        cmake_package(tmp_path, "needs_sdk", depends=("my_sdk",))
+        (tmp_path / "docker").mkdir()
+        (tmp_path / "docker" / "rosdep.yaml").write_text(
+            "my_sdk:\n  debian: [no-such-deb-of-a-rule]\n  ubuntu: [no-such-deb-of-a-rule]\n")
     elif case == "debs":
         cmake_package(tmp_path, "pkg")
         (tmp_path / "docker").mkdir()

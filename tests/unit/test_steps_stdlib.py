@@ -219,3 +219,22 @@ def test_apt_reason_says_the_lists_could_not_be_downloaded() -> None:
         "http://deb.debian.org/debian/dists/trixie/InRelease (Temporary failure resolving "
         "'deb.debian.org'): check that apt source and the network (BUILD_NETWORK, a proxy), or "
         "the package's name")
+
+
+def test_an_apt_package_of_a_rosdep_key_apt_does_not_have_names_the_key() -> None:
+    """A rosdep rule resolving to a package the base's apt sources lack named only the apt
+    package: the key and the package.xml files needing it are named too."""
+    from docker_ros.in_image.runtime.apt import apt_reason
+    from docker_ros.in_image.steps.rosdep import apt_origins
+
+    origins = apt_origins({"my_sdk": ["driver", "viewer"], "yaml-cpp": ["driver"]},
+                          {"my_sdk": {"apt": ["libmy-sdk-dev"]},
+                           "yaml-cpp": {"apt": ["libyaml-cpp-dev"]}})
+    assert origins == {"libmy-sdk-dev": "rosdep key my_sdk of driver, viewer",
+                       "libyaml-cpp-dev": "rosdep key yaml-cpp of driver"}
+    lines = ["E: Unable to locate package libmy-sdk-dev",
+             "E: Version '1.2' for 'libyaml-cpp-dev' was not found"]
+    assert apt_reason(lines, (), origins) == (
+        "; apt has no package libmy-sdk-dev (rosdep key my_sdk of driver, viewer), "
+        "libyaml-cpp-dev=1.2 (rosdep key yaml-cpp of driver) (check the rosdep rule, and the "
+        "apt sources of the base image)")

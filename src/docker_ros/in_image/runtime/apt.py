@@ -5,7 +5,7 @@ import glob
 import os
 import re
 from pathlib import Path
-from typing import Dict, List, Sequence
+from typing import Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.in_image.runtime.process import hook_context, is_root, run, run_tee
 from docker_ros.in_image.runtime.workspace import LOG, StepError, format_argv
@@ -49,8 +49,10 @@ def install_options(context: str) -> List[str]:
     return options
 
 
-def apt_install(packages: Sequence[str], *, step: str, dry_run: bool, what: str = "") -> None:
-    """apt-get install, updating the lists when absent or stale."""
+def apt_install(packages: Sequence[str], *, step: str, dry_run: bool, what: str = "",
+                origins: Optional[Mapping[str, str]] = None) -> None:
+    """apt-get install, updating the lists when absent or stale (origins: where a package
+    comes from, for the error naming one apt does not have, e.g. its rosdep key)."""
     if not packages:
         LOG.info("%s: no apt packages to install", step)
         return
@@ -73,7 +75,7 @@ def apt_install(packages: Sequence[str], *, step: str, dry_run: bool, what: str 
         code, lines = run_tee(install, step=step, env=apt_env())
     if code != 0:
         raise StepError(step, f"{what + ' ' if what else ''}failed with exit code {code}: "
-                        f"{format_argv(install)}{apt_reason(lines, updated)}", code)
+                        f"{format_argv(install)}{apt_reason(lines, updated, origins)}", code)
 
 
 def apt_update(update: Sequence[str], *, step: str, what: str) -> List[str]:
@@ -96,21 +98,26 @@ def unreachable(lines: Sequence[str]) -> List[str]:
     return list(dict.fromkeys(found))
 
 
-def apt_reason(lines: Sequence[str], update_lines: Sequence[str] = ()) -> str:
-    """apt's own reason, for the one-line error: the packages it cannot find (and the sources
-    `apt-get update` could not reach, which may have them), else its first `Failed to fetch`
-    line (a download that failed; its last line only says to run `apt-get update`), else its
-    last `E:` line ('' when it gave none)."""
+def apt_reason(lines: Sequence[str], update_lines: Sequence[str] = (),
+               origins: Optional[Mapping[str, str]] = None) -> str:
+    """apt's own reason, for the one-line error: the packages it cannot find, each with its
+    origin (origins: package name -> where it comes from), and the sources `apt-get update`
+    could not reach, which may have them; else its first `Failed to fetch` line (a download
+    that failed; its last line only says to run `apt-get update`), else its last `E:` line
+    ('' when it gave none)."""
     found = [m.groups() for m in map(MISSING.search, lines) if m]
     missing = [name or candidate or f"{package}={version}"
                for name, candidate, version, package in found]
+    missing = [f"{name} ({(origins or {})[name.split('=')[0]]})"
+               if name.split("=")[0] in (origins or {}) else name for name in missing]
     failed = unreachable(update_lines)
     if missing and failed:
         return (f"; apt has no package {', '.join(dict.fromkeys(missing))}, and `apt-get "
                 f"update` could not reach {'; '.join(failed[:3])}: check that apt source and "
                 "the network (BUILD_NETWORK, a proxy), or the package's name")
     if missing:
-        return (f"; apt has no package {', '.join(dict.fromkeys(missing))} (check the name, "
+        name = "the rosdep rule" if any("(rosdep key " in m for m in missing) else "the name"
+        return (f"; apt has no package {', '.join(dict.fromkeys(missing))} (check {name}, "
                 "and the apt sources of the base image)")
     fetch = [line[3:].strip() for line in lines
              if line.startswith("E: ") and FETCH_FAILED.search(line)]

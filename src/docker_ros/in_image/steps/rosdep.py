@@ -6,6 +6,7 @@ installed, so the result only depends on the sources, the rosdep database and th
 
 import contextlib
 import hashlib
+import json
 import logging
 import os
 import re
@@ -47,6 +48,7 @@ from docker_ros.in_image.steps.pip import pip_install
 
 STEP = "rosdep"
 STATE_FILE = "rosdep.json"
+ORIGINS_FILE = "rosdep-origins.json"  # apt package -> its rosdep key and the packages needing it
 INSTALLERS = ("apt", "pip")
 SYSTEM_SOURCES = Path("/etc/ros/rosdep/sources.list.d")
 LOG = logging.getLogger(__name__)
@@ -162,6 +164,16 @@ def plan_rosdep(
                 sets.setdefault(installer, set()).update(packages)
         plan[types] = {installer: sorted(pkgs) for installer, pkgs in sorted(sets.items())}
     return plan
+
+
+def apt_origins(selected: Mapping[str, Sequence[str]], resolved: Resolution) -> Dict[str, str]:
+    """Where each apt package of the resolution comes from (selected: key -> the packages
+    needing it), for the error naming one apt does not have: `rosdep key K of pkg_a`."""
+    origins: Dict[str, List[str]] = {}
+    for key, users in sorted(selected.items()):
+        for package in resolved.get(key, {}).get("apt", ()):
+            origins.setdefault(package, []).append(f"{key} of {', '.join(users)}")
+    return {package: "rosdep key " + "; ".join(keys) for package, keys in origins.items()}
 
 
 def unsupported_installers(
@@ -397,15 +409,18 @@ def collect(
             + ", ".join(bad),
         )
     ws.save_plan(STEP, STATE_FILE, plan, dry_run=dry_run)
+    ws.save_plan(STEP, ORIGINS_FILE, apt_origins(all_keys, resolved), dry_run=dry_run)
     return plan
 
 
-def apply(plan: Mapping[str, Any], dependency_types: str, *, dry_run: bool) -> None:
+def apply(plan: Mapping[str, Any], dependency_types: str, *, dry_run: bool,
+          origins: Optional[Mapping[str, str]] = None) -> None:
     chosen = plan.get(dependency_types)
     if not isinstance(chosen, dict):
         raise StepError(STEP, f"{STATE_FILE} has no {dependency_types!r} set: re-run collect")
     what = f"installing rosdep dependencies ({dependency_types})"
-    apt_install(list(chosen.get("apt") or []), step=STEP, dry_run=dry_run, what=what)
+    apt_install(list(chosen.get("apt") or []), step=STEP, dry_run=dry_run, what=what,
+                origins=origins)
     pip_install(list(chosen.get("pip") or []), step=STEP, dry_run=dry_run, what=what)
 
 
@@ -434,4 +449,6 @@ def main(
                 return
             plan = locked_rosdep_plan(ws, settings, plan, dependency_types, STEP,
                                       dry_run=dry_run)
-            apply(plan, dependency_types, dry_run=dry_run)
+            origins = ws.state / ORIGINS_FILE
+            apply(plan, dependency_types, dry_run=dry_run,
+                  origins=json.loads(origins.read_text()) if origins.is_file() else None)
