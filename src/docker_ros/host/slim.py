@@ -810,10 +810,10 @@ def later_report(seconds: float, added: Set[str]) -> str:
     """What COMMAND opened after the window, while the slim image was made and checked."""
     files = sorted(added)
     example = ", ".join(files[:3]) + (", ..." if len(files) > 3 else "")
+    more = f"{len(files)} more file{'s' if len(files) > 1 else ''}"
     return (f"slim: COMMAND went on for {seconds:.1f} s after the window (while the slim image "
-            f"was made and checked) and used {len(files)} more file{'s' if len(files) > 1 else ''} "
-            f"({example}): made and "
-            "checked again with them")
+            f"was made and checked) and used {more} ({example}): made and checked again with "
+            "them")
 
 
 def check_report(seconds: float, reference: Probe, options: SlimOptions) -> str:

@@ -588,16 +588,20 @@ def main(argv: List[str]) -> int:
         with open(out + "/spec.json") as handle:
             spec = json.load(handle)
         began = time.monotonic()
+        missing: List[List[str]] = []  # (the image's files do not change: looked up once)
 
         def results(paths: Set[str], library_path: List[str], overflow: bool) -> None:
             traced_seconds = time.monotonic() - began
             keep = keep_set(spec, paths, library_path)
             keep_seconds = time.monotonic() - began - traced_seconds
+            if not missing:
+                missing.append(missing_requests(spec))
             write(out + "/keep.txt", "".join(p + "\n" for p in sorted(keep)))
             write(out + "/done", json.dumps({
                 "traced": len(paths), "kept": len(keep), "overflow": overflow,
                 "library_path": library_path, "trace_seconds": round(traced_seconds, 1),
-                "keep_seconds": round(keep_seconds, 1), "missing": missing_requests(spec),
+                "keep_seconds": round(keep_seconds, 1),
+                "missing": missing[0],
             }))
 
         def snapshot(paths: Set[str], library_path: List[str], overflow: bool) -> None:

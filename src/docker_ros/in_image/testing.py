@@ -14,7 +14,7 @@ import shutil
 import sys
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
-from typing import Dict, Iterator, List, NamedTuple, Optional, Sequence, Tuple
+from typing import Dict, Iterable, Iterator, List, NamedTuple, Optional, Sequence, Tuple
 
 LOG = logging.getLogger(__name__)
 STEP = "test"
@@ -23,7 +23,6 @@ OUTCOME = "outcome.json"
 JUNIT = "junit"
 TEST_RESULT_LOG = "test-result.txt"
 BUILD_ERROR = "colcon-build-error.txt"  # the colcon step's one-line error, when the build failed
-SEE_ABOVE = "; see the output above"
 CASES_SHOWN = 5  # failed test cases named in the verdict (all of them are in the JUnit XML)
 
 
@@ -92,27 +91,29 @@ def parse_junit(text: str) -> Optional[Counts]:
     """Count the test cases of a JUnit/xUnit XML document (failure or error: failed); None
     when the XML is not a JUnit report."""
     cases = junit_cases(text)
-    if cases is None:
-        return None
-    outcomes = [outcome for _, outcome, _ in cases]
-    return Counts(*(outcomes.count(kind) for kind in ("passed", "failed", "skipped")))
+    return None if cases is None else counted(outcome for _, outcome, _ in cases)
 
 
-def junit_files(root: Path) -> Iterator[Path]:
-    """The JUnit reports below root (colcon test-result's search, minus the non-reports)."""
+def counted(outcomes: Iterable[str]) -> Counts:
+    listed = list(outcomes)
+    return Counts(*(listed.count(kind) for kind in ("passed", "failed", "skipped")))
+
+
+def junit_reports(root: Path) -> Iterator[Tuple[Path, List[Tuple[str, str, str]]]]:
+    """The JUnit reports below root (colcon test-result's search, minus the non-reports), each
+    with its test cases (junit_cases)."""
     for dirpath, dirnames, filenames in os.walk(str(root)):
         dirnames.sort()
         for name in sorted(filenames):
             path = Path(dirpath, name)
-            if name.endswith(".xml") and parse_junit(path.read_text(errors="replace")) is not None:
-                yield path
+            cases = junit_cases(path.read_text(errors="replace")) if name.endswith(".xml") \
+                else None
+            if cases is not None:
+                yield path, cases
 
 
 def summarize(root: Path) -> Counts:
-    total = Counts()
-    for path in junit_files(root):
-        total = total.plus(parse_junit(path.read_text(errors="replace")) or Counts())
-    return total
+    return counted(outcome for _, cases in junit_reports(root) for _, outcome, _ in cases)
 
 
 def failed_cases(root: Path) -> List[str]:
@@ -122,10 +123,10 @@ def failed_cases(root: Path) -> List[str]:
     from docker_ros.in_image.runtime.workspace import DEFAULT_WORKSPACE
 
     found = []
-    for path in junit_files(root):
+    for path, cases in junit_reports(root):
         parts = path.relative_to(root).parts
         package = parts[0] if len(parts) > 1 else ""
-        for name, outcome, message in junit_cases(path.read_text(errors="replace")) or ():
+        for name, outcome, message in cases:
             if outcome != "failed":
                 continue
             if package and not name.startswith(package + "."):
@@ -143,6 +144,8 @@ def verdict(outcome: Dict[str, int], counts: Counts, cases: Sequence[str] = (),
             build_error: str = "") -> Optional[str]:
     """None when everything passed, else what failed (one line): the failed test cases
     (failed_cases) or the colcon step's error (BUILD_ERROR) named."""
+    from docker_ros.in_image.steps.colcon import SEE_ABOVE
+
     if outcome.get("colcon_build", 0) != 0:
         # (the task's message says it once at its end)
         cause = build_error[:-len(SEE_ABOVE)] if build_error.endswith(SEE_ABOVE) else build_error
@@ -172,7 +175,7 @@ DELETE_RESULTS_ARGV = ["colcon", "test-result", "--test-result-base", "build", "
 def copy_results(ws_root: Path, destination: Path, *, junit: bool = True) -> None:
     """JUnit reports from build/ (keeping their paths; junit=False: none, when no test ran,
     as build/ then holds an earlier run's) and the build and test logs."""
-    for path in junit_files(ws_root / "build") if junit else ():
+    for path, _ in junit_reports(ws_root / "build") if junit else ():
         target = destination / JUNIT / path.relative_to(ws_root / "build")
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(str(path), str(target))

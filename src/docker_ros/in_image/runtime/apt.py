@@ -108,16 +108,19 @@ def apt_reason(lines: Sequence[str], update_lines: Sequence[str] = (),
     found = [m.groups() for m in map(MISSING.search, lines) if m]
     missing = [name or candidate or f"{package}={version}"
                for name, candidate, version, package in found]
-    missing = [f"{name} ({(origins or {})[name.split('=')[0]]})"
-               if name.split("=")[0] in (origins or {}) else name for name in missing]
+    origins = origins or {}
+    traced = [name for name in missing if name.split("=")[0] in origins]  # (name=version)
+    missing = [f"{name} ({origins[name.split('=')[0]]})" if name in traced else name
+               for name in missing]
     failed = unreachable(update_lines)
     if missing and failed:
         return (f"; apt has no package {', '.join(dict.fromkeys(missing))}, and `apt-get "
                 f"update` could not reach {'; '.join(failed[:3])}: check that apt source and "
                 "the network (BUILD_NETWORK, a proxy), or the package's name")
     if missing:
-        name = "the rosdep rule" if any("(rosdep key " in m for m in missing) else "the name"
-        return (f"; apt has no package {', '.join(dict.fromkeys(missing))} (check {name}, "
+        # (origins come from the rosdep step: a rule of its key gave the name)
+        check = "the rosdep rule" if traced else "the name"
+        return (f"; apt has no package {', '.join(dict.fromkeys(missing))} (check {check}, "
                 "and the apt sources of the base image)")
     fetch = [line[3:].strip() for line in lines
              if line.startswith("E: ") and FETCH_FAILED.search(line)]

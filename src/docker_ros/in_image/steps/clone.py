@@ -85,8 +85,13 @@ def vcs_blocks(lines: Sequence[str], dest: Path, names: Sequence[str]) -> Dict[s
 def parse_vcs_failures(lines: Sequence[str], dest: Path, names: Sequence[str]) -> Dict[str, str]:
     """Repositories whose `=== path (type) ===` block in vcs output reports an error, with
     vcstool's reason (first error line)."""
+    return block_failures(vcs_blocks(lines, dest, names))
+
+
+def block_failures(blocks: Mapping[str, Sequence[str]]) -> Dict[str, str]:
+    """parse_vcs_failures of the blocks vcs_blocks found."""
     failures = {}
-    for name, text in vcs_blocks(lines, dest, names).items():
+    for name, text in blocks.items():
         bad = [line for line in text if _FAILURE.search(line)]
         if not bad:
             continue
@@ -355,8 +360,8 @@ def import_file(
     returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env=full_env)
     if returncode == 0:
         return
-    failures = parse_vcs_failures(lines, ws.upstream, names)
     blocks = vcs_blocks(lines, ws.upstream, names)
+    failures = block_failures(blocks)
     doomed = [n for n in names if n not in existed and (n in failures or not failures)]
     for name in doomed:
         remove_tree(ws.upstream / name, step=STEP, dry_run=False)

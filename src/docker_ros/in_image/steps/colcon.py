@@ -35,6 +35,7 @@ _OUTPUT_BLOCK = re.compile(r"^--- (?:output|stderr): (\S+)$")
 # CMake's words for a find_package() that found nothing
 _NOT_FOUND = re.compile(r"\(find_package\)|Could NOT find|Could not find a package configuration")
 ERRORS_SHOWN = 2  # error lines in the one-line message; the whole output is above it
+SEE_ABOVE = "; see the output above"  # the end of a failed build's message
 
 
 def cmake_arguments(cmake_args: str) -> List[str]:
@@ -286,7 +287,7 @@ def failure_message(ws: Workspace, lines: Sequence[str], returncode: int) -> str
         cause += ("; a dependency CMake cannot find is installed when the package.xml declares "
                   "it (<depend>, <build_depend>: rosdep installs it) or ADDITIONAL_DEBS_FILE "
                   "lists it")
-    return f"{what} (exit code {returncode}){cause}; see the output above"
+    return f"{what} (exit code {returncode}){cause}{SEE_ABOVE}"
 
 
 def restore_install(ws: Workspace, copy: Path) -> None:

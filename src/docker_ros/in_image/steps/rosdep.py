@@ -6,7 +6,6 @@ installed, so the result only depends on the sources, the rosdep database and th
 
 import contextlib
 import hashlib
-import json
 import logging
 import os
 import re
@@ -449,6 +448,6 @@ def main(
                 return
             plan = locked_rosdep_plan(ws, settings, plan, dependency_types, STEP,
                                       dry_run=dry_run)
-            origins = ws.state / ORIGINS_FILE
+            origins = ws.read_state(ORIGINS_FILE)
             apply(plan, dependency_types, dry_run=dry_run,
-                  origins=json.loads(origins.read_text()) if origins.is_file() else None)
+                  origins=origins if isinstance(origins, dict) else None)
