@@ -266,7 +266,8 @@ def test_base_image_that_does_not_exist(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     "case, step, needles",
     [
-        ("custom", "custom", ["docker/custom.sh", "exit code 3"]),
+        ("custom", "custom", ["docker/custom.sh", "exit code 3",
+                              "; it stopped at line 2: `sh -c 'exit 3'` (exit code 3)"]),
         ("rosdep", "rosdep", ["no_such_rosdep_key", "needs_missing"]),
         # a rule of the repository's resolving to a package apt does not have: the key named
         ("rosdep-rule", "rosdep", ["apt has no package no-such-deb-of-a-rule (rosdep key "
@@ -288,7 +289,8 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
     if case == "custom":
         cmake_package(tmp_path, "pkg")
         (tmp_path / "docker").mkdir()
-        (tmp_path / "docker" / "custom.sh").write_text("echo failing on purpose\nexit 3\n")
+        (tmp_path / "docker" / "custom.sh").write_text(
+            "echo failing on purpose\nsh -c 'exit 3'\necho not reached\n")
     elif case == "rosdep":
         cmake_package(tmp_path, "needs_missing", depends=("no_such_rosdep_key",))
     elif case == "rosdep-rule":

@@ -62,6 +62,34 @@ def test_custom_failure_names_original_script_and_exit_code(project):
     assert err.value.returncode == 42 and "exit code 42" in err.value.message
 
 
+def test_failure_names_the_line_and_command_that_stopped_the_script(project, tmp_path, environ):
+    """Under bash -e the error says which line stopped the hook, in the repository's file, also
+    for a failure in a function or in a file the hook sources; a script that runs on after a
+    failure (`set +e`) ends as before, and a user's own BASH_ENV is still read."""
+    def failure(text: str) -> str:
+        write(project.repo / "docker" / "custom.sh", text)
+        with pytest.raises(StepError) as err:
+            custom.main(project.ws, project.settings())
+        return err.value.message
+
+    message = failure('echo start\nx=$(false; echo hi)\nfalse || true\n'
+                      'grep -q "no such text" /etc/hostname\necho not reached\n')
+    assert "src/target/docker/custom.sh failed with exit code 1" in message
+    assert message.endswith('; it stopped at line 4: `grep -q "no such text" /etc/hostname` '
+                            "(exit code 1)"), message
+    message = failure("install() {\n  echo installing\n  ls /no/such/dir\n}\ninstall\n")
+    assert message.endswith("; it stopped at line 3: `ls /no/such/dir` (exit code 2)"), message
+    sourced = write(tmp_path / "common.sh", "echo common\n\ntest -d /no/such/dir\n")
+    assert failure(f"echo first\nsource {sourced}\n").endswith(
+        f"; it stopped at line 3 of {sourced}: `test -d /no/such/dir` (exit code 1)")
+    assert "stopped at" not in failure("set +e\nfalse\nexit 3\n")
+
+    own = write(tmp_path / "own-env.sh", "export FROM_USER_ENV=yes\n")
+    environ({"BASH_ENV": str(own)})
+    message = failure('test "$FROM_USER_ENV" = yes && false\n')
+    assert "exit code 1" in message and "stopped at" not in message
+
+
 def test_apply_runs_from_state_without_sources(project, tmp_path, environ):
     """The image's install stage: collect copied the hook; the sources are gone. It runs in
     the workspace root, docker-ros's WORKDIR (the state directory is not in the run image)."""

@@ -5,6 +5,7 @@ import os
 import re
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any, Callable, List, Mapping, Optional, Sequence, Tuple
 
@@ -126,19 +127,53 @@ def script_hint(content: bytes) -> str:
     return ""
 
 
+# Sourced by bash before a hook (BASH_ENV): when a command stops the script under `set -e`
+# (bash -e, or the script's own `set -e`), write its exit code, line, file and text to
+# $DOCKER_ROS_HOOK_FAILED. errtrace reports a command failing in a function at its own line; the
+# errexit check keeps a script that runs on after failures (`set +e`) from leaving a record.
+# Bash scripts run by the hook get no BASH_ENV, so no trap.
+FAILED_LINE_TRAP = """unset BASH_ENV
+set -o errtrace
+trap 'docker_ros_s=$?; case $- in *e*) printf "%s\\t%s\\t%s\\t%s" "$docker_ros_s" "$LINENO" \\
+  "${BASH_SOURCE[0]}" "$BASH_COMMAND" >"$DOCKER_ROS_HOOK_FAILED";; esac' ERR
+"""
+
+
+def failed_line(record: str, script: Path) -> str:
+    """'; it stopped at line N: `command` (exit code C)' from the trap's record ('' for none);
+    a line of a file the script sourced names that file."""
+    fields = record.split("\t", 3)
+    if len(fields) != 4 or not fields[1].isdigit():
+        return ""
+    status, line, source, command = fields
+    command = command.strip().splitlines()[0] if command.strip() else ""
+    if len(command) > 200:
+        command = command[:200] + "..."
+    where = "" if source in (str(script), "") else f" of {source}"
+    return f"; it stopped at line {line}{where}: `{command}` (exit code {status})"
+
+
 def run_script(
     argv: Sequence[str], script: Path, *, step: str, dry_run: bool, cwd: Path, what: str
 ) -> None:
     """Run a user hook (argv ends with the script) with DOCKER_ROS_CONTEXT=image|host set;
-    a failure we recognise says what to do."""
+    a failure names the line that stopped a bash script, and a cause we recognise says what
+    to do. A BASH_ENV of the user's is left alone (then no line is named)."""
     env = {**os.environ, "DOCKER_ROS_CONTEXT": hook_context()}
-    try:
-        run(argv, step=step, dry_run=dry_run, cwd=cwd, what=what, env=env)
-    except StepError as exc:
-        hint = script_hint(script.read_bytes()) if script.is_file() else ""
-        if not hint:
-            raise
-        raise StepError(step, exc.message + hint, exc.returncode) from None
+    with tempfile.TemporaryDirectory(prefix="docker-ros-hook-") as tmp:
+        record = Path(tmp) / "failed"
+        if "BASH_ENV" not in env:
+            (Path(tmp) / "trap.sh").write_text(FAILED_LINE_TRAP)
+            env.update(BASH_ENV=str(Path(tmp) / "trap.sh"), DOCKER_ROS_HOOK_FAILED=str(record))
+        try:
+            run(argv, step=step, dry_run=dry_run, cwd=cwd, what=what, env=env)
+        except StepError as exc:
+            line = failed_line(record.read_text(errors="replace"), script) \
+                if record.is_file() else ""
+            hint = script_hint(script.read_bytes()) if script.is_file() else ""
+            if not line and not hint:
+                raise
+            raise StepError(step, exc.message + line + hint, exc.returncode) from None
 
 
 def run_tee(
