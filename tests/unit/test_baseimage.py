@@ -30,6 +30,17 @@ def test_build_argv_passes_the_ca_bundle_as_a_secret_only() -> None:
     assert "--secret" not in without
 
 
+def test_build_argv_reaches_the_engine_and_network_it_is_given() -> None:
+    """`inv example` under a docker-context BUILDER bootstraps its base in that engine."""
+    spec = baseimage.FLAVORS["ros1"]
+    argv = baseimage.build_argv(spec, "t:1", "rootfs:x", "amd64", None, Path("/ctx"),
+                                ["docker", "--context", "e26"], "host")
+    assert argv[:5] == ["docker", "--context", "e26", "buildx", "build"]
+    assert argv[argv.index("--network") + 1] == "host"
+    assert "--network" not in baseimage.build_argv(spec, "t:1", "rootfs:x", "amd64", None,
+                                                   Path("/ctx"))
+
+
 def test_debs_are_one_build_arg() -> None:
     spec = baseimage.FLAVORS["ros2"]
     argv = baseimage.build_argv(spec, "t:1", "rootfs:x", "amd64", None, Path("/ctx"))

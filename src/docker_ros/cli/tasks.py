@@ -574,16 +574,22 @@ def example(c: Context, settings: Settings, *, seconds: int) -> None:
     given = {n: getattr(settings, n) for n in FIELDS if settings.source_of(n) == "flag"}
     settings = read_settings({}, {**given, "build_context": str(project)}, project_dir=project)
     assert settings.base_image
+    # the engine that keeps the images BUILDER builds (a docker context's own), base included
+    try:
+        cli = container.docker_cli(settings)
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
     # Made once with debootstrap, then reused while its recipe is unchanged.
-    baseimage.bootstrap("ros1", tag=settings.base_image)
+    baseimage.bootstrap("ros1", tag=settings.base_image, cli=cli,
+                        network=settings.build_network or "")
     images = build_targets(settings, ("dev", "run"), dry_run=False)
     run_ref = next(i.ref for i in images if i.target == "run")
-    print(f"docker run --rm {run_ref}   (stopped after {seconds} s)")
+    print(f"{' '.join(cli)} run --rm {run_ref}   (stopped after {seconds} s)")
     try:
-        subprocess.run(["docker", "run", "--rm", "--name", "docker-ros-example",
-                        run_ref], timeout=seconds)
+        subprocess.run([*cli, "run", "--rm", "--name", "docker-ros-example", run_ref],
+                       timeout=seconds)
     except subprocess.TimeoutExpired:
-        subprocess.run(["docker", "rm", "-f", "docker-ros-example"], capture_output=True)
+        subprocess.run([*cli, "rm", "-f", "docker-ros-example"], capture_output=True)
 
 
 def collection() -> Collection:

@@ -13,7 +13,7 @@ import subprocess
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Optional, Tuple
+from typing import List, Optional, Sequence, Tuple
 
 from docker_ros.host.engine import image_exists, inspect_image, remove_image
 from docker_ros.in_image.runtime.process import privileged, run
@@ -95,11 +95,15 @@ def bootstrap(
     platform: str = "",
     ca_bundle: Optional[Path] = None,
     force: bool = False,
+    cli: Sequence[str] = ("docker",),
+    network: str = "",
 ) -> str:
     """Build the base image of `flavor` ("ros1" or "ros2") for `platform`, tagged `tag` for the
     host's architecture and `<tag>-<platform>` for another (platform_tag); return that name.
     Reuse an image of that name built from the current recipe (RECIPE_LABEL), else rebuild it.
-    platform: this machine's architecture unless given."""
+    platform: this machine's architecture unless given. cli: the docker command of the engine
+    to build it in (`docker --context NAME` for a docker context's; the SDK client must be
+    bound to the same engine, engine.bind). network: the apt-get's `--network` (BUILD_NETWORK)."""
     if flavor not in FLAVORS:
         raise StepError(STEP, f"unknown flavor {flavor!r}; choose one of {', '.join(FLAVORS)}")
     platform = platform or host_platform()
@@ -122,14 +126,15 @@ def bootstrap(
             with step_log(f"{STEP} debootstrap {spec.suite} ({platform})"):
                 run(privileged(debootstrap_argv(spec.suite, rootfs, mirror, platform)), step=STEP)
             with step_log(f"{STEP} import rootfs"):
-                import_rootfs(rootfs, rootfs_tag, platform, work)
+                import_rootfs(rootfs, rootfs_tag, platform, work, cli)
         finally:
             remove_rootfs(rootfs)
         try:
             with step_log(f"{STEP} apt-get install ({len(spec.debs)} packages)"):
                 context = work / "context"
                 context.mkdir()
-                run(build_argv(spec, tag, rootfs_tag, platform, ca_bundle, context), step=STEP)
+                run(build_argv(spec, tag, rootfs_tag, platform, ca_bundle, context, cli, network),
+                    step=STEP)
         finally:
             remove_image(rootfs_tag)
     return tag
@@ -175,8 +180,11 @@ def build_argv(
     platform: str,
     ca_bundle: Optional[Path],
     context: Path,
+    cli: Sequence[str] = ("docker",),
+    network: str = "",
 ) -> List[str]:
-    argv = ["docker", "buildx", "build", "--load", "--platform", f"linux/{platform}"]
+    argv = [*cli, "buildx", "build", "--load", "--platform", f"linux/{platform}"]
+    argv += ["--network", network] if network else []
     argv += ["--file", str(DOCKERFILE), "--target", spec.name, "--tag", tag]
     argv += ["--build-arg", f"ROOTFS_IMAGE={rootfs_image}"]
     argv += ["--build-arg", "DEBS=" + " ".join(spec.debs)]
@@ -186,14 +194,14 @@ def build_argv(
     return argv + [str(context)]
 
 
-def import_rootfs(rootfs: Path, tag: str, platform: str, work: Path) -> None:
+def import_rootfs(rootfs: Path, tag: str, platform: str, work: Path, cli: Sequence[str]) -> None:
     """Make the rootfs an image. `docker import --platform` records the wrong architecture on
     Engine 20.10, so a foreign rootfs goes through a `FROM scratch` build instead."""
     if platform == host_platform():
         pack = privileged(["tar", "-C", str(rootfs), "-c", "."])
         tar = subprocess.Popen(pack, stdout=subprocess.PIPE)
         imported = subprocess.run(
-            ["docker", "import", "-", tag], stdin=tar.stdout, stdout=subprocess.DEVNULL
+            [*cli, "import", "-", tag], stdin=tar.stdout, stdout=subprocess.DEVNULL
         )
         assert tar.stdout is not None
         tar.stdout.close()
@@ -209,7 +217,7 @@ def import_rootfs(rootfs: Path, tag: str, platform: str, work: Path) -> None:
     run(privileged(["tar", "-C", str(rootfs), "-cf", str(context / "rootfs.tar"), "."]), step=STEP)
     (context / "Dockerfile").write_text("FROM scratch\nADD rootfs.tar /\nCMD [\"bash\"]\n")
     try:
-        build = ["docker", "buildx", "build", "--load", "--platform", f"linux/{platform}"]
+        build = [*cli, "buildx", "build", "--load", "--platform", f"linux/{platform}"]
         run(build + ["--tag", tag, str(context)], step=STEP)
     finally:
         (context / "rootfs.tar").unlink()
