@@ -1,0 +1,67 @@
+"""A repository laid out for docker-ros, built as it was: what its hooks, commands and users
+relied on in docker-ros's images is there (docker-ros's dependencies-install stage installed
+curl, gnupg and python-is-python3 before the hooks ran, and set DOCKER_USER and COLCON_HOME)."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import uuid
+from typing import Iterator
+
+import pytest
+
+from tests.docker.buildhelp import docker_ros, remove_image, sh, write_env
+from tests.rosfixtures import make_package
+
+pytestmark = pytest.mark.docker
+RUN_ID = uuid.uuid4().hex[:8]
+IMAGE = f"docker-ros-test/parity-{RUN_ID}:1"
+DEV_IMAGE = f"docker-ros-test/parity-{RUN_ID}:1-dev"
+
+# a before-dependency-installation hook as docker-ros users write them: it fetches with curl
+# and checks an apt key with gpg (here without network: --version); custom.sh calls `python`
+# (each line tolerates its tool's absence: the tests name what is missing, not the build)
+BEFORE_INSTALL = ("curl --version | head -n 1 || true\n"
+                  "gpg --version | head -n 1 || true\n")
+CUSTOM = ('python -c "import sys; print(\'custom.sh python\', sys.version_info[0])" || true\n'
+          'echo "$DOCKER_USER $COLCON_HOME" > /docker-ros-parity-env\n')
+
+
+@pytest.fixture(scope="module")
+def built(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    repo = tmp_path_factory.mktemp("parity") / "repo"
+    make_package(repo / "app", "app")
+    docker = repo / "docker"
+    docker.mkdir()
+    (docker / "before_dependency_installation.sh").write_text(BEFORE_INSTALL)
+    (docker / "custom.sh").write_text(CUSTOM)
+    write_env(repo, BASE_IMAGE=ros1_base_image, IMAGE=IMAGE, TARGET="dev,run",
+              COMMAND="python -c 'import sys; print(\"python\", sys.version_info[0])'")
+    try:
+        result = docker_ros(repo, "build")
+        assert result.returncode == 0, result.stdout[-5000:]
+        yield result.stdout
+    finally:
+        remove_image(IMAGE)
+        remove_image(DEV_IMAGE)
+
+
+def test_hooks_and_command_have_curl_gpg_and_python_as_in_docker_ros(built: str) -> None:
+    assert re.search(r"^#\d+ [\d.]+ curl \d", built, re.M), "no curl in the hooks"
+    assert "gpg (GnuPG)" in built
+    assert "custom.sh python 3" in built
+    ran = subprocess.run(["docker", "run", "--rm", IMAGE], capture_output=True, text=True,
+                         timeout=120)
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stdout.strip() == "python 3"
+
+
+def test_docker_user_and_colcon_home_as_in_docker_ros(built: str) -> None:
+    expected = "dockeruser /docker-ros/ws/.colcon"
+    for image in (IMAGE, DEV_IMAGE):
+        assert sh(image, "cat /docker-ros-parity-env").stdout.strip() == expected
+        assert sh(image, 'echo "$DOCKER_USER $COLCON_HOME"').stdout.strip() == expected
+    # the mapped user (docker-ros's default name) has the same colcon home as root
+    mapped = sh(DEV_IMAGE, 'echo "$(id -un) $COLCON_HOME"', "-e", "DOCKER_UID=4321")
+    assert mapped.stdout.strip() == "dockeruser /docker-ros/ws/.colcon", mapped.stderr
