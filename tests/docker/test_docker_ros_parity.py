@@ -1,7 +1,8 @@
 """A repository laid out for docker-ros, built as it was: what its hooks, commands and users
 relied on in docker-ros's images is there (docker-ros's dependencies-install stage installed
 curl, gnupg and python-is-python3 before the hooks ran, and set DOCKER_USER and COLCON_HOME),
-and the dev image's sources are without ADDITIONAL_FILES_DIR, as docker-ros's."""
+and the dev image's sources are without ADDITIONAL_FILES_DIR, as docker-ros's. The base image sets
+PYTHONPATH, as some do: the hooks get it as in docker-ros (not the step code's folder)."""
 
 from __future__ import annotations
 
@@ -27,11 +28,18 @@ BEFORE_INSTALL = ("{ curl --version | head -n 1; gpg --version | head -n 1; } "
                   "> /docker-ros-parity-tools 2>&1 || true\n")
 CUSTOM = ('python -c "import sys; print(\'python\', sys.version_info[0])" '
           '>> /docker-ros-parity-tools 2>&1 || true\n'
-          'echo "$DOCKER_USER $COLCON_HOME" > /docker-ros-parity-env\n')
+          'echo "$DOCKER_USER $COLCON_HOME" > /docker-ros-parity-env\n'
+          'echo "${PYTHONPATH-unset}" > /docker-ros-parity-pythonpath\n')
+# ROS 1 base + ENV PYTHONPATH (a layer of metadata only: kept for the next run's build cache)
+BASE = "docker-ros-test/parity-base:pythonpath"
+BASE_PYTHONPATH = "/opt/base-python"
 
 
 @pytest.fixture(scope="module")
 def built(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    subprocess.run(["docker", "build", "-t", BASE, "-"], check=True, capture_output=True,
+                   input=f"FROM {ros1_base_image}\nENV PYTHONPATH={BASE_PYTHONPATH}\n",
+                   text=True, timeout=300)
     repo = tmp_path_factory.mktemp("parity") / "repo"
     make_package(repo / "app", "app")
     docker = repo / "docker"
@@ -40,7 +48,7 @@ def built(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Ite
     (docker / "custom.sh").write_text(CUSTOM)
     (docker / "additional-files" / "maps").mkdir(parents=True)
     (docker / "additional-files" / "maps" / "map.yaml").write_text("image: map.pgm\n")
-    write_env(repo, BASE_IMAGE=ros1_base_image, IMAGE=IMAGE, TARGET="dev,run",
+    write_env(repo, BASE_IMAGE=BASE, IMAGE=IMAGE, TARGET="dev,run",
               COMMAND="python -c 'import sys; print(\"python\", sys.version_info[0])'")
     try:
         result = docker_ros(repo, "build")
@@ -81,3 +89,10 @@ def test_dev_image_sources_without_additional_files_as_in_docker_ros(built: str)
     assert listed.stdout.split() == ["image:", "map.pgm", "before_dependency_installation.sh",
                                      "custom.sh", "CMakeLists.txt", "main.cpp", "package.xml"]
     assert sh(IMAGE, "cat /docker-ros/additional-files/maps/map.yaml").stdout == "image: map.pgm\n"
+
+
+def test_hooks_get_the_base_images_pythonpath_as_in_docker_ros(built: str) -> None:
+    """docker-ros's hooks ran with the base image's environment; the step code's folder
+    (/docker-ros/lib) in PYTHONPATH replaced the base's PYTHONPATH for them."""
+    for image in (IMAGE, DEV_IMAGE):
+        assert sh(image, "cat /docker-ros-parity-pythonpath").stdout == BASE_PYTHONPATH + "\n"
