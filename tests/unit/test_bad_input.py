@@ -477,3 +477,14 @@ def test_dotenv_command_substitution_warns_that_it_is_not_run() -> None:
     assert warnings[0].startswith("IMAGE: its command substitution ($(...) or `...`) is not "
                                   "run: .env is read as NAME=VALUE lines")
     assert warnings[0].endswith('set IMAGE in the environment instead (IMAGE="$(...)" inv build)')
+
+
+def test_dotenv_old_docker_ros_names_name_the_new_ones() -> None:
+    """docker-ros v1.6's custom.sh variables (v1.7 renamed them; both ignore the old names)."""
+    assert dotenv_warnings({"CUSTOM_SCRIPT_FILE": "docker/setup.sh",
+                            "ENABLE_RECURSIVE_CUSTOM_SCRIPT": "true"}) == [
+        "CUSTOM_SCRIPT_FILE ignored: docker-ros's earlier name, now "
+        "AFTER_DEPENDENCY_INSTALLATION_SCRIPT",
+        "ENABLE_RECURSIVE_CUSTOM_SCRIPT ignored: docker-ros's earlier name, now "
+        "ENABLE_RECURSIVE_AFTER_DEPENDENCY_INSTALLATION_SCRIPT",
+    ]
