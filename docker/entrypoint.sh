@@ -66,6 +66,14 @@ _dros_map_user() {
         useradd --uid "$uid" "${primary[@]}" "${groups[@]}" --create-home --shell /bin/bash \
             "$user" >/dev/null 2>&1 \
             || _dros_warn "could not create user $user ($uid:$gid); running unnamed"
+        # docker-ros's new user got root's ~/.bashrc: what a hook added there (aliases,
+        # exports, `source` lines) reaches the mapped user's interactive shells too
+        local home
+        home="$(getent passwd "$uid" | cut -d: -f6)"
+        if [[ -f /root/.bashrc && -n "$home" && -d "$home" ]]; then
+            cp /root/.bashrc "$home/.bashrc" 2>/dev/null \
+                && chown "$uid:$gid" "$home/.bashrc" 2>/dev/null || true
+        fi
     fi
     if getent passwd "$uid" >/dev/null; then
         echo "$user:$user" | chpasswd 2>/dev/null || true

@@ -110,6 +110,18 @@ def test_mapped_user_is_in_the_sudo_and_video_groups(ros1_base_image: str) -> No
     assert {"sudo", "video"} <= set(existing.stdout.split()), existing.stdout
 
 
+def test_mapped_user_gets_roots_bashrc(ros1_base_image: str, tmp_path: Path) -> None:
+    """As docker-ros (`cp /root/.bashrc /home/$DOCKER_USER`): what a custom.sh added to root's
+    ~/.bashrc (an alias, an export) reaches the mapped user's interactive shells."""
+    bashrc = tmp_path / "bashrc"
+    bashrc.write_text("export FROM_CUSTOM_SH=yes\n")
+    result = mapped(ros1_base_image, "robot", 1244, 1244,
+                    "-v", f"{bashrc}:/root/.bashrc:ro",
+                    script='bash -i -c \'echo "$FROM_CUSTOM_SH $(stat -c %u ~/.bashrc)"\'')
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["yes", "1244"], result.stdout + result.stderr
+
+
 def test_sourced_entrypoint_only_sets_up_the_environment(
     ros1_base_image: str, tmp_path: Path
 ) -> None:

@@ -1,10 +1,12 @@
 """Bad input caught before the build, one line naming the culprit (issue 11): the pure checks."""
 
+import io
 from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 from docker.errors import APIError, NotFound
+from dotenv import dotenv_values
 
 from docker_ros.host import build, engine
 from docker_ros.host.config import config_table, dotenv_warnings, image_problems, path_problems
@@ -464,3 +466,25 @@ def test_a_base_image_the_registry_refuses_names_why_and_the_login_settings(
     message = str(raised.value)
     assert "(Head \"127.0.0.1:5000/private/base\": no basic auth credentials)" in message
     assert "REGISTRY_USER and REGISTRY_PASSWORD" in message
+
+
+def test_dotenv_command_substitution_warns_that_it_is_not_run() -> None:
+    """docker-ros's build.sh sourced .env with bash, which ran `$(git ...)`; here it is text."""
+    text = ('IMAGE="my/image:$(git rev-parse --short HEAD)"\nCMAKE_ARGS=-DV=`date`\n'
+            "COMMAND='roslaunch p x.launch ip:=$(hostname -i)'\nNAME=x\nIMAGE_TAG=${NAME}\n")
+    warnings = dotenv_warnings(dotenv_values(stream=io.StringIO(text)))
+    assert [w.split(":")[0] for w in warnings] == ["IMAGE", "CMAKE_ARGS"], warnings
+    assert warnings[0].startswith("IMAGE: its command substitution ($(...) or `...`) is not "
+                                  "run: .env is read as NAME=VALUE lines")
+    assert warnings[0].endswith('set IMAGE in the environment instead (IMAGE="$(...)" inv build)')
+
+
+def test_dotenv_old_docker_ros_names_name_the_new_ones() -> None:
+    """docker-ros v1.6's custom.sh variables (v1.7 renamed them; both ignore the old names)."""
+    assert dotenv_warnings({"CUSTOM_SCRIPT_FILE": "docker/setup.sh",
+                            "ENABLE_RECURSIVE_CUSTOM_SCRIPT": "true"}) == [
+        "CUSTOM_SCRIPT_FILE ignored: docker-ros's earlier name, now "
+        "AFTER_DEPENDENCY_INSTALLATION_SCRIPT",
+        "ENABLE_RECURSIVE_CUSTOM_SCRIPT ignored: docker-ros's earlier name, now "
+        "ENABLE_RECURSIVE_AFTER_DEPENDENCY_INSTALLATION_SCRIPT",
+    ]

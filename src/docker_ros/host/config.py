@@ -98,12 +98,34 @@ def dotenv_problems(text: str) -> List[str]:
     return out
 
 
+# docker-ros's earlier names (custom.sh: up to v1.6; REGISTRY_USERNAME: v1.0) -> today's
+OLD_NAMES = {
+    "CUSTOM_SCRIPT_FILE": "AFTER_DEPENDENCY_INSTALLATION_SCRIPT",
+    "ENABLE_RECURSIVE_CUSTOM_SCRIPT": "ENABLE_RECURSIVE_AFTER_DEPENDENCY_INSTALLATION_SCRIPT",
+    "REGISTRY_USERNAME": "REGISTRY_USER",
+}
+# `$(...)` or backticks: a shell runs them; a .env value keeps them as text
+COMMAND_SUBSTITUTION = re.compile(r"\$\(|`")
+
+
 def dotenv_warnings(dotenv: Mapping[str, object]) -> List[str]:
     """Variables of a .env file that look like a misspelt docker-ros variable (other variables
-    are the user's business and stay silent)."""
+    are the user's business and stay silent), and docker-ros variables whose value holds a
+    command substitution, which docker-ros's build.sh ran (it sourced .env with bash) and which
+    stays text here (COMMAND's is run by the container's shell, as a command line's)."""
     out = []
-    for key in dotenv:
+    for key, value in dotenv.items():
         if key in ENV_NAMES:
+            if (key != "COMMAND" and isinstance(value, str)
+                    and COMMAND_SUBSTITUTION.search(value)):
+                out.append(f"{key}: its command substitution ($(...) or `...`) is not run: .env "
+                           "is read as NAME=VALUE lines (${VAR} expands), not by bash as "
+                           f"docker-ros's build.sh did; set {key} in the environment instead "
+                           f'({key}="$(...)" inv build)')
+            continue
+        if key.upper() in OLD_NAMES:
+            out.append(f"{key} ignored: docker-ros's earlier name, now "
+                       f"{OLD_NAMES[key.upper()]}")
             continue
         close = difflib.get_close_matches(key.upper(), ENV_NAMES, n=1, cutoff=0.85)
         if close:

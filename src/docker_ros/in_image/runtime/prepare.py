@@ -40,6 +40,15 @@ TOOLS: Dict[str, Sequence[str]] = {
     "colcon": ("python3-colcon-common-extensions", "colcon"),
     "pip3": ("python3-pip",),
 }
+# What docker-ros's images had before any hook ran (its dependencies-install stage installed
+# curl, gnupg and python-is-python3 into dev and run images): hooks download with curl, add apt
+# keys with gpg, scripts and `#!/usr/bin/env python` nodes call `python`. Installed when
+# missing and apt has them (a base whose `python` is Python 2 keeps it).
+DOCKER_ROS_TOOLS: Dict[str, Sequence[str]] = {
+    "curl": ("curl",),
+    "gpg": ("gnupg",),
+    "python": ("python-is-python3",),
+}
 # The toolchain of dev images (run images never get it): prepare with dependency types "all".
 DEV_TOOLS = ("build-essential", "cmake", "python3-pip")
 # Extra Debian packages that make the plain `colcon` package useful for ROS workspaces.
@@ -155,6 +164,12 @@ def plan_tool_packages(missing: Sequence[str], available: Sequence[str]) -> List
         if candidates[0] == "colcon":
             packages.extend(p for p in DEBIAN_COLCON_EXTRAS if p in available)
     return packages
+
+
+def plan_docker_ros_packages(missing: Sequence[str], available: Sequence[str]) -> List[str]:
+    """apt packages providing the missing DOCKER_ROS_TOOLS that apt has (the others are left
+    out: docker-ros's images had them, the build does not need them)."""
+    return [p for tool in missing for p in DOCKER_ROS_TOOLS[tool][:1] if p in available]
 
 
 def os_release(root: Path = Path("/")) -> Dict[str, str]:
@@ -327,11 +342,15 @@ def main(
                     step="prepare", dry_run=dry_run, env=apt_env())
             return
         missing = [tool for tool in TOOLS if shutil.which(tool) is None]
-        if missing:
-            LOG.info("prepare: installing missing tools: %s", ", ".join(missing))
+        extra = [tool for tool in DOCKER_ROS_TOOLS if shutil.which(tool) is None]
+        if missing or extra:
+            LOG.info("prepare: installing missing tools: %s", ", ".join([*missing, *extra]))
             run(["apt-get", "update"], step="prepare", dry_run=dry_run, env=apt_env())
-            candidates = [p for tool in missing for p in TOOLS[tool]]
+            candidates = [p for tool in [*missing, *extra]
+                          for p in {**TOOLS, **DOCKER_ROS_TOOLS}[tool]]
             available = apt_available([*candidates, *DEBIAN_COLCON_EXTRAS])
-            packages = plan_tool_packages(missing, available)
-            run(["apt-get", "install", *IMAGE_INSTALL, *packages],
-                step="prepare", dry_run=dry_run, env=apt_env())
+            packages = [*plan_tool_packages(missing, available),
+                        *plan_docker_ros_packages(extra, available)]
+            if packages:
+                run(["apt-get", "install", *IMAGE_INSTALL, *packages],
+                    step="prepare", dry_run=dry_run, env=apt_env())

@@ -127,6 +127,20 @@ def script_hint(content: bytes) -> str:
     return ""
 
 
+# the folder the docker_ros package is imported from (/docker-ros/lib in image builds)
+OWN_LIB = Path(__file__).resolve().parents[3]
+
+
+def without_own_lib(pythonpath: Optional[str], lib: Path = OWN_LIB) -> Optional[str]:
+    """PYTHONPATH without the entries naming lib (None when nothing is left): the step code's
+    own path is not the hooks' business; the rest (the base image's) is theirs."""
+    if pythonpath is None:
+        return None
+    kept = [entry for entry in pythonpath.split(os.pathsep)
+            if entry and os.path.abspath(entry) != str(lib)]
+    return os.pathsep.join(kept) or None
+
+
 # Sourced by bash before a hook (BASH_ENV): when a command stops the script under `set -e`
 # (bash -e, or the script's own `set -e`), write its exit code, line, file and text to
 # $DOCKER_ROS_HOOK_FAILED. errtrace reports a command failing in a function at its own line; the
@@ -156,10 +170,15 @@ def failed_line(record: str, script: Path) -> str:
 def run_script(
     argv: Sequence[str], script: Path, *, step: str, dry_run: bool, cwd: Path, what: str
 ) -> None:
-    """Run a user hook (argv ends with the script) with DOCKER_ROS_CONTEXT=image|host set;
+    """Run a user hook (argv ends with the script) with DOCKER_ROS_CONTEXT=image|host set and
+    the environment docker-ros's hooks had (PYTHONPATH without the step code's folder);
     a failure names the line that stopped a bash script, and a cause we recognise says what
     to do. A BASH_ENV of the user's is left alone (then no line is named)."""
-    env = {**os.environ, "DOCKER_ROS_CONTEXT": hook_context()}
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
+    pythonpath = without_own_lib(os.environ.get("PYTHONPATH"))
+    if pythonpath is not None:
+        env["PYTHONPATH"] = pythonpath
+    env["DOCKER_ROS_CONTEXT"] = hook_context()
     with tempfile.TemporaryDirectory(prefix="docker-ros-hook-") as tmp:
         record = Path(tmp) / "failed"
         if "BASH_ENV" not in env:
