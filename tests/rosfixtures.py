@@ -645,8 +645,9 @@ def add(a, b):
     """Add two numbers."""
     return a + b
 ''',
-    "demo_py/demo_py/talker.py": '''"""Print the installed params file's greeting and a message
-field name (no rclpy: Debian has none), then a sum by a module imported late (a timer)."""
+    # no rclpy (Debian has none): prints the installed params file's greeting, a message field
+    # name, then a sum by a module imported late (as in a timer callback)
+    "demo_py/demo_py/talker.py": '''"""A talker."""
 import os
 import time
 

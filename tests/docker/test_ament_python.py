@@ -54,3 +54,33 @@ def test_files_removed_from_sources_leave_the_run_image(ros2_base_image: str,
         assert listed.stdout.split() == ["__init__.py", "talker.py", "util.py"], listed
     finally:
         remove_image(IMAGE)
+
+
+def test_inv_test_names_failed_pytest_cases_and_packages_where_no_test_ran(
+        ros2_base_image: str, tmp_path: Path) -> None:
+    repo = make_ros2_python_repo(tmp_path / "ament_repo")
+    write_env(repo, BASE_IMAGE=ros2_base_image, IMAGE=IMAGE)
+    util_test = repo / "demo_py/test/test_util.py"
+    util_test.write_text(util_test.read_text().replace("== 5", "== 6"))
+    try:
+        failed = docker_ros(repo, "test", "--results-dir", str(tmp_path / "results"))
+        assert failed.returncode != 0, failed.stdout[-4000:]
+        assert "2 passed, 1 failed, 0 skipped" in failed.stdout, failed.stdout[-4000:]
+        assert "1 test(s) failed: demo_py.test.test_util.test_add (assert 5 == 6)" \
+            in failed.stdout, failed.stdout[-4000:]
+
+        # the ROS 2 Humble/Jazzy template's tests_require, which setuptools >= 72 drops:
+        # colcon falls back to unittest, which finds none of the pytest functions
+        setup = repo / "demo_py/setup.py"
+        setup.write_text(setup.read_text().replace('extras_require={"test": ["pytest"]}',
+                                                   'tests_require=["pytest"]'))
+        none = docker_ros(repo, "test", "--results-dir", str(tmp_path / "results"))
+        assert none.returncode != 0, none.stdout[-4000:]
+        assert "0 passed, 0 failed, 0 skipped" in none.stdout, none.stdout[-4000:]
+        assert ("colcon test failed (exit code 5): demo_py: no tests ran (colcon ran "
+                "`python3 -m unittest`, which finds only unittest.TestCase classes; it runs "
+                "pytest when setup.py declares it: extras_require={'test': ['pytest']}"
+                in none.stdout), none.stdout[-4000:]
+    finally:
+        remove_image(IMAGE.replace(":1", ":1-dev"))
+        remove_image(IMAGE.replace(":1", ":1-dev-test"))

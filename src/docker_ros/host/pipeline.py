@@ -372,6 +372,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
             counts = testing.summarize(Path(tmp) / testing.JUNIT)
             cases = testing.failed_cases(Path(tmp) / testing.JUNIT)
             build_error = testing.read_build_error(Path(tmp))
+            packages = testing.package_test_failures(Path(tmp) / "log" / "test")
             try:
                 testing.install_results(Path(tmp), dest)
             except OSError as exc:
@@ -379,7 +380,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
                                 f"{exc.strerror or exc}; give a writable folder") from None
         print(f"docker-ros test ({platform}): {testing.format_summary(counts)} "
               f"(JUnit XML and logs in {dest})")
-        failed = testing.verdict(outcome, counts, cases, build_error)
+        failed = testing.verdict(outcome, counts, cases, build_error, packages)
         if failed:
             failures.append(f"{failed} ({platform})")
     if failures:

@@ -10,6 +10,7 @@ the same code.
 import json
 import logging
 import os
+import re
 import shutil
 import sys
 import xml.etree.ElementTree as ElementTree
@@ -136,14 +137,46 @@ def failed_cases(root: Path) -> List[str]:
     return found
 
 
+# colcon's last line of a package's test command.log: "Invoked command in '<dir>' returned
+# '<code>': <environment> <command>"
+_INVOKED = re.compile(r"^Invoked command in '[^']*' returned '(-?\d+)': (.*)$")
+NO_TESTS_CODE = 5  # unittest's and pytest's exit code when no test ran
+UNITTEST_HINT = ("colcon ran `python3 -m unittest`, which finds only unittest.TestCase classes; "
+                 "it runs pytest when setup.py declares it: extras_require={'test': ['pytest']} "
+                 "(setuptools >= 72 ignores tests_require)")
+
+
+def package_test_failures(log: Path) -> List[str]:
+    """`<package>: <test command> exited with N` for each package whose test command failed,
+    from colcon's test logs (log/test/<package>/command.log); a Python package in which no
+    test ran is said so, with why when colcon fell back to unittest."""
+    found = []
+    for command_log in sorted(log.glob("*/command.log")):
+        package = command_log.parent.name
+        match = None
+        for line in command_log.read_text(errors="replace").splitlines():
+            match = _INVOKED.match(line) or match
+        if match is None or match.group(1) == "0":
+            continue
+        code, command = int(match.group(1)), match.group(2)
+        if code == NO_TESTS_CODE and re.search(r"-m (unittest|pytest)\b", command):
+            unittest = "-m unittest" in command
+            found.append(f"{package}: no tests ran" + (f" ({UNITTEST_HINT})" if unittest else
+                                                       " (pytest collected none)"))
+        else:
+            found.append(f"{package}: its tests exited with code {code}")
+    return found
+
+
 def format_summary(counts: Counts) -> str:
     return f"{counts.passed} passed, {counts.failed} failed, {counts.skipped} skipped"
 
 
 def verdict(outcome: Dict[str, int], counts: Counts, cases: Sequence[str] = (),
-            build_error: str = "") -> Optional[str]:
+            build_error: str = "", packages: Sequence[str] = ()) -> Optional[str]:
     """None when everything passed, else what failed (one line): the failed test cases
-    (failed_cases) or the colcon step's error (BUILD_ERROR) named."""
+    (failed_cases), the packages whose tests failed without a failed case
+    (package_test_failures) or the colcon step's error (BUILD_ERROR) named."""
     from docker_ros.in_image.steps.colcon import SEE_ABOVE
 
     if outcome.get("colcon_build", 0) != 0:
@@ -156,7 +189,8 @@ def verdict(outcome: Dict[str, int], counts: Counts, cases: Sequence[str] = (),
             f" and {len(cases) - CASES_SHOWN} more" if len(cases) > CASES_SHOWN else "")
         return f"{counts.failed} test(s) failed" + (f": {shown}" if shown else "")
     if outcome.get("colcon_test", 0) != 0:
-        return f"colcon test failed (exit code {outcome['colcon_test']})"
+        return (f"colcon test failed (exit code {outcome['colcon_test']})"
+                + (": " + "; ".join(packages) if packages else ""))
     if outcome.get("colcon_test_result", 0) != 0:
         return f"colcon test-result reported failures (exit code {outcome['colcon_test_result']})"
     return None
