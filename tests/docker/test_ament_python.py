@@ -62,12 +62,18 @@ def test_inv_test_names_failed_pytest_cases_and_packages_where_no_test_ran(
     write_env(repo, BASE_IMAGE=ros2_base_image, IMAGE=IMAGE)
     util_test = repo / "demo_py/test/test_util.py"
     util_test.write_text(util_test.read_text().replace("== 5", "== 6"))
+    util = repo / "demo_py/demo_py/util.py"
+    util.write_text(util.read_text().replace('"""Helpers."""\n', '"""Helpers."""\nimport os\n'))
     try:
         failed = docker_ros(repo, "test", "--results-dir", str(tmp_path / "results"))
         assert failed.returncode != 0, failed.stdout[-4000:]
-        assert "2 passed, 1 failed, 0 skipped" in failed.stdout, failed.stdout[-4000:]
-        assert "1 test(s) failed: demo_py.test.test_util.test_add (assert 5 == 6)" \
+        assert "1 passed, 2 failed, 0 skipped" in failed.stdout, failed.stdout[-4000:]
+        # the linter test's failure with its first finding, not only "Found 1 ...:"
+        assert ("2 test(s) failed: demo_py.test.test_flake8.test_flake8 (AssertionError: Found "
+                "1 code style errors / warnings: ./demo_py/util.py:2:1: F401 'os' imported but "
+                "unused), demo_py.test.test_util.test_add (assert 5 == 6)") \
             in failed.stdout, failed.stdout[-4000:]
+        util.write_text(util.read_text().replace("import os\n", ""))
 
         # the ROS 2 Humble/Jazzy template's tests_require, which setuptools >= 72 drops:
         # colcon falls back to unittest, which finds none of the pytest functions

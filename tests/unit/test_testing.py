@@ -350,3 +350,24 @@ def test_a_test_case_without_a_name_is_named_as_such(tmp_path: Path):
     (tmp_path / "pkg" / "r.xml").write_text(
         '<testsuite><testcase><failure message="boom"/></testcase></testsuite>')
     assert testing.failed_cases(tmp_path) == ["pkg: (a test case without a name) (boom)"]
+
+
+# pytest's report of the ament_flake8 test of `ros2 pkg create --build-type ament_python`
+# (colcon test on Debian trixie, shortened to the failed case)
+AMENT_FLAKE8_FAILURE = """<?xml version="1.0" encoding="utf-8"?><testsuites><testsuite \
+name="pytest" errors="0" failures="1" skipped="0" tests="1" time="0.149"><testcase \
+classname="demo_py.test.test_flake8" name="test_flake8" time="0.048"><failure \
+message="AssertionError: Found 1 code style errors / warnings:&#10;  ./demo_py/talker.py:16:100: \
+E501 line too long (105 &gt; 99 characters)&#10;assert 1 == 0">test/test_flake8.py:9: in \
+test_flake8
+    assert rc == 0, "Found %d code style errors / warnings:\\n" % len(errors) + "\\n".join(errors)
+E   AssertionError: Found 1 code style errors / warnings:
+E     ./demo_py/talker.py:16:100: E501 line too long (105 &gt; 99 characters)
+E   assert 1 == 0</failure></testcase></testsuite></testsuites>"""
+
+
+def test_a_linter_failure_is_named_with_its_first_finding():
+    assert testing.junit_cases(AMENT_FLAKE8_FAILURE) == [(
+        "demo_py.test.test_flake8.test_flake8", "failed",
+        "AssertionError: Found 1 code style errors / warnings: ./demo_py/talker.py:16:100: E501 "
+        "line too long (105 > 99 characters)")]

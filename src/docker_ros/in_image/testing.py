@@ -72,9 +72,13 @@ def junit_cases(text: str) -> Optional[List[Tuple[str, str, str]]]:
 
 def failure_message(failure: ElementTree.Element) -> str:
     """The first line of a <failure>/<error>'s message: its message attribute (gtest, pytest),
-    else its text (rosunit and rostest write none: `<failure type="AssertionError">5 != 6`)."""
+    else its text (rosunit and rostest write none: `<failure type="AssertionError">5 != 6`);
+    a first line ending in ':' with the next one (the ament linters' tests: `Found 1 code
+    style errors / warnings:`, then the first of them)."""
     text = failure.get("message") or failure.text or ""
     lines = [line.strip() for line in text.splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].endswith(":"):
+        lines[0] += " " + lines[1]
     return lines[0][:150] if lines else ""
 
 
