@@ -90,3 +90,35 @@ def test_inv_test_names_failed_pytest_cases_and_packages_where_no_test_ran(
     finally:
         remove_image(IMAGE.replace(":1", ":1-dev"))
         remove_image(IMAGE.replace(":1", ":1-dev-test"))
+
+
+def test_dev_shell_warns_when_the_dev_image_predates_a_dependency_change(
+        ros2_base_image: str, tmp_path: Path) -> None:
+    repo = make_ros2_python_repo(tmp_path / "ament_repo")
+    write_env(repo, BASE_IMAGE=ros2_base_image, IMAGE=IMAGE)
+    stale = "was built before the repository's dependency inputs changed"
+    try:
+        first = docker_ros(repo, "dev-shell", "-c", "true")  # builds the missing dev image
+        assert first.returncode == 0 and stale not in first.stdout, first.stdout[-4000:]
+        same = docker_ros(repo, "dev-shell", "-c", "true")
+        assert same.returncode == 0 and stale not in same.stdout, same.stdout[-4000:]
+        source = repo / "demo_py/demo_py/util.py"  # a source edit: the mounted repository has it
+        source.write_text(source.read_text() + "\n\nLIMIT = 3\n")
+        edited = docker_ros(repo, "dev-shell", "-c", "true")
+        assert edited.returncode == 0 and stale not in edited.stdout, edited.stdout[-4000:]
+
+        # a new dependency: the dev image does not have it until it is built again
+        manifest = repo / "demo_py/package.xml"
+        manifest.write_text(manifest.read_text().replace(
+            "<exec_depend>python3-yaml</exec_depend>",
+            "<exec_depend>python3-yaml</exec_depend>\n  <exec_depend>python3-numpy</exec_depend>"))
+        rules = repo / "docker/rosdep.yaml"
+        rules.write_text(rules.read_text() + "python3-numpy:\n  debian: [python3-numpy]\n")
+        old = docker_ros(repo, "dev-shell", "-c", "python3 -c 'import numpy'")
+        assert old.returncode != 0 and "No module named 'numpy'" in old.stdout, old.stdout[-4000:]
+        assert f"docker-ros dev-shell: {IMAGE.replace(':1', ':1-dev')} {stale}" in old.stdout \
+            and "`inv dev-shell --rebuild` builds it again" in old.stdout, old.stdout[-4000:]
+        new = docker_ros(repo, "dev-shell", "--rebuild", "-c", "python3 -c 'import numpy'")
+        assert new.returncode == 0 and stale not in new.stdout, new.stdout[-4000:]
+    finally:
+        remove_image(IMAGE.replace(":1", ":1-dev"))

@@ -524,8 +524,16 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
             print(format_argv(argv))
             return 0
         check_shell_engine(settings)
-        if rebuild or not build.image_exists(ref):
+        image = None if rebuild else engine.inspect_image(ref)
+        if image is None:
             build_targets(settings, ("dev",), dry_run=False)
+        else:
+            repository = Path(settings.build_context)
+            current = build.imports_digest(repository, build.imports_folders(settings, repository))
+            stale = build.stale_dev_image((image.get("Config") or {}).get("Labels") or {},
+                                          current, ref)
+            if stale:
+                print(stale, file=sys.stderr, flush=True)
         return subprocess.call(argv)
 
 
