@@ -371,3 +371,24 @@ def test_a_linter_failure_is_named_with_its_first_finding():
         "demo_py.test.test_flake8.test_flake8", "failed",
         "AssertionError: Found 1 code style errors / warnings: ./demo_py/talker.py:16:100: E501 "
         "line too long (105 > 99 characters)")]
+
+
+# pytest's report of a test module it could not import (colcon test on Debian trixie)
+PYTEST_COLLECTION_FAILURE = """<?xml version="1.0" encoding="utf-8"?><testsuites><testsuite \
+name="pytest" errors="1" failures="0" skipped="0" tests="1" time="0.137"><testcase \
+classname="demo_py" name="test.test_missing" time="0.000"><error message="collection failure">\
+ImportError while importing test module '/docker-ros/ws/src/target/demo_py/test/test_missing.py'.
+Hint: make sure your test modules/packages have valid Python names.
+Traceback:
+/usr/lib/python3.13/importlib/__init__.py:88: in import_module
+    return _bootstrap._gcd_import(name[level:], package, level)
+test/test_missing.py:1: in &lt;module&gt;
+    import not_installed_mod
+E   ModuleNotFoundError: No module named 'not_installed_mod'</error></testcase></testsuite>\
+</testsuites>"""
+
+
+def test_a_test_module_pytest_cannot_import_is_named_with_the_cause():
+    assert testing.junit_cases(PYTEST_COLLECTION_FAILURE) == [(
+        "demo_py.test.test_missing", "failed",
+        "collection failure: ModuleNotFoundError: No module named 'not_installed_mod'")]

@@ -70,12 +70,22 @@ def junit_cases(text: str) -> Optional[List[Tuple[str, str, str]]]:
     return cases
 
 
+# pytest's message of the case it reports for a test module it could not import (and then
+# runs no test of the package)
+PYTEST_COLLECTION_FAILURE = "collection failure"
+
+
 def failure_message(failure: ElementTree.Element) -> str:
     """The first line of a <failure>/<error>'s message: its message attribute (gtest, pytest),
     else its text (rosunit and rostest write none: `<failure type="AssertionError">5 != 6`);
     a first line ending in ':' with the next one (the ament linters' tests: `Found 1 code
-    style errors / warnings:`, then the first of them)."""
+    style errors / warnings:`, then the first of them); pytest's `collection failure` with
+    its cause (`ModuleNotFoundError: No module named 'x'`: a test dependency missing)."""
     text = failure.get("message") or failure.text or ""
+    if text == PYTEST_COLLECTION_FAILURE:  # its cause: the traceback's last `E   ` line
+        causes = [line[1:].strip() for line in (failure.text or "").splitlines()
+                  if line.startswith("E ")]
+        text += f": {causes[-1]}" if causes else ""
     lines = [line.strip() for line in text.splitlines() if line.strip()]
     if len(lines) > 1 and lines[0].endswith(":"):
         lines[0] += " " + lines[1]
