@@ -557,3 +557,174 @@ def make_ros1_repo(repo: Union[str, Path], *, failing: bool = False) -> Path:
     for name in ROS1_EXECUTABLES:
         (repo / name).chmod(0o755)
     return repo
+
+
+ROS2_PYTHON_FILES = {
+    "demo_interfaces/package.xml": """<?xml version="1.0"?>
+<package format="3">
+  <name>demo_interfaces</name>
+  <version>0.1.0</version>
+  <description>A message and a service (docker-ros test package)</description>
+  <maintainer email="tests@docker-ros.invalid">tests</maintainer>
+  <license>MIT</license>
+  <buildtool_depend>ament_cmake</buildtool_depend>
+  <buildtool_depend>rosidl_cmake</buildtool_depend>
+  <buildtool_depend>rosidl_generator_c</buildtool_depend>
+  <buildtool_depend>rosidl_generator_cpp</buildtool_depend>
+  <depend>rosidl_runtime_c</depend>
+  <depend>rosidl_runtime_cpp</depend>
+  <member_of_group>rosidl_interface_packages</member_of_group>
+  <export><build_type>ament_cmake</build_type></export>
+</package>
+""",
+    # Debian has no rosidl_default_generators: its C/C++ generators are named one by one
+    "demo_interfaces/CMakeLists.txt": """cmake_minimum_required(VERSION 3.10)
+project(demo_interfaces)
+find_package(ament_cmake REQUIRED)
+find_package(rosidl_cmake REQUIRED)
+find_package(rosidl_generator_c REQUIRED)
+find_package(rosidl_generator_cpp REQUIRED)
+rosidl_generate_interfaces(${PROJECT_NAME} "msg/Greeting.msg" "srv/AddTwo.srv")
+ament_package()
+""",
+    "demo_interfaces/msg/Greeting.msg": "string text\nint32 count\n",
+    "demo_interfaces/srv/AddTwo.srv": "int64 a\nint64 b\n---\nint64 sum\n",
+    "demo_py/package.xml": """<?xml version="1.0"?>
+<package format="3">
+  <name>demo_py</name>
+  <version>0.1.0</version>
+  <description>Python nodes (docker-ros test package)</description>
+  <maintainer email="tests@docker-ros.invalid">tests</maintainer>
+  <license>MIT</license>
+  <exec_depend>ament_index_python</exec_depend>
+  <exec_depend>demo_interfaces</exec_depend>
+  <exec_depend>python3-yaml</exec_depend>
+  <test_depend>ament_flake8</test_depend>
+  <test_depend>ament_pep257</test_depend>
+  <test_depend>python3-pytest</test_depend>
+  <export><build_type>ament_python</build_type></export>
+</package>
+""",
+    "demo_py/resource/demo_py": "",
+    "demo_py/setup.cfg": """[develop]
+script_dir=$base/lib/demo_py
+[install]
+install_scripts=$base/lib/demo_py
+""",
+    "demo_py/setup.py": """from glob import glob
+
+from setuptools import setup
+
+package_name = "demo_py"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=[package_name],
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/launch", glob("launch/*")),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="tests",
+    maintainer_email="tests@docker-ros.invalid",
+    description="Python nodes",
+    license="MIT",
+    extras_require={"test": ["pytest"]},
+    entry_points={"console_scripts": ["talker = demo_py.talker:main"]},
+)
+""",
+    "demo_py/demo_py/__init__.py": "",
+    "demo_py/demo_py/util.py": '''"""Helpers."""
+
+
+def add(a, b):
+    """Add two numbers."""
+    return a + b
+''',
+    # no rclpy (Debian has none): prints the installed params file's greeting, a message field
+    # name, then a sum by a module imported late (as in a timer callback)
+    "demo_py/demo_py/talker.py": '''"""A talker."""
+import os
+import time
+
+import yaml
+from ament_index_python.packages import get_package_share_directory
+
+
+def main():
+    """Greet, wait, import late, stay up."""
+    with open(os.path.join(get_package_share_directory("demo_py"), "config",
+                           "params.yaml")) as f:
+        print("greeting:", yaml.safe_load(f)["text"], flush=True)
+    msg = os.path.join(get_package_share_directory("demo_interfaces"), "msg", "Greeting.msg")
+    with open(msg) as f:
+        print("field:", f.read().split()[1], flush=True)
+    time.sleep(float(os.environ.get("LATE_AFTER", "5")))
+    from demo_py import util
+    print("late sum:", util.add(2, 3), flush=True)
+    while True:
+        time.sleep(1)
+''',
+    "demo_py/config/params.yaml": 'text: "hello from yaml"\n',
+    "demo_py/launch/demo.launch.py": """from launch import LaunchDescription
+from launch_ros.actions import Node
+
+
+def generate_launch_description():
+    return LaunchDescription([Node(package="demo_py", executable="talker", output="screen")])
+""",
+    "demo_py/launch/demo.launch.xml": """<launch>
+  <node pkg="demo_py" exec="talker" output="screen"/>
+</launch>
+""",
+    "demo_py/test/test_util.py": """from demo_py.util import add
+
+
+def test_add():
+    assert add(2, 3) == 5
+""",
+    "demo_py/test/test_flake8.py": """import pytest
+from ament_flake8.main import main_with_errors
+
+
+@pytest.mark.flake8
+@pytest.mark.linter
+def test_flake8():
+    rc, errors = main_with_errors(argv=[])
+    assert rc == 0, "Found %d code style errors / warnings:\\n" % len(errors) + "\\n".join(errors)
+""",
+    "demo_py/test/test_pep257.py": """import pytest
+from ament_pep257.main import main
+
+
+@pytest.mark.linter
+@pytest.mark.pep257
+def test_pep257():
+    assert main(argv=[".", "test"]) == 0, "Found code style errors / warnings"
+""",
+    # Debian's rosdep rules have no Python keys
+    "docker/rosdep.yaml": """python3-yaml:
+  debian: [python3-yaml]
+python3-pytest:
+  debian: [python3-pytest]
+""",
+}
+
+
+def make_ros2_python_repo(repo: Union[str, Path]) -> Path:
+    """A typical ROS 2 Python repository for the Debian ROS 2 base (no rclpy, launch or ros2
+    CLI there): demo_interfaces (ament_cmake, a message and a service, rosidl's C/C++
+    generators) and demo_py (ament_python: setup.py/setup.cfg, resource marker, a console
+    script `talker` installed to lib/demo_py, a Python and an XML launch file and
+    config/params.yaml installed as data_files, pytest tests of its own and the flake8/pep257
+    ament linters as pytest cases), with docker/rosdep.yaml for the Python keys."""
+    repo = Path(repo)
+    for name, text in ROS2_PYTHON_FILES.items():
+        target = repo / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(text)
+    return repo

@@ -162,6 +162,8 @@ def test_extra_ca_certs_work_during_the_build_and_stay_out_of_images(
         # The cause and the fix in the last line, after pip's first try (no minutes of retries).
         assert "CERTIFICATE_VERIFY_FAILED" in last and "set EXTRA_CA_CERTS" in last, last
         assert "Retry(total=3" not in without.stdout
+        # docker-ros stopped pip: no exit code of our signal (-15) as if pip had failed so
+        assert "stopped at pip's first TLS failure" in last and "-15" not in last, last
 
         certs = tmp_path / "certs"  # outside the repository (the build context)
         certs.mkdir()

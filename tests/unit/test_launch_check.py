@@ -141,3 +141,26 @@ def test_ros1_isolated_install_found_through_ros_package_path(tmp_path):
     assert command_problems("rosrun chat chatter", env, FOUND) == []
     assert "has no executable elsewhere" in command_problems("rosrun chat elsewhere", env,
                                                              FOUND)[0]
+
+
+def test_a_package_executable_given_as_a_program_is_named_with_how_to_start_it(ros2_env):
+    """COMMAND=talker (an ament_python console script, installed to lib/<package>, not on
+    PATH): the check names the package and both ways to start it."""
+    talker = Path(ros2_env["AMENT_PREFIX_PATH"].split(":")[0]) / "lib/talk/talker"
+    assert command_problems("talker --ros-args -p a:=1", ros2_env, FOUND) == [
+        "`talker` is not a program on PATH in the run image: it is an executable of package "
+        f"talk; start it with `ros2 run talk talker` or its path {talker}"]
+    # without the ros2 command: its path only
+    assert command_problems("talker", ros2_env, ["rosrun"])[0].endswith(
+        f"start it with its path {talker}")
+    # lib/<package>/notes.txt is no executable: the usual message
+    assert "(check the name;" in command_problems("notes.txt", ros2_env, FOUND)[0]
+
+
+def test_a_missing_ros2_command_says_where_it_comes_from(ros2_env):
+    problems = command_problems("ros2 launch talk both.launch.py", ros2_env, ["rosrun"])
+    assert problems == [
+        "`ros2` is not a program on PATH in the run image: the ROS 2 command line (ros2cli) is "
+        "not installed; an <exec_depend> on ros2run or ros2launch in a package.xml installs it "
+        "where rosdep knows them (Debian's ROS 2 packages have none: start a node by its path, "
+        "/docker-ros/ws/install/<package>/lib/<package>/<executable>)"]

@@ -350,3 +350,45 @@ def test_a_test_case_without_a_name_is_named_as_such(tmp_path: Path):
     (tmp_path / "pkg" / "r.xml").write_text(
         '<testsuite><testcase><failure message="boom"/></testcase></testsuite>')
     assert testing.failed_cases(tmp_path) == ["pkg: (a test case without a name) (boom)"]
+
+
+# pytest's report of the ament_flake8 test of `ros2 pkg create --build-type ament_python`
+# (colcon test on Debian trixie, shortened to the failed case)
+AMENT_FLAKE8_FAILURE = """<?xml version="1.0" encoding="utf-8"?><testsuites><testsuite \
+name="pytest" errors="0" failures="1" skipped="0" tests="1" time="0.149"><testcase \
+classname="demo_py.test.test_flake8" name="test_flake8" time="0.048"><failure \
+message="AssertionError: Found 1 code style errors / warnings:&#10;  ./demo_py/talker.py:16:100: \
+E501 line too long (105 &gt; 99 characters)&#10;assert 1 == 0">test/test_flake8.py:9: in \
+test_flake8
+    assert rc == 0, "Found %d code style errors / warnings:\\n" % len(errors) + "\\n".join(errors)
+E   AssertionError: Found 1 code style errors / warnings:
+E     ./demo_py/talker.py:16:100: E501 line too long (105 &gt; 99 characters)
+E   assert 1 == 0</failure></testcase></testsuite></testsuites>"""
+
+
+def test_a_linter_failure_is_named_with_its_first_finding():
+    assert testing.junit_cases(AMENT_FLAKE8_FAILURE) == [(
+        "demo_py.test.test_flake8.test_flake8", "failed",
+        "AssertionError: Found 1 code style errors / warnings: ./demo_py/talker.py:16:100: E501 "
+        "line too long (105 > 99 characters)")]
+
+
+# pytest's report of a test module it could not import (colcon test on Debian trixie)
+PYTEST_COLLECTION_FAILURE = """<?xml version="1.0" encoding="utf-8"?><testsuites><testsuite \
+name="pytest" errors="1" failures="0" skipped="0" tests="1" time="0.137"><testcase \
+classname="demo_py" name="test.test_missing" time="0.000"><error message="collection failure">\
+ImportError while importing test module '/docker-ros/ws/src/target/demo_py/test/test_missing.py'.
+Hint: make sure your test modules/packages have valid Python names.
+Traceback:
+/usr/lib/python3.13/importlib/__init__.py:88: in import_module
+    return _bootstrap._gcd_import(name[level:], package, level)
+test/test_missing.py:1: in &lt;module&gt;
+    import not_installed_mod
+E   ModuleNotFoundError: No module named 'not_installed_mod'</error></testcase></testsuite>\
+</testsuites>"""
+
+
+def test_a_test_module_pytest_cannot_import_is_named_with_the_cause():
+    assert testing.junit_cases(PYTEST_COLLECTION_FAILURE) == [(
+        "demo_py.test.test_missing", "failed",
+        "collection failure: ModuleNotFoundError: No module named 'not_installed_mod'")]

@@ -9,6 +9,7 @@ import json
 import os
 import re
 import shutil
+import stat
 import subprocess
 import sys
 import tempfile
@@ -41,6 +42,9 @@ DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
 TOOLS_REPOSITORY = "docker-ros-tools"
 IMPORTS_REPOSITORY = "docker-ros-imports"
 IMPORTS_LABEL = "docker-ros.imports-of"  # the repository (imports_owner) that made the image
+# the dev image's: the content digest of the files resolving its dependencies read (the
+# imports image's), which `inv dev-shell` compares with the repository's (stale_dev_image)
+INPUTS_LABEL = "io.github.docker-ros.dependency-inputs"
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
 TOOLS_PATTERNS = ("__init__.py", "in_image/*.py", "in_image/*/*.py", "docker/*.sh")
 SECRETS = build_secrets()
@@ -318,6 +322,8 @@ def definition(
         "output": [output or ("type=registry" if push else "type=docker")],
     }
     labels = lock_labels(settings, target)
+    if target == "dev":
+        labels[INPUTS_LABEL] = imports_digest_of(imports_image)
     if labels:
         target_def["labels"] = labels
     if settings.build_network:
@@ -809,30 +815,62 @@ def ensure_imports_image(settings: Settings, platform: str,
     source stage while the skeleton does."""
     repository = Path(settings.build_context)
     with tempfile.TemporaryDirectory(prefix="docker-ros-imports-") as tmp:
-        digest = hashlib.sha256()
-        folders = {"repository": import_inputs(settings, repository),
-                   "inputs": skeleton_files(settings, repository) or []}
+        folders = imports_folders(settings, repository)
         for folder, files in folders.items():
-            # the layout is part of the tag: an image of another version holds other folders
-            digest.update(f"/{folder}/\0".encode())
             root = Path(tmp) / "context" / folder
             root.mkdir(parents=True)
             for rel in files:
                 source, copy = repository / rel, root / rel
-                content = source.read_bytes()
                 copy.parent.mkdir(parents=True, exist_ok=True)
-                copy.write_bytes(content)
+                copy.write_bytes(source.read_bytes())
                 shutil.copymode(source, copy)  # hooks keep their executable bit
-                digest.update(f"{folder}/{rel}\0{copy.stat().st_mode:o}\0".encode() + content)
         # the repository is part of the tag too: it removes only images no other one uses
         mine = imports_owner(repository)
-        ref = f"{IMPORTS_REPOSITORY}:{digest.hexdigest()[:16]}-{mine[:8]}-{platform}"
+        ref = f"{IMPORTS_REPOSITORY}:{imports_digest(repository, folders)}-{mine[:8]}-{platform}"
         if image_exists(ref):
             return ref
         owner = {IMPORTS_LABEL: mine}
         scratch_image(Path(tmp), "context", ref, platform, into="/", buildx=buildx,
                       labels=owner)
     return ref
+
+
+def imports_folders(settings: Settings, repository: Path) -> Dict[str, List[str]]:
+    """The imports image's folders and the repository's files in each (relative paths)."""
+    return {"repository": import_inputs(settings, repository),
+            "inputs": skeleton_files(settings, repository) or []}
+
+
+def imports_digest(repository: Path, folders: Mapping[str, Sequence[str]]) -> str:
+    """The content digest of the imports image's files (16 hex digits): paths, modes (a hook's
+    executable bit), contents; the layout is part of it (another version's image holds other
+    folders)."""
+    digest = hashlib.sha256()
+    for folder, files in folders.items():
+        digest.update(f"/{folder}/\0".encode())
+        for rel in files:
+            source = repository / rel
+            mode = stat.S_IFREG | stat.S_IMODE(source.stat().st_mode)
+            digest.update(f"{folder}/{rel}\0{mode:o}\0".encode() + source.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def imports_digest_of(ref: str) -> str:
+    """The content digest in an imports image's tag (`<digest>-<owner>-<arch>`)."""
+    return ref.rpartition(":")[2].split("-")[0]
+
+
+def stale_dev_image(labels: Mapping[str, str], current: str, ref: str) -> str:
+    """A warning when the dev image was built from other dependency inputs than the
+    repository has now (a package.xml, a list file, the rosdep rules, a hook or a .repos file
+    changed since), else "" (also for an image without the label: made by an older version)."""
+    built = labels.get(INPUTS_LABEL, "")
+    if not built or built == current:
+        return ""
+    return (f"docker-ros dev-shell: {ref} was built before the repository's dependency inputs "
+            "changed (package.xml files, the list files, rosdep rules, hooks or .repos files): "
+            "its dependencies may be out of date; `inv dev-shell --rebuild` builds it again "
+            "first (from cache: only what changed)")
 
 
 def remove_superseded_imports(settings: Settings, current: str) -> None:

@@ -372,6 +372,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
             counts = testing.summarize(Path(tmp) / testing.JUNIT)
             cases = testing.failed_cases(Path(tmp) / testing.JUNIT)
             build_error = testing.read_build_error(Path(tmp))
+            packages = testing.package_test_failures(Path(tmp) / "log" / "test")
             try:
                 testing.install_results(Path(tmp), dest)
             except OSError as exc:
@@ -379,7 +380,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
                                 f"{exc.strerror or exc}; give a writable folder") from None
         print(f"docker-ros test ({platform}): {testing.format_summary(counts)} "
               f"(JUnit XML and logs in {dest})")
-        failed = testing.verdict(outcome, counts, cases, build_error)
+        failed = testing.verdict(outcome, counts, cases, build_error, packages)
         if failed:
             failures.append(f"{failed} ({platform})")
     if failures:
@@ -523,8 +524,16 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
             print(format_argv(argv))
             return 0
         check_shell_engine(settings)
-        if rebuild or not build.image_exists(ref):
+        image = None if rebuild else engine.inspect_image(ref)
+        if image is None:
             build_targets(settings, ("dev",), dry_run=False)
+        else:
+            repository = Path(settings.build_context)
+            current = build.imports_digest(repository, build.imports_folders(settings, repository))
+            stale = build.stale_dev_image((image.get("Config") or {}).get("Labels") or {},
+                                          current, ref)
+            if stale:
+                print(stale, file=sys.stderr, flush=True)
         return subprocess.call(argv)
 
 

@@ -10,6 +10,7 @@ the same code.
 import json
 import logging
 import os
+import re
 import shutil
 import sys
 import xml.etree.ElementTree as ElementTree
@@ -69,11 +70,25 @@ def junit_cases(text: str) -> Optional[List[Tuple[str, str, str]]]:
     return cases
 
 
+# pytest's message of the case it reports for a test module it could not import (and then
+# runs no test of the package)
+PYTEST_COLLECTION_FAILURE = "collection failure"
+
+
 def failure_message(failure: ElementTree.Element) -> str:
     """The first line of a <failure>/<error>'s message: its message attribute (gtest, pytest),
-    else its text (rosunit and rostest write none: `<failure type="AssertionError">5 != 6`)."""
+    else its text (rosunit and rostest write none: `<failure type="AssertionError">5 != 6`);
+    a first line ending in ':' with the next one (the ament linters' tests: `Found 1 code
+    style errors / warnings:`, then the first of them); pytest's `collection failure` with
+    its cause (`ModuleNotFoundError: No module named 'x'`: a test dependency missing)."""
     text = failure.get("message") or failure.text or ""
+    if text == PYTEST_COLLECTION_FAILURE:  # its cause: the traceback's last `E   ` line
+        causes = [line[1:].strip() for line in (failure.text or "").splitlines()
+                  if line.startswith("E ")]
+        text += f": {causes[-1]}" if causes else ""
     lines = [line.strip() for line in text.splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].endswith(":"):
+        lines[0] += " " + lines[1]
     return lines[0][:150] if lines else ""
 
 
@@ -136,14 +151,46 @@ def failed_cases(root: Path) -> List[str]:
     return found
 
 
+# colcon's last line of a package's test command.log: "Invoked command in '<dir>' returned
+# '<code>': <environment> <command>"
+_INVOKED = re.compile(r"^Invoked command in '[^']*' returned '(-?\d+)': (.*)$")
+NO_TESTS_CODE = 5  # unittest's and pytest's exit code when no test ran
+UNITTEST_HINT = ("colcon ran `python3 -m unittest`, which finds only unittest.TestCase classes; "
+                 "it runs pytest when setup.py declares it: extras_require={'test': ['pytest']} "
+                 "(setuptools >= 72 ignores tests_require)")
+
+
+def package_test_failures(log: Path) -> List[str]:
+    """`<package>: <test command> exited with N` for each package whose test command failed,
+    from colcon's test logs (log/test/<package>/command.log); a Python package in which no
+    test ran is said so, with why when colcon fell back to unittest."""
+    found = []
+    for command_log in sorted(log.glob("*/command.log")):
+        package = command_log.parent.name
+        match = None
+        for line in command_log.read_text(errors="replace").splitlines():
+            match = _INVOKED.match(line) or match
+        if match is None or match.group(1) == "0":
+            continue
+        code, command = int(match.group(1)), match.group(2)
+        if code == NO_TESTS_CODE and re.search(r"-m (unittest|pytest)\b", command):
+            unittest = "-m unittest" in command
+            found.append(f"{package}: no tests ran" + (f" ({UNITTEST_HINT})" if unittest else
+                                                       " (pytest collected none)"))
+        else:
+            found.append(f"{package}: its tests exited with code {code}")
+    return found
+
+
 def format_summary(counts: Counts) -> str:
     return f"{counts.passed} passed, {counts.failed} failed, {counts.skipped} skipped"
 
 
 def verdict(outcome: Dict[str, int], counts: Counts, cases: Sequence[str] = (),
-            build_error: str = "") -> Optional[str]:
+            build_error: str = "", packages: Sequence[str] = ()) -> Optional[str]:
     """None when everything passed, else what failed (one line): the failed test cases
-    (failed_cases) or the colcon step's error (BUILD_ERROR) named."""
+    (failed_cases), the packages whose tests failed without a failed case
+    (package_test_failures) or the colcon step's error (BUILD_ERROR) named."""
     from docker_ros.in_image.steps.colcon import SEE_ABOVE
 
     if outcome.get("colcon_build", 0) != 0:
@@ -156,7 +203,8 @@ def verdict(outcome: Dict[str, int], counts: Counts, cases: Sequence[str] = (),
             f" and {len(cases) - CASES_SHOWN} more" if len(cases) > CASES_SHOWN else "")
         return f"{counts.failed} test(s) failed" + (f": {shown}" if shown else "")
     if outcome.get("colcon_test", 0) != 0:
-        return f"colcon test failed (exit code {outcome['colcon_test']})"
+        return (f"colcon test failed (exit code {outcome['colcon_test']})"
+                + (": " + "; ".join(packages) if packages else ""))
     if outcome.get("colcon_test_result", 0) != 0:
         return f"colcon test-result reported failures (exit code {outcome['colcon_test_result']})"
     return None

@@ -187,6 +187,41 @@ def launcher_problem(name: str, positional: Sequence[str], env: Mapping[str, str
             "installs it)")
 
 
+def package_executables(name: str, env: Mapping[str, str]) -> List[Tuple[str, Path, bool]]:
+    """(package, path, ROS 2) of each executable file called name in lib/<package>/ of the
+    install prefixes (AMENT_PREFIX_PATH: ROS 2; CMAKE_PREFIX_PATH: ROS 1), where colcon puts
+    an ament_python package's console scripts and `ros2 run`/`rosrun` find them."""
+    found: List[Tuple[str, Path, bool]] = []
+    for variable, ros2 in (("AMENT_PREFIX_PATH", True), ("CMAKE_PREFIX_PATH", False)):
+        for prefix in _paths(env, variable):
+            for path in sorted(prefix.glob(f"lib/*/{name}")):
+                if path.is_file() and os.access(path, os.X_OK) and \
+                        path not in [p for _, p, _ in found]:
+                    found.append((path.parent.name, path, ros2))
+    return found
+
+
+def not_on_path(first: str, env: Mapping[str, str], found: Sequence[str]) -> str:
+    """Why COMMAND's program `first` cannot start, and what would start what was meant: a
+    package's executable by `ros2 run`/`rosrun` or its path; a missing `ros2` from a package."""
+    problem = f"`{first}` is not a program on PATH in the run image"
+    executables = package_executables(first, env)
+    if executables:
+        package, path, ros2 = executables[0]
+        tool = "ros2 run" if ros2 else "rosrun"
+        ways = ([f"`{tool} {package} {first}`"] if tool.split()[0] in found else []) + [
+            f"its path {path}"]
+        return f"{problem}: it is an executable of package {package}; start it with " + \
+            " or ".join(ways)
+    if first == "ros2":
+        return (f"{problem}: the ROS 2 command line (ros2cli) is not installed; an "
+                "<exec_depend> on ros2run or ros2launch in a package.xml installs it where "
+                "rosdep knows them (Debian's ROS 2 packages have none: start a node by its "
+                "path, /docker-ros/ws/install/<package>/lib/<package>/<executable>)")
+    return f"{problem} (check the name; a program that comes with a volume at run time: give " \
+        "its path)"
+
+
 def command_problems(command: str, env: Mapping[str, str], found: Sequence[str]) -> List[str]:
     """What COMMAND names that this environment lacks: programs not on PATH (found: the first
     words `type -t` knows here) and launchers' packages, executables and launch files."""
@@ -194,9 +229,7 @@ def command_problems(command: str, env: Mapping[str, str], found: Sequence[str])
     for words in simple_commands(command):
         first = words[0]
         if "/" not in first and first not in found:
-            problems.append(f"`{first}` is not a program on PATH in the run image (check the "
-                            "name; a program that comes with a volume at run time: give its "
-                            "path)")
+            problems.append(not_on_path(first, env, found))
             continue
         parsed = launcher(words)
         if parsed:

@@ -36,6 +36,8 @@ _OUTPUT_BLOCK = re.compile(r"^--- (?:output|stderr): (\S+)$")
 _NOT_FOUND = re.compile(r"\(find_package\)|Could NOT find|Could not find a package configuration")
 ERRORS_SHOWN = 2  # error lines in the one-line message; the whole output is above it
 SEE_ABOVE = "; see the output above"  # the end of a failed build's message
+# build types whose build folder holds copies of the sources, not compiled objects
+PYTHON_BUILD_TYPES = ("ament_python", "python")
 
 
 def cmake_arguments(cmake_args: str) -> List[str]:
@@ -132,6 +134,22 @@ def incremental_selection(previous: Mapping[str, object], current: Mapping[str, 
         outside = sorted(p for p in changed if owner(p, package_dirs) is None)
         return None, f"{outside[0]} changed outside every package"
     return sorted(o for o in owners if o), ""
+
+
+def stale_outputs(root: Path, packages: Sequence[Package], built: Optional[Set[str]],
+                  restored: bool) -> List[Path]:
+    """What to delete before building the packages colcon builds (built None: all) so that a
+    file gone from the sources is gone from the install space too: a Python package's build
+    folder (setuptools copies build/<pkg>/build/lib/ whole into the install space, so a
+    deleted module would stay in it), and over a restored install space the built packages'
+    own install folders (colcon's isolated layout; no build removes files it no longer
+    installs). CMake packages keep their build folders: nothing recompiles."""
+    chosen = [p for p in packages if built is None or p.name in built]
+    stale = [root / "build" / p.name for p in chosen if p.build_type in PYTHON_BUILD_TYPES]
+    layout = root / "install" / ".colcon_install_layout"
+    if restored and layout.is_file() and layout.read_text().strip() == "isolated":
+        stale += [root / "install" / p.name for p in chosen]
+    return [path for path in stale if path.exists()]
 
 
 def seed_build_state(cache: Path, seed: Path) -> None:
@@ -256,12 +274,15 @@ def main(
             if rebuilt:
                 LOG.info("%s: %s changed: building them and their dependents only", STEP,
                          ", ".join(selected))
+                remove(stale_outputs(ws.root, packages, rebuilt, restored=True))
                 build(ws, [*argv, "--packages-above", *selected], env)
             else:
                 LOG.info("%s: no package changed, the install space is the last build's", STEP)
         else:
             LOG.info("%s: full build: %s", STEP, why)
             rebuilt = None
+            remove(stale_outputs(ws.root, [p for p in packages if p.name not in ignore], None,
+                                 restored=False))
             build(ws, argv, env)
         # Only after success: a failed build must find the same files changed next time.
         keep_install(ws, cache / INSTALL_COPY, rebuilt)
@@ -288,6 +309,11 @@ def failure_message(ws: Workspace, lines: Sequence[str], returncode: int) -> str
                   "it (<depend>, <build_depend>: rosdep installs it) or ADDITIONAL_DEBS_FILE "
                   "lists it")
     return f"{what} (exit code {returncode}){cause}{SEE_ABOVE}"
+
+
+def remove(paths: Sequence[Path]) -> None:
+    if paths:
+        run(["rm", "-rf", *(str(p) for p in paths)], step=STEP)
 
 
 def restore_install(ws: Workspace, copy: Path) -> None:

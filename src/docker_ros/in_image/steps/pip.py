@@ -169,11 +169,13 @@ def pip_install(arguments: Sequence[str], *, step: str, dry_run: bool, what: str
         run(argv, step=step, dry_run=True)
         return
     returncode, lines = run_tee(argv, step=step, on_line=lambda line: bool(tls_failure(line)))
+    tls = [tls_failure(line) for line in lines if tls_failure(line)]
+    if tls:  # we stopped pip (its exit code is our signal's), it did not fail by itself
+        raise StepError(step, f"{what + ' ' if what else ''}stopped at pip's first TLS failure "
+                        f"(it retries for minutes): {format_argv(argv)}: {tls[0]}", 1)
     if returncode != 0:
-        tls = [tls_failure(line) for line in lines if tls_failure(line)]
-        cause = tls[0] if tls else pip_reason(lines)
         raise StepError(step, f"{what + ' ' if what else ''}failed with exit code {returncode}: "
-                        f"{format_argv(argv)}: {cause}", returncode or 1)
+                        f"{format_argv(argv)}: {pip_reason(lines)}", returncode)
 
 
 def pip_reason(lines: Sequence[str]) -> str:
