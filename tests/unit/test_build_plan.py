@@ -253,6 +253,13 @@ def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path)
         "docker/additional-files/a.conf", "docker/additional-pip-requirements.txt",
         "pkg/package.xml"]
     assert source_stages(settings)["DOCKER_ROS_SOURCE_START"] == "skeleton"
+    # the dev image's sources lose docker/additional-files in a step of their own, which a
+    # repository without that folder does not run on each source edit
+    assert source_stages(settings)["DOCKER_ROS_DEV_TREE"] == "tree-pruned"
+    other = load_settings(environ={"BASE_IMAGE": "b:1", "COMMAND": "c", "BUILD_CONTEXT":
+                                   str(tmp_path), "ADDITIONAL_FILES_DIR": "docker/none"},
+                          project_dir=tmp_path)
+    assert source_stages(other)["DOCKER_ROS_DEV_TREE"] == "tree-marked"
     # what the build context leaves out (credentials in .env files) stays out of it too
     (tmp_path / "docker" / "additional-files" / ".env").write_text("GIT_HTTPS_PASSWORD=x")
     assert "docker/additional-files/.env" not in skeleton_files(settings, tmp_path)
@@ -262,7 +269,8 @@ def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path)
         (tmp_path / name).write_text("true\n")
         assert skeleton_files(settings, tmp_path) is None
         assert source_stages(settings) == {"DOCKER_ROS_SOURCE_START": "checkout",
-                                           "DOCKER_ROS_TREE": "source"}
+                                           "DOCKER_ROS_TREE": "source",
+                                           "DOCKER_ROS_DEV_TREE": "tree-pruned"}
         (tmp_path / name).unlink()
 
 

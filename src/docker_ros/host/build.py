@@ -801,10 +801,17 @@ def source_stages(settings: Settings) -> Dict[str, str]:
     """The build arguments choosing where the source stage starts and what the dev image's
     sources come from: the skeleton (only the files clone and blacklist read, so a source edit
     runs neither, nor resolve) and the checkout with the source stage's ignore markers, unless
-    the source stage must read the whole context (reads_whole_context)."""
-    if reads_whole_context(settings, Path(settings.build_context)):
-        return {"DOCKER_ROS_SOURCE_START": "checkout", "DOCKER_ROS_TREE": "source"}
-    return {"DOCKER_ROS_SOURCE_START": "skeleton", "DOCKER_ROS_TREE": "marked"}
+    the source stage must read the whole context (reads_whole_context). The dev image's sources
+    lose ADDITIONAL_FILES_DIR in a stage of their own (tree-pruned), which runs on every source
+    edit: only when the repository has that folder, or a hook may make it."""
+    repository = Path(settings.build_context)
+    if reads_whole_context(settings, repository):
+        return {"DOCKER_ROS_SOURCE_START": "checkout", "DOCKER_ROS_TREE": "source",
+                "DOCKER_ROS_DEV_TREE": "tree-pruned"}
+    files = repository / settings.additional_files_dir
+    pruned = (files.is_dir() or files.is_symlink()) and files.resolve() != repository.resolve()
+    return {"DOCKER_ROS_SOURCE_START": "skeleton", "DOCKER_ROS_TREE": "marked",
+            "DOCKER_ROS_DEV_TREE": "tree-pruned" if pruned else "tree-marked"}
 
 
 def ensure_imports_image(settings: Settings, platform: str,
