@@ -322,7 +322,7 @@ def engine26(ros1_base_image: str) -> str:
 def buildkit_image(engine26: str, ros2_base_image: str) -> str:
     """The image of a buildx docker-container builder on Engine 26 (tests.engines
     .buildkit_image: BuildKit from Debian's source, as moby/buildkit cannot be pulled here),
-    built once per machine (about 5 minutes), then reused by its tag."""
+    built once per machine (3 to 5 minutes), then reused by its tag."""
     if not engines.has_image(engines.ENGINE26_HOST, ros2_base_image):
         engines.copy_image(ros2_base_image, engines.ENGINE26_HOST)
     return engines.buildkit_image(engines.ENGINE26_HOST, ros2_base_image)
