@@ -83,3 +83,20 @@ def test_a_docker_container_builder_pushes_and_an_empty_one_builds_from_its_cach
     finally:
         on_engine26("rmi", base, ref, f"{ref}-dev")
     assert_pulled_image_runs(ref)
+
+
+def test_a_local_base_image_a_docker_container_builder_cannot_see_is_named(
+    buildkit_image: str, engine26: str, ros1_base_image: str, tmp_path: Path
+) -> None:
+    """BASE_IMAGE is an image of the local engine only (bootstrapped here): the builder's own
+    BuildKit looks for it in a registry, and the message says why it failed and what to do."""
+    project = copy_example(tmp_path / "example")
+    write_env(project, BASE_IMAGE=ros1_base_image, TARGET="run", COMMAND=EXAMPLE_COMMAND,
+              IMAGE=f"docker-ros-test/buildkit-unseen-{uuid.uuid4().hex[:8]}:1")
+    with container_builder(ENGINE26_HOST, buildkit_image) as name:
+        result = docker_ros(project, "build", env={"DOCKER_HOST": ENGINE26_HOST,
+                                                   "BUILDER": name})
+    assert result.returncode != 0, result.stdout[-3000:]
+    assert (f"{ros1_base_image} is an image of the local engine, which a builder with a "
+            "BuildKit of its own (docker-container, remote) does not see: push it to a "
+            "registry") in result.stdout, result.stdout[-3000:]

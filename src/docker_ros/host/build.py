@@ -607,14 +607,31 @@ def tagged_in_log(lines: Sequence[str], ref: str) -> bool:
     return any(f"naming to {name} done" in line for line in lines for name in (full, ref))
 
 
-def failure_reason(lines: Sequence[str], errors: Sequence[str], network: str = "") -> str:
-    """How a failed buildx run ended, for the one-line message (network: BUILD_NETWORK)."""
+def failure_reason(lines: Sequence[str], errors: Sequence[str], network: str = "",
+                   unseen: Sequence[str] = ()) -> str:
+    """How a failed buildx run ended, for the one-line message (network: BUILD_NETWORK;
+    unseen: see unseen_hint)."""
     lost = engine_lost(lines)
     if lost:
         return (f"failed: the connection to the Docker engine was lost ({lost}); nothing was "
                 "tagged, so rerunning is safe once `docker info` answers")
     reason = f"failed in step {errors[-1]}" if errors else "failed (see the BuildKit error above)"
-    return reason + network_hint(lines, network)
+    return reason + network_hint(lines, network) + unseen_hint(lines, unseen)
+
+
+def unseen_hint(lines: Sequence[str], unseen: Sequence[str]) -> str:
+    """What to do when BuildKit could not resolve an image that only the local engine holds
+    (unseen: such images, given for a builder with a BuildKit of its own, which sees no
+    engine's images and looked for it in a registry): '' for any other failure."""
+    failed = [line for line in lines if "failed to resolve source metadata for" in line]
+    ref = next((r for r in unseen if any(f"{r}: failed to resolve" in line or f"/{r}:" in line
+                                         for line in failed)), "")
+    if not ref:
+        return ""
+    return (f"; {ref} is an image of the local engine, which a builder with a BuildKit of its "
+            "own (docker-container, remote) does not see: push it to a registry that builder "
+            "reaches (`--driver-opt network=host` for one on 127.0.0.1) and name it there, or "
+            "build with the engine's own builder (BUILDER unset or a docker context)")
 
 
 def failed_output(lines: Sequence[str]) -> List[str]:
@@ -990,6 +1007,8 @@ def build_images_locked(
         base, why = platform_base(settings, platform)
         if why:
             print(why, file=out)
+        # a local base image such a builder will not see (named if its lookup fails)
+        unseen = [base] if layouts is not None and base and image_exists(base) else []
         specs = {target: definition(settings, target=target, platform=platform,
                                     tools_image=tools, tag=tag,
                                     secrets={**plan_secrets(settings, bundle), **pin_secrets},
@@ -1019,7 +1038,7 @@ def build_images_locked(
             try:
                 seconds = run_buildx(argv, {t: targets[t] for t in names}, platform,
                                      env=child_env, out=out, environ=environ,
-                                     network=settings.build_network or "")
+                                     network=settings.build_network or "", unseen=unseen)
             except BuildError as exc:
                 raise with_built(exc, built) from None
             except KeyboardInterrupt as exc:
@@ -1055,9 +1074,10 @@ def build_image(settings: Settings, *, target: str, platform: str, tag: str,
 
 def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *,
                env: Mapping[str, str], out: IO[str], environ: Mapping[str, str],
-               network: str = "") -> float:
+               network: str = "", unseen: Sequence[str] = ()) -> float:
     """Run one buildx command (targets: target -> tag), its log folded into out; its seconds,
-    or a BuildError (network: BUILD_NETWORK, for the hint of a step that found none)."""
+    or a BuildError (network: BUILD_NETWORK, for the hint of a step that found none; unseen:
+    local images the builder cannot see, for the hint of a lookup that failed)."""
     # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
     header = ", ".join(f"{t} -> {tag}" for t, tag in targets.items())
     out.write(f"==> docker-ros build ({platform}) {header}\n")
@@ -1086,7 +1106,7 @@ def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *
         failed = [t for t in targets if t not in done]
         what = "target" if len(failed) == 1 else "targets"
         raise BuildError(f"building {what} {', '.join(repr(t) for t in failed)} ({platform}) "
-                         f"{failure_reason(lines, errors, network)}"
+                         f"{failure_reason(lines, errors, network, unseen)}"
                          + "".join(f"; {built_note(t, targets[t])}" for t in done),
                          code, stage=stage, step=step)
     return time.monotonic() - began
