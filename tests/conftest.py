@@ -319,6 +319,16 @@ def engine26(ros1_base_image: str) -> str:
 
 
 @pytest.fixture(scope="session")
+def buildkit_image(engine26: str, ros2_base_image: str) -> str:
+    """The image of a buildx docker-container builder on Engine 26 (tests.engines
+    .buildkit_image: BuildKit from Debian's source, as moby/buildkit cannot be pulled here),
+    built once per machine (3 to 5 minutes), then reused by its tag."""
+    if not engines.has_image(engines.ENGINE26_HOST, ros2_base_image):
+        engines.copy_image(ros2_base_image, engines.ENGINE26_HOST)
+    return engines.buildkit_image(engines.ENGINE26_HOST, ros2_base_image)
+
+
+@pytest.fixture(scope="session")
 def docker_ros_wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """This checkout as a wheel, built once per run: CI jobs install it (a pip requirement as
     DOCKER_ROS_PIP_SPEC allows) in seconds, and jobs that run at once do not build in the same

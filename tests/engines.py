@@ -4,8 +4,11 @@ scripts/setup.sh starts) and private, empty engines of either generation (a fres
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
+import re
 import subprocess
+import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -107,3 +110,56 @@ def private_engine(images: Sequence[str] = (), *, modern: bool = False) -> Itera
             daemon.wait()
         subprocess.run(["ip", "link", "del", bridge], capture_output=True)
         subprocess.run(["rm", "-rf", "--one-file-system", str(work)], capture_output=True)
+
+
+# BuildKit's daemon built from Debian's docker.io source (moby/buildkit cannot be pulled here):
+# the image of the docker-container builders the tests create (see tests/docker/buildkit.Dockerfile)
+BUILDKIT_DOCKERFILE = Path(__file__).parent / "docker" / "buildkit.Dockerfile"
+BUILDKIT_REPOSITORY = "docker-ros-test/buildkit"
+
+
+def buildkit_tag() -> str:
+    """docker-ros-test/buildkit:<Debian docker.io version>-<recipe hash>: a changed Dockerfile
+    (another Debian version, another package list) makes another image."""
+    text = BUILDKIT_DOCKERFILE.read_text()
+    version = re.search(r"^ARG DOCKER_IO_VERSION=(\S+)", text, re.MULTILINE)
+    revision = re.search(r"^ARG DOCKER_IO_REVISION=(\S+)", text, re.MULTILINE)
+    assert version and revision, "buildkit.Dockerfile names no DOCKER_IO_VERSION/_REVISION"
+    name = re.sub(r"[^\w.-]", "-", f"{version.group(1)}-{revision.group(1)}")
+    return f"{BUILDKIT_REPOSITORY}:{name}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
+
+
+def buildkit_image(host: str, base_image: str) -> str:
+    """The buildkit image in the engine at host, built there (on its own builder, from
+    base_image, a Debian trixie image that engine holds) unless it exists: about 3 to 5
+    minutes on 2 cores (measured 3 min 9 s: apt 61 s, go build 117 s). Its build needs the
+    Debian mirror (--network host: Engine 26's bridge has no outbound NAT)."""
+    tag = buildkit_tag()
+    if image_content(host, tag):
+        return tag
+    with tempfile.TemporaryDirectory(prefix="docker-ros-test-buildkit-") as context:
+        built = subprocess.run(["docker", "buildx", "build", "--builder", "default", "--load",
+                                "--network", "host", "--progress", "plain",
+                                "--file", str(BUILDKIT_DOCKERFILE), "--build-arg",
+                                f"BASE_IMAGE={base_image}", "--tag", tag, context],
+                               env=env_for(host), capture_output=True, text=True)
+    if built.returncode != 0:
+        raise RuntimeError(f"building {tag} failed:\n{built.stderr[-6000:]}")
+    return tag
+
+
+@contextlib.contextmanager
+def container_builder(host: str, image: str) -> Iterator[str]:
+    """A buildx docker-container builder (buildkitd in a container of the engine at host,
+    image: buildkit_image) with the host's network, so that it reaches a registry on
+    127.0.0.1 as a CI runner's builder does (`network=host`); yields its name. Removed
+    afterwards with its container and its state volume (`docker buildx rm`)."""
+    name = f"docker-ros-test-bk-{uuid.uuid4().hex[:8]}"
+    subprocess.run(["docker", "buildx", "create", "--name", name, "--driver", "docker-container",
+                    "--driver-opt", f"image={image}", "--driver-opt", "network=host",
+                    "--bootstrap"], env=env_for(host), check=True, capture_output=True)
+    try:
+        yield name
+    finally:
+        subprocess.run(["docker", "buildx", "rm", name], env=env_for(host),
+                       capture_output=True)

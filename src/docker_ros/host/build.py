@@ -296,12 +296,15 @@ def definition(
     imports_image: str = f"{IMPORTS_REPOSITORY}:<hash>",
     base_image: str = "",
     cache_export: str = "inline",
+    contexts: Mapping[str, str] = {},
 ) -> Dict[str, Any]:
     """One target and platform as a `docker buildx bake` target: the single description behind
     both plan_build (one `buildx build`) and plan_bake (several targets in one BuildKit run).
     `output`: an --output exporter instead of loading or pushing the image; `base_image`: the
     platform's base (platform_base) when it is not BASE_IMAGE; `cache_export`: what CACHE_TO
-    exports, `registry` or `inline` (the builder's choice, see builder.py)."""
+    exports, `registry` or `inline` (the builder's choice, see builder.py); `contexts`: named
+    build contexts (--build-context), the tools and imports images' OCI layouts for a builder
+    with a BuildKit of its own (see scratch_layout)."""
     args = {"BASE_IMAGE": base_image or settings.base_image or "",
             "DOCKER_ROS_TOOLS": tools_image,
             "DOCKER_ROS_IMPORTS": imports_image,
@@ -321,6 +324,8 @@ def definition(
         "secret": [f"id={i},{source}" for i, source in sorted(secrets.items())],
         "output": [output or ("type=registry" if push else "type=docker")],
     }
+    if contexts:
+        target_def["contexts"] = dict(contexts)
     labels = lock_labels(settings, target)
     if target == "dev":
         labels[INPUTS_LABEL] = imports_digest_of(imports_image)
@@ -418,6 +423,8 @@ def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX) -> List[
         argv += ["--build-arg", f"{name}={value}"]
     for name, value in spec.get("labels", {}).items():
         argv += ["--label", f"{name}={value}"]
+    for name, value in spec.get("contexts", {}).items():
+        argv += ["--build-context", f"{name}={value}"]
     for secret in spec["secret"]:
         argv += ["--secret", secret]
     if "network" in spec:
@@ -606,14 +613,31 @@ def tagged_in_log(lines: Sequence[str], ref: str) -> bool:
     return any(f"naming to {name} done" in line for line in lines for name in (full, ref))
 
 
-def failure_reason(lines: Sequence[str], errors: Sequence[str], network: str = "") -> str:
-    """How a failed buildx run ended, for the one-line message (network: BUILD_NETWORK)."""
+def failure_reason(lines: Sequence[str], errors: Sequence[str], network: str = "",
+                   unseen: Sequence[str] = ()) -> str:
+    """How a failed buildx run ended, for the one-line message (network: BUILD_NETWORK;
+    unseen: see unseen_hint)."""
     lost = engine_lost(lines)
     if lost:
         return (f"failed: the connection to the Docker engine was lost ({lost}); nothing was "
                 "tagged, so rerunning is safe once `docker info` answers")
     reason = f"failed in step {errors[-1]}" if errors else "failed (see the BuildKit error above)"
-    return reason + network_hint(lines, network)
+    return reason + network_hint(lines, network) + unseen_hint(lines, unseen)
+
+
+def unseen_hint(lines: Sequence[str], unseen: Sequence[str]) -> str:
+    """What to do when BuildKit could not resolve an image that only the local engine holds
+    (unseen: such images, given for a builder with a BuildKit of its own, which sees no
+    engine's images and looked for it in a registry): '' for any other failure."""
+    failed = [line for line in lines if "failed to resolve source metadata for" in line]
+    ref = next((r for r in unseen if any(f"{r}: failed to resolve" in line or f"/{r}:" in line
+                                         for line in failed)), "")
+    if not ref:
+        return ""
+    return (f"; {ref} is an image of the local engine, which a builder with a BuildKit of its "
+            "own (docker-container, remote) does not see: push it to a registry that builder "
+            "reaches (`--driver-opt network=host` for one on 127.0.0.1) and name it there, or "
+            "build with the engine's own builder (BUILDER unset or a docker context)")
 
 
 def failed_output(lines: Sequence[str]) -> List[str]:
@@ -699,13 +723,15 @@ def stage_dockerfile(context: Path, destination: Path) -> Path:
     return dockerfile
 
 
-def ensure_tools_image(platform: str, buildx: Sequence[str] = BUILDX) -> str:
+def ensure_tools_image(platform: str, buildx: Sequence[str] = BUILDX,
+                       layouts: Optional[Path] = None) -> str:
     """A FROM-scratch image with the step modules, tagged by their content hash (one per
-    docker-ros version that built here, shared by every repository: never removed by us)."""
+    docker-ros version that built here, shared by every repository: never removed by us).
+    layouts: made as an OCI layout there instead (see scratch_image)."""
     with tempfile.TemporaryDirectory(prefix="docker-ros-tools-") as tmp:
         digest = tools_tree(Path(tmp))
         return scratch_image(Path(tmp), "docker-ros", f"{TOOLS_REPOSITORY}:{digest}-{platform}",
-                             platform, buildx=buildx)
+                             platform, buildx=buildx, layouts=layouts)
 
 
 # The time every file of a scratch image has (SOURCE_DATE_EPOCH's usual value)
@@ -727,10 +753,14 @@ def reproducible(folder: Path) -> None:
 
 
 def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str = "",
-                  buildx: Sequence[str] = BUILDX, labels: Mapping[str, str] = {}) -> str:
+                  buildx: Sequence[str] = BUILDX, labels: Mapping[str, str] = {},
+                  layouts: Optional[Path] = None) -> str:
     """ref: FROM scratch with context/folder at /folder (or its contents at into), built
-    (on the builder of the build, where its FROM finds it) unless it exists already."""
-    if image_exists(ref):
+    (on the builder of the build, where its FROM finds it) unless it exists already.
+    layouts: a builder with a BuildKit of its own (docker-container, remote) has no image
+    store, so a FROM of ref would look for it on Docker Hub: it is exported as an OCI layout
+    under layouts instead, which the build gets as a named context (scratch_layout)."""
+    if layouts is None and image_exists(ref):
         return ref
     (context / "Dockerfile").write_text(f"FROM scratch\nCOPY {folder} {into or '/' + folder}\n")
     reproducible(context / folder)
@@ -739,7 +769,9 @@ def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str
     # and no provenance. So it is made afresh (--no-cache): a cache record of an earlier image
     # of this content whose layer went with that image (a superseded imports image removed,
     # then the cache pruned in part) failed the build ("layer does not exist", Engine 20.10).
-    argv = [*buildx, "build", "--quiet", "--load", "--no-cache", "--provenance=false",
+    output = (["--output", f"type=oci,tar=false,dest={layout_folder(layouts, ref)}"]
+              if layouts is not None else ["--load"])
+    argv = [*buildx, "build", "--quiet", *output, "--no-cache", "--provenance=false",
             "--build-arg", "SOURCE_DATE_EPOCH=0", "--platform", f"linux/{platform}",
             *[a for k, v in labels.items() for a in ("--label", f"{k}={v}")],
             "--tag", ref, str(context)]
@@ -747,6 +779,20 @@ def scratch_image(context: Path, folder: str, ref: str, platform: str, into: str
     if proc.returncode != 0:
         raise BuildError(f"building {ref} failed: {proc.stderr.strip()}")
     return ref
+
+
+def layout_folder(layouts: Path, ref: str) -> Path:
+    """Where scratch_image puts ref's OCI layout under layouts (a folder per image)."""
+    return layouts / ref.replace("/", "_").replace(":", "_")
+
+
+def scratch_layout(layouts: Path, ref: str) -> str:
+    """The named build context standing for ref, `oci-layout://<folder>@<digest>` (pinned to
+    the image scratch_image exported there): `FROM ref` then reads that image, with the
+    same digest an image store would give it, so cache keys stay those of a loaded image."""
+    folder = layout_folder(layouts, ref)
+    index = json.loads((folder / "index.json").read_text())
+    return f"oci-layout://{folder}@{index['manifests'][0]['digest']}"
 
 
 def import_inputs(settings: Settings, repository: Path) -> List[str]:
@@ -815,11 +861,11 @@ def source_stages(settings: Settings) -> Dict[str, str]:
 
 
 def ensure_imports_image(settings: Settings, platform: str,
-                         buildx: Sequence[str] = BUILDX) -> str:
+                         buildx: Sequence[str] = BUILDX, layouts: Optional[Path] = None) -> str:
     """A FROM-scratch image with the repository's .repos files at /repository and its
     skeleton_files at /inputs, tagged by their content. Each is COPY'd by the stage that
     needs it (content-addressed): the import stays cached while the .repos files do, and the
-    source stage while the skeleton does."""
+    source stage while the skeleton does. layouts: see scratch_image."""
     repository = Path(settings.build_context)
     with tempfile.TemporaryDirectory(prefix="docker-ros-imports-") as tmp:
         folders = imports_folders(settings, repository)
@@ -834,11 +880,11 @@ def ensure_imports_image(settings: Settings, platform: str,
         # the repository is part of the tag too: it removes only images no other one uses
         mine = imports_owner(repository)
         ref = f"{IMPORTS_REPOSITORY}:{imports_digest(repository, folders)}-{mine[:8]}-{platform}"
-        if image_exists(ref):
+        if layouts is None and image_exists(ref):
             return ref
         owner = {IMPORTS_LABEL: mine}
         scratch_image(Path(tmp), "context", ref, platform, into="/", buildx=buildx,
-                      labels=owner)
+                      labels=owner, layouts=layouts)
     return ref
 
 
@@ -986,12 +1032,15 @@ def build_images_locked(
     chosen = selected_builder(settings)
     export = builder.cache_export(chosen)
     buildx = builder.buildx_command(chosen, settings.builder or "")
-    tools = ensure_tools_image(platform, buildx)
-    imports = ensure_imports_image(settings, platform, buildx)
-    tag_local_base(settings, platform)
     child_env = dict(environ)
     child_env.setdefault("DOCKER_BUILDKIT", "1")
     with tempfile.TemporaryDirectory(prefix="docker-ros-build-") as tmp:
+        layouts = Path(tmp) / "layouts" if builder.own_buildkit(chosen) else None
+        tools = ensure_tools_image(platform, buildx, layouts=layouts)
+        imports = ensure_imports_image(settings, platform, buildx, layouts=layouts)
+        contexts = ({ref: scratch_layout(layouts, ref) for ref in (tools, imports)}
+                    if layouts is not None else {})
+        tag_local_base(settings, platform)
         # Passed by environment to buildx only: never argv, never a file, never a log.
         child_env.update(secret_env(settings))
         bundle = None
@@ -1003,13 +1052,15 @@ def build_images_locked(
         base, why = platform_base(settings, platform)
         if why:
             print(why, file=out)
+        # a local base image such a builder will not see (named if its lookup fails)
+        unseen = [base] if layouts is not None and base and image_exists(base) else []
         specs = {target: definition(settings, target=target, platform=platform,
                                     tools_image=tools, tag=tag,
                                     secrets={**plan_secrets(settings, bundle), **pin_secrets},
                                     push=push, dockerfile=dockerfile, output=output,
                                     extra_build_args={**extra_build_args, **pin_args},
                                     imports_image=imports, base_image=base,
-                                    cache_export=export)
+                                    cache_export=export, contexts=contexts)
                  for target, tag in targets.items()}
         built: List[BuiltImage] = []
         reused = seed_builds(settings, specs, platform, dockerfile, base,
@@ -1032,7 +1083,7 @@ def build_images_locked(
             try:
                 seconds = run_buildx(argv, {t: targets[t] for t in names}, platform,
                                      env=child_env, out=out, environ=environ,
-                                     network=settings.build_network or "")
+                                     network=settings.build_network or "", unseen=unseen)
             except BuildError as exc:
                 raise with_built(exc, built) from None
             except KeyboardInterrupt as exc:
@@ -1068,9 +1119,10 @@ def build_image(settings: Settings, *, target: str, platform: str, tag: str,
 
 def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *,
                env: Mapping[str, str], out: IO[str], environ: Mapping[str, str],
-               network: str = "") -> float:
+               network: str = "", unseen: Sequence[str] = ()) -> float:
     """Run one buildx command (targets: target -> tag), its log folded into out; its seconds,
-    or a BuildError (network: BUILD_NETWORK, for the hint of a step that found none)."""
+    or a BuildError (network: BUILD_NETWORK, for the hint of a step that found none; unseen:
+    local images the builder cannot see, for the hint of a lookup that failed)."""
     # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
     header = ", ".join(f"{t} -> {tag}" for t, tag in targets.items())
     out.write(f"==> docker-ros build ({platform}) {header}\n")
@@ -1099,7 +1151,7 @@ def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *
         failed = [t for t in targets if t not in done]
         what = "target" if len(failed) == 1 else "targets"
         raise BuildError(f"building {what} {', '.join(repr(t) for t in failed)} ({platform}) "
-                         f"{failure_reason(lines, errors, network)}"
+                         f"{failure_reason(lines, errors, network, unseen)}"
                          + "".join(f"; {built_note(t, targets[t])}" for t in done),
                          code, stage=stage, step=step)
     return time.monotonic() - began

@@ -58,6 +58,12 @@ def cache_export(builder: Builder) -> str:
     return "inline"
 
 
+def own_buildkit(builder: Builder) -> bool:
+    """Whether the builder runs a BuildKit of its own (docker-container, remote, kubernetes):
+    it has no image store, so a FROM finds only what a registry or a named context holds."""
+    return builder.driver in CONTAINER_DRIVERS
+
+
 def images_host(builder: Builder, cli_host: str) -> Optional[str]:
     """The engine the built images are in when it is not the CLI's: a docker driver keeps
     them in its own engine. None: the CLI's engine (where --load copies them otherwise)."""
