@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import lzma
 import os
 import re
 import subprocess
 import tempfile
 import time
+import urllib.error
+import urllib.request
 import uuid
 from pathlib import Path
-from typing import Dict, Iterator, Optional, Sequence
+from typing import Any, Dict, Iterator, Mapping, Optional, Sequence
 
 # Where scripts/setup.sh puts Engine 26 (see the README's "Two engine generations").
 ENGINE26_HOST = "unix:///run/docker-ros-engine26/docker.sock"
@@ -118,14 +121,63 @@ BUILDKIT_DOCKERFILE = Path(__file__).parent / "docker" / "buildkit.Dockerfile"
 BUILDKIT_REPOSITORY = "docker-ros-test/buildkit"
 
 
-def buildkit_tag() -> str:
-    """docker-ros-test/buildkit:<Debian docker.io version>-<recipe hash>: a changed Dockerfile
-    (another Debian version, another package list) makes another image."""
+# The docker.io source the image is built from while Debian's mirror has it; a stable update
+# replaces a revision's files in the pool, and then trixie's current docker.io is taken
+# (docker_io_source). The checksums are those of Debian's Sources index.
+DOCKER_IO_POOL = "http://deb.debian.org/debian/pool/main/d/docker.io"
+DOCKER_IO_SOURCES = "http://deb.debian.org/debian/dists/trixie/main/source/Sources.xz"
+DOCKER_IO = {
+    "version": "26.1.5+dfsg1", "revision": "9+deb13u1",
+    "sha256": {
+        "docker.io_26.1.5+dfsg1.orig.tar.xz":
+            "e06baad2dbca2a79d3569ee358a4442cf9e550a355872484631860941bee73c9",
+        "docker.io_26.1.5+dfsg1.orig-buildkit.tar.xz":
+            "3a4a472c237b1caf456aac2cae810fea2b4fae9d0e9e71af5540645b510ff10c",
+        "docker.io_26.1.5+dfsg1-9+deb13u1.debian.tar.xz":
+            "a579e61d4a60407d52347bb2af497cc16eeb964b9a7ebe3445ea854f5b9d8ee2",
+    },
+}
+
+
+def in_pool(name: str) -> bool:
+    request = urllib.request.Request(f"{DOCKER_IO_POOL}/{name}", method="HEAD")
+    try:
+        with urllib.request.urlopen(request, timeout=30):
+            return True
+    except urllib.error.HTTPError:
+        return False
+
+
+def current_docker_io(sources: str) -> Dict[str, Any]:
+    """The last docker.io stanza of a Debian Sources index: its version (upstream and Debian
+    revision) and its files' sha256."""
+    stanzas = [s for s in sources.split("\n\n") if re.search(r"^Package: docker\.io$", s, re.M)]
+    assert stanzas, "trixie's Sources index has no docker.io"
+    stanza = stanzas[-1]
+    full = re.search(r"^Version: (\S+)$", stanza, re.M)
+    sums = re.search(r"^Checksums-Sha256:\n((?: .*\n?)+)", stanza, re.M)
+    assert full and sums, stanza[:500]
+    version, _, revision = full.group(1).rpartition("-")
+    files = {line.split()[2]: line.split()[0] for line in sums.group(1).splitlines()}
+    return {"version": version, "revision": revision,
+            "sha256": {name: digest for name, digest in files.items()
+                       if name.endswith((".orig.tar.xz", ".orig-buildkit.tar.xz",
+                                         ".debian.tar.xz"))}}
+
+
+def docker_io_source() -> Dict[str, Any]:
+    """The pinned docker.io source (DOCKER_IO) while the mirror has it, else trixie's current."""
+    if all(in_pool(name) for name in DOCKER_IO["sha256"]):
+        return DOCKER_IO
+    with urllib.request.urlopen(DOCKER_IO_SOURCES, timeout=120) as response:
+        return current_docker_io(lzma.decompress(response.read()).decode("utf-8", "replace"))
+
+
+def buildkit_tag(source: Mapping[str, Any]) -> str:
+    """docker-ros-test/buildkit:<Debian docker.io version>-<recipe hash>: another Debian
+    version or a changed Dockerfile (another package list) makes another image."""
     text = BUILDKIT_DOCKERFILE.read_text()
-    version = re.search(r"^ARG DOCKER_IO_VERSION=(\S+)", text, re.MULTILINE)
-    revision = re.search(r"^ARG DOCKER_IO_REVISION=(\S+)", text, re.MULTILINE)
-    assert version and revision, "buildkit.Dockerfile names no DOCKER_IO_VERSION/_REVISION"
-    name = re.sub(r"[^\w.-]", "-", f"{version.group(1)}-{revision.group(1)}")
+    name = re.sub(r"[^\w.-]", "-", f"{source['version']}-{source['revision']}")
     return f"{BUILDKIT_REPOSITORY}:{name}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
 
 
@@ -134,14 +186,20 @@ def buildkit_image(host: str, base_image: str) -> str:
     base_image, a Debian trixie image that engine holds) unless it exists: about 3 to 5
     minutes on 2 cores (measured 3 min 9 s: apt 61 s, go build 117 s). Its build needs the
     Debian mirror (--network host: Engine 26's bridge has no outbound NAT)."""
-    tag = buildkit_tag()
+    source = docker_io_source()
+    tag = buildkit_tag(source)
     if image_content(host, tag):
         return tag
+    sums = " ".join(f"{digest}:{name}" for name, digest in sorted(source["sha256"].items()))
     with tempfile.TemporaryDirectory(prefix="docker-ros-test-buildkit-") as context:
         built = subprocess.run(["docker", "buildx", "build", "--builder", "default", "--load",
                                 "--network", "host", "--progress", "plain",
                                 "--file", str(BUILDKIT_DOCKERFILE), "--build-arg",
-                                f"BASE_IMAGE={base_image}", "--tag", tag, context],
+                                f"BASE_IMAGE={base_image}",
+                                "--build-arg", f"DOCKER_IO_VERSION={source['version']}",
+                                "--build-arg", f"DOCKER_IO_REVISION={source['revision']}",
+                                "--build-arg", f"DOCKER_IO_SHA256={sums}", "--tag", tag,
+                                context],
                                env=env_for(host), capture_output=True, text=True)
     if built.returncode != 0:
         raise RuntimeError(f"building {tag} failed:\n{built.stderr[-6000:]}")

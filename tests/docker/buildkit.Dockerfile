@@ -53,17 +53,17 @@ RUN apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-ins
         golang-opentelemetry-proto-dev \
     && rm -rf /var/lib/apt/lists/*
 ARG DEBIAN_POOL=http://deb.debian.org/debian/pool/main/d/docker.io
-ARG DOCKER_IO_VERSION=26.1.5+dfsg1
-ARG DOCKER_IO_REVISION=9+deb13u1
+# the docker.io source version and its files' checksums (`<sha256>:<file> ...`), which the
+# tests choose: tests/engines.py docker_io_source
+ARG DOCKER_IO_VERSION
+ARG DOCKER_IO_REVISION
+ARG DOCKER_IO_SHA256
 # orig: the engine (buildkit imports its pkg/archive and friends); orig-buildkit: BuildKit;
 # debian: the patches Debian applies to BuildKit (no hcsshim, no jaeger, grpc-middleware v1).
-COPY <<'SUMS' /src/SHA256SUMS
-e06baad2dbca2a79d3569ee358a4442cf9e550a355872484631860941bee73c9  docker.io_26.1.5+dfsg1.orig.tar.xz
-3a4a472c237b1caf456aac2cae810fea2b4fae9d0e9e71af5540645b510ff10c  docker.io_26.1.5+dfsg1.orig-buildkit.tar.xz
-a579e61d4a60407d52347bb2af497cc16eeb964b9a7ebe3445ea854f5b9d8ee2  docker.io_26.1.5+dfsg1-9+deb13u1.debian.tar.xz
-SUMS
 WORKDIR /src
-RUN for name in orig orig-buildkit; do \
+RUN test -n "$DOCKER_IO_VERSION" && test -n "$DOCKER_IO_REVISION" && test -n "$DOCKER_IO_SHA256" \
+    && for entry in $DOCKER_IO_SHA256; do echo "${entry%%:*}  ${entry#*:}"; done > SHA256SUMS \
+    && for name in orig orig-buildkit; do \
         python3 -c 'import sys, urllib.request; urllib.request.urlretrieve(sys.argv[1], sys.argv[2])' \
             "$DEBIAN_POOL/docker.io_${DOCKER_IO_VERSION}.$name.tar.xz" "docker.io_${DOCKER_IO_VERSION}.$name.tar.xz"; \
     done \
