@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import uuid
 from pathlib import Path
 
 import pytest
@@ -20,6 +21,10 @@ SHARE = "/docker-ros/ws/install/demo_py/share/demo_py"
 def test_files_removed_from_sources_leave_the_run_image(ros2_base_image: str,
                                                          tmp_path: Path) -> None:
     repo = make_ros2_python_repo(tmp_path / "ament_repo")
+    # sources of this run only: a rerun in the same folder (pytest's numbering starts again
+    # on a fresh /tmp) would otherwise take each build from BuildKit's cache of the last run
+    util = repo / "demo_py/demo_py/util.py"
+    util.write_text(util.read_text() + f"# run {uuid.uuid4().hex}\n")
     (repo / "demo_py/demo_py/old.py").write_text('"""Gone soon."""\n')
     (repo / "demo_py/demo_py/older.py").write_text('"""Gone later."""\n')
     write_env(repo, BASE_IMAGE=ros2_base_image, IMAGE=IMAGE,
