@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import subprocess
 import uuid
-from typing import Iterator
+from pathlib import Path
+from typing import Iterator, Tuple
 
 import pytest
 
@@ -33,10 +34,12 @@ CUSTOM = ('python -c "import sys; print(\'python\', sys.version_info[0])" '
 # ROS 1 base + ENV PYTHONPATH (a layer of metadata only: kept for the next run's build cache)
 BASE = "docker-ros-test/parity-base:pythonpath"
 BASE_PYTHONPATH = "/opt/base-python"
+Built = Tuple[str, Path]  # the build's log, the repository
 
 
 @pytest.fixture(scope="module")
-def built(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+def built(ros1_base_image: str,
+          tmp_path_factory: pytest.TempPathFactory) -> Iterator[Built]:
     subprocess.run(["docker", "build", "-t", BASE, "-"], check=True, capture_output=True,
                    input=f"FROM {ros1_base_image}\nENV PYTHONPATH={BASE_PYTHONPATH}\n",
                    text=True, timeout=300)
@@ -53,13 +56,13 @@ def built(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Ite
     try:
         result = docker_ros(repo, "build")
         assert result.returncode == 0, result.stdout[-5000:]
-        yield result.stdout
+        yield result.stdout, repo
     finally:
-        remove_image(IMAGE)
-        remove_image(DEV_IMAGE)
+        for image in (IMAGE, DEV_IMAGE, f"{IMAGE}-after-custom"):
+            remove_image(image)
 
 
-def test_hooks_and_command_have_curl_gpg_and_python_as_in_docker_ros(built: str) -> None:
+def test_hooks_and_command_have_curl_gpg_and_python_as_in_docker_ros(built: Built) -> None:
     for image in (IMAGE, DEV_IMAGE):
         tools = sh(image, "cat /docker-ros-parity-tools").stdout.splitlines()
         assert [line.split()[0] for line in tools] == ["curl", "gpg", "python"], tools
@@ -70,7 +73,7 @@ def test_hooks_and_command_have_curl_gpg_and_python_as_in_docker_ros(built: str)
     assert ran.stdout.strip() == "python 3"
 
 
-def test_docker_user_and_colcon_home_as_in_docker_ros(built: str) -> None:
+def test_docker_user_and_colcon_home_as_in_docker_ros(built: Built) -> None:
     expected = "dockeruser /docker-ros/ws/.colcon"
     for image in (IMAGE, DEV_IMAGE):
         assert sh(image, "cat /docker-ros-parity-env").stdout.strip() == expected
@@ -80,7 +83,7 @@ def test_docker_user_and_colcon_home_as_in_docker_ros(built: str) -> None:
     assert mapped.stdout.strip() == "dockeruser /docker-ros/ws/.colcon", mapped.stderr
 
 
-def test_dev_image_sources_without_additional_files_as_in_docker_ros(built: str) -> None:
+def test_dev_image_sources_without_additional_files_as_in_docker_ros(built: Built) -> None:
     """docker-ros removed ADDITIONAL_FILES_DIR from the dev image's sources: its files (often
     large: models, maps) are at /docker-ros/additional-files, not a second time in src/."""
     listed = sh(DEV_IMAGE, "cat /docker-ros/additional-files/maps/map.yaml && "
@@ -91,8 +94,19 @@ def test_dev_image_sources_without_additional_files_as_in_docker_ros(built: str)
     assert sh(IMAGE, "cat /docker-ros/additional-files/maps/map.yaml").stdout == "image: map.pgm\n"
 
 
-def test_hooks_get_the_base_images_pythonpath_as_in_docker_ros(built: str) -> None:
+def test_hooks_get_the_base_images_pythonpath_as_in_docker_ros(built: Built) -> None:
     """docker-ros's hooks ran with the base image's environment; the step code's folder
     (/docker-ros/lib) in PYTHONPATH replaced the base's PYTHONPATH for them."""
     for image in (IMAGE, DEV_IMAGE):
         assert sh(image, "cat /docker-ros-parity-pythonpath").stdout == BASE_PYTHONPATH + "\n"
+
+
+def test_a_hook_run_in_a_container_gets_the_base_images_pythonpath(
+    built: Built
+) -> None:
+    """`custom --in-container` (a container of the stage's state, not a RUN): the container's
+    PYTHONPATH put the step code's folder before the base image's, not in place of it."""
+    ran = docker_ros(built[1], "custom", "--in-container")
+    assert ran.returncode == 0, ran.stdout[-3000:]
+    state = sh(f"{IMAGE}-after-custom", "cat /docker-ros-parity-pythonpath")
+    assert state.stdout == BASE_PYTHONPATH + "\n", state.stdout + state.stderr

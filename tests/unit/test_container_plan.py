@@ -173,6 +173,17 @@ def test_environment_has_the_declared_settings_and_never_a_secret():
     assert not set(env) & set(container.NOT_SETTINGS)
 
 
+def test_step_modules_come_before_the_start_images_pythonpath():
+    """As the Dockerfile's RUNs (PYTHONPATH=/docker-ros/lib${PYTHONPATH:+:$PYTHONPATH}): a
+    container's -e would replace the base image's entries, which hooks and colcon need."""
+    s = settings(ROS_DISTRO="noetic")
+    env = container.step_environment(
+        s, build.dockerfile_args(), ["PATH=/usr/bin", "PYTHONPATH=/opt/ros/noetic/lib/py"])
+    assert env["PYTHONPATH"] == "/docker-ros/lib:/opt/ros/noetic/lib/py"
+    empty = container.step_environment(s, build.dockerfile_args(), ["PYTHONPATH="])
+    assert empty["PYTHONPATH"] == "/docker-ros/lib"
+
+
 def test_failed_step_and_stage_from_a_buildkit_log():
     log = [
         "#12 [resolve 1/1] RUN --mount=... python3 -m docker_ros.in_image.steps rosdep\n",

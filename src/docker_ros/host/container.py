@@ -152,12 +152,15 @@ def next_command(step: str) -> Optional[Command]:
     return order[index][:1] if step == "blacklist" else order[index]
 
 
-def step_environment(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
+def step_environment(settings: Settings, declared: Sequence[str],
+                     image_env: Sequence[str] = ()) -> Dict[str, str]:
     """What the Dockerfile's RUNs see: the settings it declares as ARGs (secrets never), and the
-    step modules on PYTHONPATH."""
+    step modules on PYTHONPATH before the start image's own entries (image_env: its Config.Env;
+    a container's -e replaces the image's value, the Dockerfile's RUNs prepend to it)."""
     values = build.arg_values(settings)
     env = {n: values[n] for n in declared if n in values and n not in NOT_SETTINGS}
-    env["PYTHONPATH"] = LIB
+    inherited = [e.split("=", 1)[1] for e in image_env if e.startswith("PYTHONPATH=")]
+    env["PYTHONPATH"] = ":".join([LIB] + [p for p in inherited[-1:] if p])
     return env
 
 
@@ -385,7 +388,8 @@ def run_plan(
         client = engine.client()
         start_id = str(client.images.get(stage_tag).id)
         declared = [a for a in build.dockerfile_args() if a not in NOT_SETTINGS]
-        env = step_environment(settings, declared)
+        start_config = client.images.get(start_id).attrs["Config"] or {}
+        env = step_environment(settings, declared, start_config.get("Env") or [])
         candidates = {ref: image_label(client, ref) for ref in
                       (tag_of(settings, "after", s) for s in dict.fromkeys(
                           c[0] for c in plan.commands))}
@@ -397,7 +401,7 @@ def run_plan(
         with secrets_dir(settings) as secrets:
             session = Session(client, settings, plan, Path(settings.build_context).resolve(),
                               secrets, out, shell_on_failure,
-                              start_config=client.images.get(start_id).attrs["Config"] or {})
+                              start_config=start_config)
             session.run(found or start_id, done, env, start_id)
     finally:
         # The tag only named the stage's build; the image stays while our commits use it.
