@@ -105,8 +105,15 @@ def test_a_local_base_image_a_docker_container_builder_cannot_see_is_named(
     write_env(project, BASE_IMAGE=ros1_base_image, TARGET="run", COMMAND=EXAMPLE_COMMAND,
               IMAGE=f"docker-ros-test/buildkit-unseen-{uuid.uuid4().hex[:8]}:1")
     with container_builder(ENGINE26_HOST, buildkit_image) as name:
-        result = docker_ros(project, "build", env={"DOCKER_HOST": ENGINE26_HOST,
-                                                   "BUILDER": name})
+        env = {"DOCKER_HOST": ENGINE26_HOST, "BUILDER": name}
+        shown = docker_ros(project, "build", "--dry-run", env=env)
+        result = docker_ros(project, "build", env=env)
+    # the dry run shows the build as it would run: through the builder, with its registry
+    # cache choice, the tools and imports images as OCI layouts
+    assert shown.returncode == 0, shown.stdout[-3000:]
+    assert f"[dry-run] build: docker buildx --builder {name} bake" in shown.stdout, shown.stdout
+    assert '"docker-ros-tools:<hash>": "oci-layout://<temporary>/layouts/' in shown.stdout
+    assert '"docker-ros-imports:<hash>": "oci-layout://' in shown.stdout, shown.stdout
     assert result.returncode != 0, result.stdout[-3000:]
     assert (f"{ros1_base_image} is an image of the local engine, which a builder with a "
             "BuildKit of its own (docker-container, remote) does not see: push it to a "

@@ -465,20 +465,26 @@ def bake_file(targets: Mapping[str, Dict[str, Any]]) -> str:
     return json.dumps({"target": dict(targets)}, indent=2, sort_keys=True) + "\n"
 
 
-def shown_definition(settings: Settings, *, target: str, platform: str, tag: str,
-                     output: str = "", extra_build_args: Mapping[str, str] = {}
+def shown_definition(settings: Settings, chosen: builder.Builder, *, target: str, platform: str,
+                     tag: str, output: str = "", extra_build_args: Mapping[str, str] = {}
                      ) -> Dict[str, Any]:
-    """definition as a dry run shows it, before the tools image and CA bundle exist."""
-    return definition(settings, target=target, platform=platform,
-                      tools_image=f"{TOOLS_REPOSITORY}:<hash>", tag=tag,
-                      secrets=plan_secrets(settings, None), output=output,
-                      extra_build_args=extra_build_args,
-                      base_image=shown_base(settings, platform))
+    """definition as a dry run shows it, before the tools image and CA bundle exist, for the
+    chosen builder (selected_builder): its cache export, and for one with a BuildKit of its
+    own the named contexts standing for the tools and imports images (build_images_locked)."""
+    tools, imports = f"{TOOLS_REPOSITORY}:<hash>", f"{IMPORTS_REPOSITORY}:<hash>"
+    contexts = {ref: f"oci-layout://{layout_folder(Path('<temporary>/layouts'), ref)}@<digest>"
+                for ref in (tools, imports)} if builder.own_buildkit(chosen) else {}
+    return definition(settings, target=target, platform=platform, tools_image=tools,
+                      imports_image=imports, tag=tag, secrets=plan_secrets(settings, None),
+                      output=output, extra_build_args=extra_build_args,
+                      base_image=shown_base(settings, platform),
+                      cache_export=builder.cache_export(chosen), contexts=contexts)
 
 
-def plan_shown(settings: Settings, **options: Any) -> List[str]:
-    """plan_build as a dry run shows it (options: see shown_definition)."""
-    return build_argv(shown_definition(settings, **options))
+def plan_shown(settings: Settings, chosen: builder.Builder, **options: Any) -> List[str]:
+    """plan_build as a dry run shows it, through the chosen builder (see shown_definition)."""
+    return build_argv(shown_definition(settings, chosen, **options),
+                      builder.buildx_command(chosen, settings.builder or ""))
 
 
 def secret_env(settings: Settings) -> Dict[str, str]:

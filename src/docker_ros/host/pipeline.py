@@ -174,7 +174,8 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
     repository = f"{Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
     mount = f" -v {repository}" if plan.sources else ""
     if dry_run:
-        argv = build.plan_shown(settings, target=plan.start, platform=settings.platform[0],
+        argv = build.plan_shown(settings, shown_builder(settings), target=plan.start,
+                                platform=settings.platform[0],
                                 tag=container.tag_of(settings, "stage", plan.start))
         print("[dry-run] build:", format_argv(argv))
         print(f"[dry-run] in one container of it{f' ({mount.strip()})' if mount else ''}:")
@@ -211,6 +212,15 @@ def composite_flow(settings: Settings, name: str, *, host: bool, dry_run: bool, 
         build_targets(settings, (name,), dry_run=dry_run, shell_on_failure=shell_on_failure)
 
 
+def shown_builder(settings: Settings) -> builder.Builder:
+    """The builder a dry run shows the builds in: inspected as a build would (when BUILDER,
+    CACHE_TO or the environment picks one), a builder that cannot be is the dry run's error."""
+    try:
+        return build.selected_builder(settings)
+    except build.BuildError as exc:
+        raise TaskError(str(exc)) from None
+
+
 def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
            shell_on_failure: bool = False, slim: bool = False) -> List[BuiltImage]:
     """Build the targets for every platform (and with slim, the slim image after run); print
@@ -231,22 +241,25 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             (build.shown_base if dry_run else build.platform_base)(settings, platform)
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
+    chosen = shown_builder(settings) if dry_run else None
     built: List[BuiltImage] = []
     for platform in settings.platform:
         # BUILD_STATE_FROM: the run image's build state too, for the next job's `push`
         kinds = ("dev", "run") + (("build-state",) if settings.build_state_from else ())
         tags = {t: build.target_ref(settings, t, platform)
                 for t in kinds if t in targets or (t == "build-state" and "run" in targets)}
-        if dry_run and build.can_bake(settings):
-            specs = {t: build.shown_definition(settings, target=t, platform=platform, tag=tag)
-                     for t, tag in tags.items()}
-            print("[dry-run] build:",
-                  format_argv(build.plan_bake(specs, "<temporary>/docker-ros.bake.json")))
+        if chosen is not None and build.can_bake(settings):
+            specs = {t: build.shown_definition(settings, chosen, target=t, platform=platform,
+                                               tag=tag) for t, tag in tags.items()}
+            buildx = builder.buildx_command(chosen, settings.builder or "")
+            print("[dry-run] build:", format_argv(
+                build.plan_bake(specs, "<temporary>/docker-ros.bake.json", buildx)))
             print(f"[dry-run] with <temporary>/docker-ros.bake.json:\n{build.bake_file(specs)}",
                   end="")
-        elif dry_run:
+        elif chosen is not None:
             for target, tag in tags.items():
-                argv = build.plan_shown(settings, target=target, platform=platform, tag=tag)
+                argv = build.plan_shown(settings, chosen, target=target, platform=platform,
+                                        tag=tag)
                 print("[dry-run] build:", format_argv(argv))
         else:
             try:
@@ -357,8 +370,9 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
         with tempfile.TemporaryDirectory(prefix="docker-ros-test-") as tmp:
             output = f"type=local,dest={tmp}"
             if dry_run:
-                argv = build.plan_shown(settings, target="test-results", platform=platform,
-                                        tag=tag, output=output, extra_build_args=run)
+                argv = build.plan_shown(settings, shown_builder(settings),
+                                        target="test-results", platform=platform, tag=tag,
+                                        output=output, extra_build_args=run)
                 print("[dry-run] test:", format_argv(argv))
                 print(f"[dry-run] test: would copy the results to {dest}")
                 continue
