@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.host import build
+from docker_ros.host import build, buildlog
 from docker_ros.in_image.settings import FIELDS, load_settings
 
 
@@ -92,12 +92,12 @@ def test_log_folding_per_ci():
         ({"GITLAB_CI": "true"}, "section_start:", "section_end:"),
     ):
         out = io.StringIO()
-        build.stream_build(iter(lines), out, environ)
+        buildlog.stream_build(iter(lines), out, environ)
         text = out.getvalue()
         assert start in text and end in text
         assert text.index(start) < text.index("something") < text.index(end)
     plain = io.StringIO()
-    build.stream_build(iter(lines), plain, {})
+    buildlog.stream_build(iter(lines), plain, {})
     assert plain.getvalue() == "".join(lines)
 
 
@@ -109,7 +109,7 @@ def test_colcons_package_lines_are_not_folded():
              "#9 0.3 --- output: broken_pkg\n", "#9 0.4 Failed   <<< broken_pkg [0.2s, exited "
              "with code 2]\n", "#9 0.5 Failed   <<< colcon [0.4s]\n"]
     out = io.StringIO()
-    build.stream_build(iter(lines), out, {"GITHUB_ACTIONS": "true"})
+    buildlog.stream_build(iter(lines), out, {"GITHUB_ACTIONS": "true"})
     groups = [line for line in out.getvalue().splitlines() if line.startswith("::")]
     assert groups == ["::group::colcon", "::endgroup::"]
     # a package named like one of our steps (`files`) is still colcon's, and the steps of
@@ -119,7 +119,7 @@ def test_colcons_package_lines_are_not_folded():
              "#9 0.4 Starting >>> pkg\n", "#12 0.5 Finished <<< rosdep [0.4s]\n",
              "#9 0.6 Finished <<< pkg [0.2s]\n", "#9 0.7 Finished <<< colcon [0.6s]\n"]
     out = io.StringIO()
-    build.stream_build(iter(lines), out, {"GITHUB_ACTIONS": "true"})
+    buildlog.stream_build(iter(lines), out, {"GITHUB_ACTIONS": "true"})
     folded = [line for line in out.getvalue().splitlines()]
     assert folded.index("::group::colcon") < folded.index("#9 0.2 Starting >>> files")
     assert [line for line in folded if line.startswith("::")] == [
@@ -129,7 +129,7 @@ def test_colcons_package_lines_are_not_folded():
 
 def test_step_errors_are_collected_from_the_log():
     out = io.StringIO()
-    errors = build.stream_build(
+    errors = buildlog.stream_build(
         iter(["#7 1.0 docker-ros rosdep: no rosdep rule for 'nope' (needed by pkg_a)\n"]),
         out, {},
     )
@@ -204,7 +204,7 @@ def test_bake_builds_the_targets_in_one_run_from_the_same_definitions():
 def test_a_failed_step_is_found_in_a_bake_log_too():
     lines = ["#7 [dev source 2/2] RUN --mount=... clone\n", "#9 [run build 1/1] RUN colcon\n",
              "#9 3.1 docker-ros colcon: package a failed to build\n"]
-    assert build.failed_step(lines) == ("build", "colcon")
+    assert buildlog.failed_step(lines) == ("build", "colcon")
 
 
 def test_with_cache_from_the_run_image_installs_on_a_copy_of_base():
@@ -289,34 +289,34 @@ INTERRUPTED = [
 
 
 def test_a_lost_engine_is_named_and_a_rerun_called_safe():
-    assert build.engine_lost(DAEMON_RESTARTED).endswith("error reading from server: EOF")
+    assert buildlog.engine_lost(DAEMON_RESTARTED).endswith("error reading from server: EOF")
     refused = ["#3 DONE 0.1s\n", "ERROR: Cannot connect to the Docker daemon at "
                "unix:///var/run/docker.sock. Is the docker daemon running?\n"]
-    assert build.engine_lost(refused).startswith("ERROR: Cannot connect to the Docker daemon")
+    assert buildlog.engine_lost(refused).startswith("ERROR: Cannot connect to the Docker daemon")
     dial = ["error: dial unix /var/run/docker.sock: connect: connection refused\n"]
-    assert build.engine_lost(dial)
+    assert buildlog.engine_lost(dial)
     # a build step's own output never counts (a refused git server inside a RUN)
     step = ["#9 0.5 fatal: unable to access: Failed to connect: connection refused\n",
             "#9 0.6 rpc error: code = Unavailable desc = transport is closing\n",
             "ERROR: failed to solve: process \"/bin/sh -c x\" did not complete successfully\n"]
-    assert build.engine_lost(step) == "" and build.engine_lost(INTERRUPTED) == ""
-    reason = build.failure_reason(DAEMON_RESTARTED, [])
+    assert buildlog.engine_lost(step) == "" and buildlog.engine_lost(INTERRUPTED) == ""
+    reason = buildlog.failure_reason(DAEMON_RESTARTED, [])
     assert reason.startswith("failed: the connection to the Docker engine was lost (ERROR: "
                              "failed to receive status: rpc error: code = Unavailable")
     assert reason.endswith("nothing was tagged, so rerunning is safe once `docker info` answers")
-    assert build.failure_reason(step, ["clone: x"]) == "failed in step clone: x"
-    assert build.failure_reason(step, []) == "failed (see the BuildKit error above)"
+    assert buildlog.failure_reason(step, ["clone: x"]) == "failed in step clone: x"
+    assert buildlog.failure_reason(step, []) == "failed (see the BuildKit error above)"
 
 
 def test_an_interrupted_buildx_is_told_from_a_failed_one():
-    assert build.cancelled(INTERRUPTED)
-    assert not build.cancelled(DAEMON_RESTARTED)
+    assert buildlog.cancelled(INTERRUPTED)
+    assert not buildlog.cancelled(DAEMON_RESTARTED)
     # bake: one target failed, the other cancelled; buildx names the failure last
     failed = ["#12 CANCELED\n", "ERROR: target dev: failed to solve: Canceled: context canceled\n",
               "ERROR: target run: failed to solve: process \"/bin/sh -c x\" did not complete "
               "successfully: exit code: 1\n"]
-    assert not build.cancelled(failed)
-    assert not build.cancelled(["#5 0.1 ERROR: context canceled\n"])
+    assert not buildlog.cancelled(failed)
+    assert not buildlog.cancelled(["#5 0.1 ERROR: context canceled\n"])
 
 
 def test_each_platform_builds_from_its_own_base_image():
@@ -393,10 +393,10 @@ def test_tagged_in_log_reads_buildkits_names() -> None:
     lines = ["#41 naming to docker.io/library/robot:1-dev done",
              "#42 naming to 127.0.0.1:5000/team/robot:1 done",
              "#43 naming to docker.io/team/arm:1 0.0s"]
-    assert build.tagged_in_log(lines, "robot:1-dev")
-    assert build.tagged_in_log(lines, "127.0.0.1:5000/team/robot:1")
-    assert not build.tagged_in_log(lines, "robot:1")  # not `robot:1-dev`
-    assert not build.tagged_in_log(lines, "team/arm:1")  # started, not done
+    assert buildlog.tagged_in_log(lines, "robot:1-dev")
+    assert buildlog.tagged_in_log(lines, "127.0.0.1:5000/team/robot:1")
+    assert not buildlog.tagged_in_log(lines, "robot:1")  # not `robot:1-dev`
+    assert not buildlog.tagged_in_log(lines, "team/arm:1")  # started, not done
 
 
 def test_a_target_failing_after_another_was_built_alone_names_the_built_one(
@@ -570,17 +570,17 @@ NO_NAT = [
 
 
 def test_a_step_without_network_points_at_build_network_host():
-    reason = build.failure_reason(NO_NAT, ["rosdep: apt-get install failed"], "")
+    reason = buildlog.failure_reason(NO_NAT, ["rosdep: apt-get install failed"], "")
     assert reason.startswith("failed in step rosdep: apt-get install failed; the step could not "
                              "reach the network (Temporary failure resolving 'deb.debian.org')")
     assert reason.endswith("set BUILD_NETWORK=host")
-    assert "BUILD_NETWORK is none" in build.failure_reason(NO_NAT, ["rosdep: x"], "none")
-    assert build.failure_reason(NO_NAT, ["rosdep: x"], "host") == "failed in step rosdep: x"
+    assert "BUILD_NETWORK is none" in buildlog.failure_reason(NO_NAT, ["rosdep: x"], "none")
+    assert buildlog.failure_reason(NO_NAT, ["rosdep: x"], "host") == "failed in step rosdep: x"
     # only the failed step's output counts (an earlier step's warning is no cause)
     earlier = ["#9 0.5 W: Failed to fetch x  Temporary failure resolving 'deb.debian.org'\n",
                "#9 DONE 0.6s\n", *NO_NAT[4:]]
-    assert build.network_hint(earlier, "") == ""
+    assert buildlog.network_hint(earlier, "") == ""
     pip = ["#8 3.0 WARNING: Retrying ... NewConnectionError('<pip._vendor.urllib3.connection."
            "HTTPSConnection object>: Failed to establish a new connection: [Errno -3] Temporary "
            "failure in name resolution')\n", "#8 ERROR: process did not complete\n"]
-    assert "(Failed to establish a new connection)" in build.network_hint(pip, "default")
+    assert "(Failed to establish a new connection)" in buildlog.network_hint(pip, "default")

@@ -12,7 +12,7 @@ from pathlib import Path
 import docker
 import pytest
 
-from docker_ros.host import build, container
+from docker_ros.host import build, buildlog, container
 from docker_ros.in_image.settings import load_settings
 from docker_ros.in_image.steps import BY_NAME, OPTIONS, STEPS, step_options
 
@@ -192,8 +192,8 @@ def test_failed_step_and_stage_from_a_buildkit_log():
         "#16 3.1 docker-ros custom: bash -e hooks/custom/01-custom.sh failed with exit code 3\n",
         "#16 ERROR: process did not complete successfully\n",
     ]
-    assert build.failed_step(log) == ("dependencies-dev", "custom")
-    assert build.failed_step(log[:3]) == ("", "")
+    assert buildlog.failed_step(log) == ("dependencies-dev", "custom")
+    assert buildlog.failed_step(log[:3]) == ("", "")
 
 
 def test_printed_docker_run_lines_quote_what_needs_it():
