@@ -26,6 +26,7 @@ import pytest
 
 from docker_ros.host import engine
 from docker_ros.in_image.runtime.lock import LOCK_FILE, local_base_tag
+from tests import engines
 from tests.ci.cihelp import (
     REPO,
     example_repository,
@@ -253,6 +254,51 @@ def test_action_single_job_multiarch_example(
     assert manifest_architectures(f"{local_registry}/{image}:latest") == ["amd64", "arm64"]
     # the slim names hold the runner's architecture only (slimming runs the image)
     assert image_architectures(local_registry, image, "latest-slim") == [host_arch()]
+
+
+def test_a_docker_container_builder_builds_both_platforms_from_a_multiarch_base(
+    repository: Path, ros1_base_image: str, ros1_arm64_base_image: str, engine26: str,
+    buildkit_image: str, local_registry: str
+) -> None:
+    """What a GitHub workflow with docker/setup-qemu-action and docker/setup-buildx-action
+    gets: a docker-container builder (its own BuildKit, QEMU through the kernel's binfmt
+    handler) and BASE_IMAGE a multi-arch image in a registry. Both platforms are built there
+    (the tools and imports images of each reach it as OCI layouts), pushed with one manifest
+    list, and the pulled arm64 image runs its talker and listener."""
+    if not engines.has_image(engine26, ros1_arm64_base_image):
+        engines.copy_image(ros1_arm64_base_image, engine26)
+    env26 = env_for(engine26)
+    suffix = uuid.uuid4().hex[:8]
+    base = f"{local_registry}/docker-ros-test/multiarch-base-{suffix}:bookworm"
+    name = f"{local_registry}/{IMAGE}-builder-{suffix}"
+    try:
+        for arch, local in (("amd64", ros1_base_image), ("arm64", ros1_arm64_base_image)):
+            for argv in (["tag", local, f"{base}-{arch}"], ["push", "-q", f"{base}-{arch}"]):
+                done = subprocess.run(["docker", *argv], env=env26, capture_output=True,
+                                      text=True)
+                assert done.returncode == 0, done.stderr
+        joined = subprocess.run(["docker", "buildx", "imagetools", "create", "--tag", base,
+                                 f"{base}-amd64", f"{base}-arm64"], env=env26,
+                                capture_output=True, text=True)
+        assert joined.returncode == 0, joined.stderr
+        with engines.container_builder(engine26, buildkit_image) as builder:
+            began = time.monotonic()
+            result = docker_ros(repository, "push", env={
+                "DOCKER_HOST": engine26, "BUILDER": builder, "BASE_IMAGE": base,
+                "IMAGE": f"{name}:latest", "TARGET": "run", "PLATFORM": "amd64,arm64"})
+            print(f"push through a docker-container builder, PLATFORM=amd64,arm64: "
+                  f"{time.monotonic() - began:.0f} s")
+        assert result.returncode == 0, result.stdout[-6000:]
+        assert f"builder: {builder} (built in its own BuildKit" in result.stdout
+        assert manifest_architectures(f"{name}:latest") == ["amd64", "arm64"]
+        ref = f"{name}:latest"
+        assert pulled_architecture(ref, "arm64") == "arm64"
+        out = run_until(ref, HEARD, 120)
+        assert f"{HEARD} aarch64" in out, out[-3000:]
+    finally:
+        remove_image(f"{name}:latest")
+        subprocess.run(["docker", "rmi", f"{base}-amd64", f"{base}-arm64"], env=env26,
+                       capture_output=True)
 
 
 def test_lock_resolves_each_platform_and_a_locked_arm64_build_installs_its_entry(
