@@ -584,3 +584,16 @@ def test_a_step_without_network_points_at_build_network_host():
            "HTTPSConnection object>: Failed to establish a new connection: [Errno -3] Temporary "
            "failure in name resolution')\n", "#8 ERROR: process did not complete\n"]
     assert "(Failed to establish a new connection)" in buildlog.network_hint(pip, "default")
+
+
+def test_a_layout_context_names_its_image_by_tag_and_digest(tmp_path: Path) -> None:
+    """The digest chooses the image; the tag keeps buildx 0.33.0 from making `<store>:@<digest>`
+    of a digest alone (docker/buildx#3793)."""
+    ref = "docker-ros-tools:0123abcd-amd64"
+    folder = build.layout_folder(tmp_path, ref)
+    folder.mkdir()
+    (folder / "index.json").write_text(
+        '{"schemaVersion": 2, "manifests": [{"digest": "sha256:' + "a" * 64 + '"}]}')
+    assert build.scratch_layout(tmp_path, ref) == (
+        f"oci-layout://{tmp_path}/docker-ros-tools_0123abcd-amd64:0123abcd-amd64@sha256:"
+        + "a" * 64)

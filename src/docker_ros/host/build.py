@@ -452,7 +452,7 @@ def shown_definition(settings: Settings, chosen: builder.Builder, *, target: str
     chosen builder (selected_builder): its cache export, and for one with a BuildKit of its
     own the named contexts standing for the tools and imports images (build_images_locked)."""
     tools, imports = f"{TOOLS_REPOSITORY}:<hash>", f"{IMPORTS_REPOSITORY}:<hash>"
-    contexts = {ref: f"oci-layout://{layout_folder(Path('<temporary>/layouts'), ref)}@<digest>"
+    contexts = {ref: layout_context(Path("<temporary>/layouts"), ref, "<digest>")
                 for ref in (tools, imports)} if builder.own_buildkit(chosen) else {}
     return definition(settings, target=target, platform=platform, tools_image=tools,
                       imports_image=imports, tag=tag, secrets=plan_secrets(settings, None),
@@ -636,12 +636,19 @@ def layout_folder(layouts: Path, ref: str) -> Path:
 
 
 def scratch_layout(layouts: Path, ref: str) -> str:
-    """The named build context standing for ref, `oci-layout://<folder>@<digest>` (pinned to
-    the image scratch_image exported there): `FROM ref` then reads that image, with the
-    same digest an image store would give it, so cache keys stay those of a loaded image."""
-    folder = layout_folder(layouts, ref)
-    index = json.loads((folder / "index.json").read_text())
-    return f"oci-layout://{folder}@{index['manifests'][0]['digest']}"
+    """The named build context standing for ref (pinned to the image scratch_image exported
+    there): `FROM ref` then reads that image, with the same digest an image store would give
+    it, so cache keys stay those of a loaded image."""
+    index = json.loads((layout_folder(layouts, ref) / "index.json").read_text())
+    return layout_context(layouts, ref, index["manifests"][0]["digest"])
+
+
+def layout_context(layouts: Path, ref: str, digest: str) -> str:
+    """`oci-layout://<folder>:<tag>@<digest>`: the digest chooses the image; the tag (ref's, as
+    the layout's index names it) is there for buildx 0.33.0, which turned a reference of a
+    digest alone into `<store>:@<digest>` and failed ("invalid reference format",
+    docker/buildx#3793); every other buildx takes the digest."""
+    return f"oci-layout://{layout_folder(layouts, ref)}:{ref.rpartition(':')[2]}@{digest}"
 
 
 def import_inputs(settings: Settings, repository: Path) -> List[str]:
