@@ -10,6 +10,8 @@ DOCKERD_LOG="${DOCKERD_LOG:-/var/log/dockerd.log}"
 # Debian packages buildx only from trixie on; its static Go binary runs on bookworm.
 BUILDX_SUITE="${BUILDX_SUITE:-trixie}"
 PLUGIN_DIR="${DOCKER_CONFIG:-$HOME/.docker}/cli-plugins"
+MODERN_BUILDX_SUITE="${MODERN_BUILDX_SUITE:-sid}"
+MODERN_BUILDX_DIR="${MODERN_BUILDX_DIR:-/opt/docker-ros-buildx-modern}"
 PIP_STAMP="${XDG_CACHE_HOME:-$HOME/.cache}/docker-ros/setup-pip.stamp"
 BINFMT_DIR=/proc/sys/fs/binfmt_misc
 # The second, modern engine (Docker 26 with the containerd image store) beside the first:
@@ -135,6 +137,21 @@ else
     mkdir -p "$PLUGIN_DIR"
     install -m 0755 "$TMP/buildx/usr/libexec/docker/cli-plugins/docker-buildx" "$PLUGIN_DIR/docker-buildx"
     docker buildx version || die "docker buildx does not run after installing it to $PLUGIN_DIR"
+fi
+
+# --- a current buildx beside the distribution's, for the tests of what the buildx of Docker's own
+# packages, Docker Desktop and CI runners does (bake's file-read checks since 0.20): Debian sid's
+# docker-buildx in $MODERN_BUILDX_DIR/cli-plugins, used through a DOCKER_CONFIG naming it ---
+if [ -x "$MODERN_BUILDX_DIR/cli-plugins/docker-buildx" ]; then
+    ok "current buildx in $MODERN_BUILDX_DIR"
+else
+    installing "current buildx (docker-buildx from Debian $MODERN_BUILDX_SUITE into $MODERN_BUILDX_DIR)"
+    fetch_debs "$MODERN_BUILDX_SUITE" "$TMP/buildx-modern" docker-buildx
+    "${SUDO[@]}" mkdir -p "$MODERN_BUILDX_DIR/cli-plugins"
+    "${SUDO[@]}" install -m 0755 "$TMP/buildx-modern/usr/libexec/docker/cli-plugins/docker-buildx" \
+        "$MODERN_BUILDX_DIR/cli-plugins/docker-buildx"
+    "$MODERN_BUILDX_DIR/cli-plugins/docker-buildx" version \
+        || die "the current buildx does not run after installing it to $MODERN_BUILDX_DIR"
 fi
 
 # --- Engine 26 with the containerd image store, a second daemon at $ENGINE26_HOST ---

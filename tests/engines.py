@@ -27,6 +27,19 @@ class EngineFailed(Exception):
     """A private engine did not start: its log."""
 
 
+# The current buildx that scripts/setup.sh installs beside the distribution's (Debian sid's)
+MODERN_BUILDX = (Path(os.environ.get("MODERN_BUILDX_DIR", "/opt/docker-ros-buildx-modern"))
+                 / "cli-plugins" / "docker-buildx")
+
+
+def modern_buildx_config(folder: Path) -> Dict[str, str]:
+    """A DOCKER_CONFIG in folder whose buildx plugin is MODERN_BUILDX (the docker CLI looks in
+    $DOCKER_CONFIG/cli-plugins first); the environment naming it."""
+    (folder / "cli-plugins").mkdir(parents=True, exist_ok=True)
+    (folder / "cli-plugins" / "docker-buildx").symlink_to(MODERN_BUILDX)
+    return {"DOCKER_CONFIG": str(folder)}
+
+
 def env_for(host: str) -> Dict[str, str]:
     """This process's environment with DOCKER_HOST naming host."""
     return {**os.environ, "DOCKER_HOST": host}

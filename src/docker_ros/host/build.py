@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import functools
 import hashlib
 import json
 import os
@@ -425,11 +426,29 @@ def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX) -> List[
 
 
 def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str,
-              buildx: Sequence[str] = BUILDX) -> List[str]:
+              buildx: Sequence[str] = BUILDX, reads: Sequence[str] = ()) -> List[str]:
     """The `docker buildx bake` argv building the targets (bake target name -> definition,
     written as JSON to definition_file) in one BuildKit run: stages they share are built once,
-    the others in parallel, from one load of the build context."""
-    return [*buildx, "bake", "--progress=plain", "--file", definition_file, *targets]
+    the others in parallel, from one load of the build context. reads: the folders the
+    definition reads from (build context, our temporary folder), granted with --allow
+    (bake_reads)."""
+    allow = [f"--allow=fs.read={folder}" for folder in reads]
+    return [*buildx, "bake", *allow, "--progress=plain", "--file", definition_file, *targets]
+
+
+def bake_reads(buildx: Sequence[str], *folders: str) -> List[str]:
+    """The folders to grant bake (plan_bake's reads). From buildx 0.20 on, bake refuses to read
+    outside its working directory what it is not granted ("ERROR: additional privileges
+    requested": our Dockerfile, layouts and secrets are in a temporary folder, the build
+    context may be elsewhere); a bake without that check (Debian's 0.13) has no --allow."""
+    return list(folders) if bake_allows(tuple(buildx)) else []
+
+
+@functools.lru_cache(maxsize=None)
+def bake_allows(buildx: Tuple[str, ...]) -> bool:
+    """Whether this buildx's bake takes --allow (its help lists it)."""
+    proc = subprocess.run([*buildx, "bake", "--help"], capture_output=True, text=True)
+    return "--allow" in proc.stdout
 
 
 def can_bake(settings: Settings) -> bool:
@@ -931,7 +950,8 @@ def build_images_locked(
         if bake and can_bake(settings):
             definition_file = Path(tmp) / "docker-ros.bake.json"
             definition_file.write_text(bake_file(specs))
-            runs = [(tuple(specs), plan_bake(specs, str(definition_file), buildx))]
+            reads = bake_reads(buildx, tmp, str(Path(settings.build_context).resolve()))
+            runs = [(tuple(specs), plan_bake(specs, str(definition_file), buildx, reads))]
         else:
             runs = [((t,), build_argv(specs[t], buildx))
                     for t in build_order(list(specs), export == "registry")]
