@@ -55,6 +55,8 @@ LEFT_OUT = (".env", ".git", ".gitlab-ci-local-variables.yml", "docker-ros-test-r
 BUILDX = ("docker", "buildx")  # the command reaching the default builder
 # The targets that export a registry cache (CACHE_TO); build-state imports run's, test dev's.
 CACHED_TARGETS = ("dev", "run")
+
+
 class BuildError(Exception):
     """A build failed: which target, which step, why."""
 
