@@ -438,12 +438,15 @@ def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str,
     return [*buildx, "bake", *allow, "--progress=plain", "--file", definition_file, *targets]
 
 
-def bake_reads(buildx: Sequence[str], *folders: str) -> List[str]:
-    """The folders to grant bake (plan_bake's reads). From buildx 0.20 on, bake refuses to read
-    outside its working directory what it is not granted ("ERROR: additional privileges
-    requested": our Dockerfile, layouts and secrets are in a temporary folder, the build
-    context may be elsewhere); a bake without that check (Debian's 0.13) has no --allow."""
-    return list(folders) if bake_allows(tuple(buildx)) else []
+def bake_reads(buildx: Sequence[str], settings: Settings, temporary: str) -> List[str]:
+    """The folders to grant bake (plan_bake's reads): our temporary folder and the build
+    context. From buildx 0.20 on, bake refuses to read outside its working directory what it
+    is not granted ("ERROR: additional privileges requested": our Dockerfile, layouts and
+    secrets are in a temporary folder, the build context may be elsewhere); a bake without
+    that check (Debian's 0.13) has no --allow."""
+    if not bake_allows(tuple(buildx)):
+        return []
+    return [temporary, str(Path(settings.build_context).resolve())]
 
 
 @functools.lru_cache(maxsize=None)
@@ -952,7 +955,7 @@ def build_images_locked(
         if bake and can_bake(settings):
             definition_file = Path(tmp) / "docker-ros.bake.json"
             definition_file.write_text(bake_file(specs))
-            reads = bake_reads(buildx, tmp, str(Path(settings.build_context).resolve()))
+            reads = bake_reads(buildx, settings, tmp)
             runs = [(tuple(specs), plan_bake(specs, str(definition_file), buildx, reads))]
         else:
             runs = [((t,), build_argv(specs[t], buildx))

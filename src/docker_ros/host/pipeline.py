@@ -252,8 +252,7 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             specs = {t: build.shown_definition(settings, chosen, target=t, platform=platform,
                                                tag=tag) for t, tag in tags.items()}
             buildx = builder.buildx_command(chosen, settings.builder or "")
-            reads = build.bake_reads(buildx, "<temporary>",
-                                     str(Path(settings.build_context).resolve()))
+            reads = build.bake_reads(buildx, settings, "<temporary>")
             print("[dry-run] build:", format_argv(
                 build.plan_bake(specs, "<temporary>/docker-ros.bake.json", buildx, reads)))
             print(f"[dry-run] with <temporary>/docker-ros.bake.json:\n{build.bake_file(specs)}",
