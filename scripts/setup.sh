@@ -12,6 +12,7 @@ BUILDX_SUITE="${BUILDX_SUITE:-trixie}"
 PLUGIN_DIR="${DOCKER_CONFIG:-$HOME/.docker}/cli-plugins"
 MODERN_BUILDX_SUITE="${MODERN_BUILDX_SUITE:-sid}"
 MODERN_BUILDX_DIR="${MODERN_BUILDX_DIR:-/opt/docker-ros-buildx-modern}"
+DEBIAN_BUILDX_DIR="${DEBIAN_BUILDX_DIR:-/opt/docker-ros-buildx-debian}"
 PIP_STAMP="${XDG_CACHE_HOME:-$HOME/.cache}/docker-ros/setup-pip.stamp"
 BINFMT_DIR=/proc/sys/fs/binfmt_misc
 # The second, modern engine (Docker 26 with the containerd image store) beside the first:
@@ -139,20 +140,26 @@ else
     docker buildx version || die "docker buildx does not run after installing it to $PLUGIN_DIR"
 fi
 
-# --- a current buildx beside the distribution's, for the tests of what the buildx of Docker's own
-# packages, Docker Desktop and CI runners does (bake's file-read checks since 0.20): Debian sid's
-# docker-buildx in $MODERN_BUILDX_DIR/cli-plugins, used through a DOCKER_CONFIG naming it ---
-if [ -x "$MODERN_BUILDX_DIR/cli-plugins/docker-buildx" ]; then
-    ok "current buildx in $MODERN_BUILDX_DIR"
-else
-    installing "current buildx (docker-buildx from Debian $MODERN_BUILDX_SUITE into $MODERN_BUILDX_DIR)"
-    fetch_debs "$MODERN_BUILDX_SUITE" "$TMP/buildx-modern" docker-buildx
-    "${SUDO[@]}" mkdir -p "$MODERN_BUILDX_DIR/cli-plugins"
-    "${SUDO[@]}" install -m 0755 "$TMP/buildx-modern/usr/libexec/docker/cli-plugins/docker-buildx" \
-        "$MODERN_BUILDX_DIR/cli-plugins/docker-buildx"
-    "$MODERN_BUILDX_DIR/cli-plugins/docker-buildx" version \
-        || die "the current buildx does not run after installing it to $MODERN_BUILDX_DIR"
-fi
+# --- the two buildx generations the tests run (tests/conftest.py): a current one (Debian sid's;
+# what Docker's own packages, Docker Desktop and CI runners have: bake's file-read checks since
+# 0.20), used by the whole suite, and Debian stable's 0.13 (what `apt install docker-buildx`
+# gives), used by the tests of older buildx. Each in <dir>/cli-plugins, reached through a
+# DOCKER_CONFIG naming it; the machine's own buildx is not touched ---
+install_buildx() {
+    local what=$1 suite=$2 dir=$3
+    if [ -x "$dir/cli-plugins/docker-buildx" ]; then
+        ok "$what buildx in $dir"
+        return
+    fi
+    installing "$what buildx (docker-buildx from Debian $suite into $dir)"
+    fetch_debs "$suite" "$TMP/buildx-$suite" docker-buildx
+    "${SUDO[@]}" mkdir -p "$dir/cli-plugins"
+    "${SUDO[@]}" install -m 0755 "$TMP/buildx-$suite/usr/libexec/docker/cli-plugins/docker-buildx" \
+        "$dir/cli-plugins/docker-buildx"
+    "$dir/cli-plugins/docker-buildx" version || die "the $what buildx does not run after installing it to $dir"
+}
+install_buildx current "$MODERN_BUILDX_SUITE" "$MODERN_BUILDX_DIR"
+install_buildx "Debian stable's" "$BUILDX_SUITE" "$DEBIAN_BUILDX_DIR"
 
 # --- Engine 26 with the containerd image store, a second daemon at $ENGINE26_HOST ---
 # dockerd and containerd from Debian trixie; runc stays bookworm's (trixie's needs glibc 2.38).

@@ -4,11 +4,13 @@ host's CA bundle. Tests that need Docker are marked `@pytest.mark.docker`."""
 from __future__ import annotations
 
 import contextlib
+import os
 import secrets
 import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 import urllib.error
 import urllib.request
@@ -33,6 +35,40 @@ REGISTRY_HOST = "127.0.0.1"
 HOST_CA_BUNDLE = Path("/etc/ssl/certs/ca-certificates.crt")
 SETUP_HINT = "run `bash scripts/setup.sh` first"
 REPO = Path(__file__).resolve().parents[1]
+DOCKER_CONFIG_KEY = pytest.StashKey[tuple]()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The suite runs on a current buildx (scripts/setup.sh installs Debian sid's), the one of
+    Docker's own packages, Docker Desktop and CI runners, whatever buildx the machine has: every
+    docker command of the run (the tool's, the tests', the CI harnesses') finds it through a
+    DOCKER_CONFIG of the run's own, which also keeps the user's logins and contexts out of it.
+    test_buildx_versions.py checks that it is current and also builds with Debian's 0.13."""
+    if not engines.buildx_plugin("current").is_file():
+        return  # the docker tests then fail on the buildx version, with SETUP_HINT
+    folder = Path(tempfile.mkdtemp(prefix="docker-ros-test-docker-config-"))
+    config.stash[DOCKER_CONFIG_KEY] = (folder, os.environ.get("DOCKER_CONFIG"))
+    os.environ.update(engines.buildx_config(folder, "current"))
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if DOCKER_CONFIG_KEY in config.stash:
+        folder, previous = config.stash[DOCKER_CONFIG_KEY]
+        shutil.rmtree(folder, ignore_errors=True)
+        if previous is None:
+            os.environ.pop("DOCKER_CONFIG", None)
+        else:
+            os.environ["DOCKER_CONFIG"] = previous
+
+
+def pytest_report_header() -> str:
+    return f"docker buildx: {buildx_version() if shutil.which('docker') else 'no docker CLI'}"
+
+
+def buildx_version(env: Optional[dict] = None) -> str:
+    """`docker buildx version`'s line (env: the environment, default this process's)."""
+    proc = subprocess.run(["docker", "buildx", "version"], capture_output=True, text=True, env=env)
+    return (proc.stdout or proc.stderr).strip()
 
 
 @pytest.fixture(scope="session")

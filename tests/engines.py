@@ -27,16 +27,24 @@ class EngineFailed(Exception):
     """A private engine did not start: its log."""
 
 
-# The current buildx that scripts/setup.sh installs beside the distribution's (Debian sid's)
-MODERN_BUILDX = (Path(os.environ.get("MODERN_BUILDX_DIR", "/opt/docker-ros-buildx-modern"))
-                 / "cli-plugins" / "docker-buildx")
+# The two buildx generations scripts/setup.sh installs beside the machine's own: a current one
+# (Debian sid's), which the whole suite uses (conftest.py), and Debian stable's 0.13.
+BUILDX_DIRS = {
+    "current": Path(os.environ.get("MODERN_BUILDX_DIR", "/opt/docker-ros-buildx-modern")),
+    "debian": Path(os.environ.get("DEBIAN_BUILDX_DIR", "/opt/docker-ros-buildx-debian")),
+}
 
 
-def modern_buildx_config(folder: Path) -> Dict[str, str]:
-    """A DOCKER_CONFIG in folder whose buildx plugin is MODERN_BUILDX (the docker CLI looks in
-    $DOCKER_CONFIG/cli-plugins first); the environment naming it."""
+def buildx_plugin(which: str) -> Path:
+    """The docker-buildx plugin of one of BUILDX_DIRS."""
+    return BUILDX_DIRS[which] / "cli-plugins" / "docker-buildx"
+
+
+def buildx_config(folder: Path, which: str) -> Dict[str, str]:
+    """A DOCKER_CONFIG in folder whose buildx plugin is buildx_plugin(which) (the docker CLI
+    looks in $DOCKER_CONFIG/cli-plugins first); the environment naming it."""
     (folder / "cli-plugins").mkdir(parents=True, exist_ok=True)
-    (folder / "cli-plugins" / "docker-buildx").symlink_to(MODERN_BUILDX)
+    (folder / "cli-plugins" / "docker-buildx").symlink_to(buildx_plugin(which))
     return {"DOCKER_CONFIG": str(folder)}
 
 
