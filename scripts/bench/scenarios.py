@@ -219,7 +219,8 @@ class Bench:
         times = []
         for _ in range(4):
             began = time.monotonic()
-            proc = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+            # in root: from buildx 0.20 on, bake reads only its working directory ungranted
+            proc = subprocess.run(argv, capture_output=True, text=True, timeout=300, cwd=root)
             times.append(time.monotonic() - began)
             if proc.returncode != 0:
                 raise BenchError(f"floor bake failed: {proc.stderr[-2000:]}")
@@ -375,6 +376,7 @@ def run_all(args: argparse.Namespace, tmp: Path) -> Tuple[List[Scenario], Dict[s
     """Every scenario, one after the other, in workspaces below tmp; the rows and image sizes."""
     root = tmp / "ws"
     log = tmp / "build.log"
+    print(f"[bench] {docker('buildx', 'version').stdout.strip()}", flush=True)
     baseimage.bootstrap("ros1", tag=args.base_image)
     resolved = resolve_keys(args.base_image, [args.key, args.add_key])
     print(f"[bench] rosdep keys (offline, in {args.base_image}): {resolved}", flush=True)
