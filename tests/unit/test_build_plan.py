@@ -195,10 +195,29 @@ def test_bake_builds_the_targets_in_one_run_from_the_same_definitions():
     assert one[one.index("--network") + 1] == "host" and "--load" in one
     assert [one[i + 1] for i, a in enumerate(one) if a == "--build-arg"] == [
         f"{k}={v}" for k, v in run["args"].items()]
-    # Debian's buildx (0.13) bakes no `network`; with registry cache each image is the first
-    # build of its stages: one build per target
-    assert not build.can_bake(s) and build.can_bake(settings())
-    assert not build.can_bake(settings(CACHE_FROM="r/x:latest"))
+    # BUILD_NETWORK needs a bake that knows `network` (0.17 and later, not Debian's 0.13);
+    # with registry cache each image is the first build of its stages: one build per target
+    net = settings(BUILD_NETWORK="host")
+    assert build.can_bake(net, True) and not build.can_bake(net, False)
+    assert build.can_bake(settings(), False) and not build.can_bake(s, True)
+    assert not build.can_bake(settings(CACHE_FROM="r/x:latest"), True)
+
+
+def test_bake_is_granted_our_folders_and_the_host_network_when_it_checks_entitlements(tmp_path):
+    context = tmp_path / "ws"
+    context.mkdir()
+    specs = {"run": {}}
+    # a buildx whose `bake --help` lists --allow (echo prints its arguments), and one without
+    checks, old = ("echo", "--allow"), ("true",)
+    host = settings(BUILD_NETWORK="host", BUILD_CONTEXT=str(context))
+    allow = build.bake_allow(checks, host, "/tmp/t")
+    assert allow == ["fs.read=/tmp/t", f"fs.read={context.resolve()}", "network.host"]
+    assert build.plan_bake(specs, "/tmp/t/d.json", ["docker", "buildx"], allow)[2:6] == [
+        "bake", "--allow=fs.read=/tmp/t", f"--allow=fs.read={context.resolve()}",
+        "--allow=network.host"]
+    assert "network.host" not in build.bake_allow(checks, settings(BUILD_CONTEXT=str(context)),
+                                                  "/tmp/t")
+    assert build.bake_allow(old, host, "/tmp/t") == []
 
 
 def test_a_failed_step_is_found_in_a_bake_log_too():
@@ -401,8 +420,9 @@ def test_tagged_in_log_reads_buildkits_names() -> None:
 
 def test_a_target_failing_after_another_was_built_alone_names_the_built_one(
         monkeypatch, tmp_path):
-    """With one buildx run per target (BUILD_NETWORK), run failing after dev was built and
-    tagged names dev as built, as a failing bake run does."""
+    """With one buildx run per target (BUILD_NETWORK on a bake that knows no `network`, as
+    Debian's 0.13), run failing after dev was built and tagged names dev as built, as a failing
+    bake run does."""
     (tmp_path / "pkg").mkdir()
     (tmp_path / "pkg" / "package.xml").write_text("<package/>")
     s = load_settings(environ={"BASE_IMAGE": "base:1", "COMMAND": "run me",
@@ -411,6 +431,7 @@ def test_a_target_failing_after_another_was_built_alone_names_the_built_one(
     monkeypatch.setattr(build.builder, "cache_export", lambda chosen: "inline")
     monkeypatch.setattr(build.builder, "buildx_command", lambda chosen, name: ["buildx"])
     monkeypatch.setattr(build.builder, "own_buildkit", lambda chosen: False)
+    monkeypatch.setattr(build, "bake_allows", lambda buildx: False)
     monkeypatch.setattr(build, "ensure_tools_image", lambda platform, buildx, **k: "tools:x")
     monkeypatch.setattr(build, "ensure_imports_image", lambda settings, platform, buildx, **k: "")
     monkeypatch.setattr(build, "tag_local_base", lambda settings, platform: None)

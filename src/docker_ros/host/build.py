@@ -428,25 +428,25 @@ def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX) -> List[
 
 
 def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str,
-              buildx: Sequence[str] = BUILDX, reads: Sequence[str] = ()) -> List[str]:
+              buildx: Sequence[str] = BUILDX, allow: Sequence[str] = ()) -> List[str]:
     """The `docker buildx bake` argv building the targets (bake target name -> definition,
     written as JSON to definition_file) in one BuildKit run: stages they share are built once,
-    the others in parallel, from one load of the build context. reads: the folders the
-    definition reads from (build context, our temporary folder), granted with --allow
-    (bake_reads)."""
-    allow = [f"--allow=fs.read={folder}" for folder in reads]
-    return [*buildx, "bake", *allow, "--progress=plain", "--file", definition_file, *targets]
+    the others in parallel, from one load of the build context. allow: the entitlements the
+    definition needs (bake_allow)."""
+    return [*buildx, "bake", *(f"--allow={a}" for a in allow), "--progress=plain", "--file",
+            definition_file, *targets]
 
 
-def bake_reads(buildx: Sequence[str], settings: Settings, temporary: str) -> List[str]:
-    """The folders to grant bake (plan_bake's reads): our temporary folder and the build
-    context. From buildx 0.20 on, bake refuses to read outside its working directory what it
-    is not granted ("ERROR: additional privileges requested": our Dockerfile, layouts and
-    secrets are in a temporary folder, the build context may be elsewhere); a bake without
-    that check (Debian's 0.13) has no --allow."""
+def bake_allow(buildx: Sequence[str], settings: Settings, temporary: str) -> List[str]:
+    """The entitlements to grant bake (plan_bake's allow): reading our temporary folder and the
+    build context, and network.host with BUILD_NETWORK=host. From buildx 0.20 on, bake refuses
+    what it is not granted ("ERROR: additional privileges requested": our Dockerfile, layouts
+    and secrets are in a temporary folder, the build context may be elsewhere); a bake without
+    --allow (before 0.17: Debian's 0.13) has no such check."""
     if not bake_allows(tuple(buildx)):
         return []
-    return [temporary, str(Path(settings.build_context).resolve())]
+    allow = [f"fs.read={temporary}", f"fs.read={Path(settings.build_context).resolve()}"]
+    return allow + (["network.host"] if settings.build_network == "host" else [])
 
 
 @functools.lru_cache(maxsize=None)
@@ -456,12 +456,14 @@ def bake_allows(buildx: Tuple[str, ...]) -> bool:
     return "--allow" in proc.stdout
 
 
-def can_bake(settings: Settings) -> bool:
-    """Whether one bake run can build the targets. Not with BUILD_NETWORK: the buildx of Debian
-    (0.13) knows no `network` attribute. Not with CACHE_FROM: in one bake run, which target's
-    dependency layers missed the registry cache on an empty machine varied from run to run;
-    built one after the other, dev first, the dev image's always hit (measured, issue 13)."""
-    return not settings.build_network and not imports_cache(settings)
+def can_bake(settings: Settings, bake_knows_network: bool) -> bool:
+    """Whether one bake run can build the targets (bake_knows_network: bake_allows, buildx 0.17
+    and later, whose bake has both --allow and a `network` attribute). Not with BUILD_NETWORK
+    on an older bake (Debian's 0.13), which knows no `network`. Not with CACHE_FROM: in one bake
+    run, which target's dependency layers missed the registry cache on an empty machine varied
+    from run to run; built one after the other, dev first, the dev image's always hit
+    (measured, issue 13)."""
+    return not imports_cache(settings) and (not settings.build_network or bake_knows_network)
 
 
 def bake_file(targets: Mapping[str, Dict[str, Any]]) -> str:
@@ -952,11 +954,11 @@ def build_images_locked(
                 raise BuildError(str(exc)) from None
             del specs["build-state"]
             built.append(BuiltImage("build-state", targets["build-state"], platform, 0.0))
-        if bake and can_bake(settings):
+        if bake and can_bake(settings, bake_allows(tuple(buildx))):
             definition_file = Path(tmp) / "docker-ros.bake.json"
             definition_file.write_text(bake_file(specs))
-            reads = bake_reads(buildx, settings, tmp)
-            runs = [(tuple(specs), plan_bake(specs, str(definition_file), buildx, reads))]
+            allow = bake_allow(buildx, settings, tmp)
+            runs = [(tuple(specs), plan_bake(specs, str(definition_file), buildx, allow))]
         else:
             runs = [((t,), build_argv(specs[t], buildx))
                     for t in build_order(list(specs), export == "registry")]

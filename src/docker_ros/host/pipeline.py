@@ -248,13 +248,13 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
         kinds = ("dev", "run") + (("build-state",) if settings.build_state_from else ())
         tags = {t: build.target_ref(settings, t, platform)
                 for t in kinds if t in targets or (t == "build-state" and "run" in targets)}
-        if chosen is not None and build.can_bake(settings):
+        buildx = [] if chosen is None else builder.buildx_command(chosen, settings.builder or "")
+        if chosen is not None and build.can_bake(settings, build.bake_allows(tuple(buildx))):
             specs = {t: build.shown_definition(settings, chosen, target=t, platform=platform,
                                                tag=tag) for t, tag in tags.items()}
-            buildx = builder.buildx_command(chosen, settings.builder or "")
-            reads = build.bake_reads(buildx, settings, "<temporary>")
+            allow = build.bake_allow(buildx, settings, "<temporary>")
             print("[dry-run] build:", format_argv(
-                build.plan_bake(specs, "<temporary>/docker-ros.bake.json", buildx, reads)))
+                build.plan_bake(specs, "<temporary>/docker-ros.bake.json", buildx, allow)))
             print(f"[dry-run] with <temporary>/docker-ros.bake.json:\n{build.bake_file(specs)}",
                   end="")
         elif chosen is not None:
