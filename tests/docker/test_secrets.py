@@ -309,13 +309,16 @@ def test_https_password_from_environment(
     built = build(repo, ros1_base_image, "https-env", {"GIT_HTTPS_PASSWORD": material.password},
                   **https_settings(http_remote))
     assert_upstream_built(built)
+    # BUILD_NETWORK=host on the suite's current buildx: dev and run in one bake run, granted
+    # the host's network
+    assert any(b"buildx\0bake" in c and b"--allow=network.host" in c for c in built.cmdlines)
     assert_nothing_leaked(built, material)
 
 
 def test_secrets_of_a_baked_build_stay_out(
     ros1_base_image: str, material: Material, tmp_path: Path
 ) -> None:
-    """Without BUILD_NETWORK dev and run are one `docker buildx bake` with both secrets as
+    """Without BUILD_NETWORK too, dev and run are one `docker buildx bake` with both secrets as
     secret mounts (the definition file names their variables only: a unit test of bake_file),
     and nothing reaches the images, logs or command lines."""
     repo = tmp_path / "baked"
