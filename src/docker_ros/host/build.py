@@ -977,7 +977,8 @@ def build_images_locked(
 
 def with_built(error: BuildError, built: Sequence[BuiltImage]) -> BuildError:
     """error, naming also the images that earlier buildx runs of the same build tagged (one
-    run per target: BUILD_NETWORK, CACHE_FROM), as run_buildx names those of its own run."""
+    run per target: CACHE_FROM, BUILD_NETWORK on an old bake), as run_buildx names those of its
+    own run."""
     if not built:
         return error
     return BuildError("; ".join([str(error), *built_notes(built)]),
