@@ -30,12 +30,15 @@ def minor(version: str) -> int:
     return int(found.group(1))
 
 
-def build_and_run(project: Path, ref: str, env: Dict[str, str], bake: str) -> None:
-    """dev and run in one bake run (the dry run shows bake's argv start: bake); the run image
-    runs the example."""
-    shown = docker_ros(project, "build", "--dry-run", env=env)
-    assert shown.returncode == 0, shown.stdout[-3000:]
-    assert f"[dry-run] build: {bake} --progress=plain" in shown.stdout, shown.stdout
+def build_and_run(project: Path, ref: str, env: Dict[str, str], *shown: str) -> None:
+    """dev and run built (the dry run shows one buildx argv per pattern of `shown`, each
+    matching it from its start); the run image runs the example."""
+    dry = docker_ros(project, "build", "--dry-run", env=env)
+    assert dry.returncode == 0, dry.stdout[-3000:]
+    builds = [line for line in dry.stdout.splitlines() if line.startswith("[dry-run] build: ")]
+    assert len(builds) == len(shown), dry.stdout
+    for line, start in zip(builds, shown):
+        assert re.match(start, line[len("[dry-run] build: "):]), (line, start)
     try:
         built = docker_ros(project, "build", env=env)
         assert built.returncode == 0, built.stdout[-4000:]
@@ -46,33 +49,41 @@ def build_and_run(project: Path, ref: str, env: Dict[str, str], bake: str) -> No
         remove_image(f"{ref}-dev")
 
 
-def example(tmp_path: Path, ros1_base_image: str) -> tuple:
+def example(tmp_path: Path, ros1_base_image: str, **settings: str) -> tuple:
     project = copy_example(tmp_path / "example")
     ref = f"docker-ros-test/buildx-versions-{uuid.uuid4().hex[:8]}:1"
     write_env(project, BASE_IMAGE=ros1_base_image, IMAGE=ref, TARGET="dev,run",
-              COMMAND=EXAMPLE_COMMAND)
+              COMMAND=EXAMPLE_COMMAND, **settings)
     return project, ref
 
 
-def test_the_suite_runs_on_a_current_buildx_whose_bake_gets_our_folders(
+def test_the_suite_runs_on_a_current_buildx_whose_bake_gets_what_it_needs(
     ros1_base_image: str, tmp_path: Path
 ) -> None:
     """The suite's buildx is 0.20 or later; bake is granted exactly our temporary folder and the
-    build context (`--allow=fs.read=`)."""
+    build context (`--allow=fs.read=`), and with BUILD_NETWORK=host the host's network."""
     version = buildx_version()
     assert buildx_plugin("current").is_file(), f"no current buildx; {SETUP_HINT}"
     assert minor(version) >= 20, f"the suite runs on {version!r}; {SETUP_HINT}"
-    project, ref = example(tmp_path, ros1_base_image)
-    build_and_run(project, ref, {}, "docker buildx bake '--allow=fs.read=<temporary>' "
-                  f"--allow=fs.read={project.resolve()}")
+    project, ref = example(tmp_path, ros1_base_image, BUILD_NETWORK="host")
+    build_and_run(project, ref, {}, re.escape(
+        "docker buildx bake '--allow=fs.read=<temporary>' "
+        f"--allow=fs.read={project.resolve()} --allow=network.host --progress=plain "))
 
 
-def test_debians_buildx_0_13_builds_without_allow_flags(ros1_base_image: str,
-                                                        tmp_path: Path) -> None:
-    """Debian stable's buildx (0.13) knows no `--allow`: bake runs without it."""
+@pytest.mark.parametrize("network", ["", "host"])
+def test_debians_buildx_0_13_builds_without_allow_flags(ros1_base_image: str, tmp_path: Path,
+                                                        network: str) -> None:
+    """Debian stable's buildx (0.13) knows no `--allow`: bake runs without it. Its bake knows
+    no network mode either: with BUILD_NETWORK, dev and run are two builds, dev first."""
     assert buildx_plugin("debian").is_file(), f"no Debian buildx; {SETUP_HINT}"
     env = buildx_config(tmp_path / "docker-config", "debian")
     version = buildx_version({**os.environ, **env})
     assert minor(version) < 20, version
-    project, ref = example(tmp_path, ros1_base_image)
-    build_and_run(project, ref, env, "docker buildx bake")
+    project, ref = example(tmp_path, ros1_base_image, BUILD_NETWORK=network)
+    if network:
+        build_and_run(project, ref, env, *(
+            rf"docker buildx build --progress=plain --file \S+ --target {target} .* "
+            "--network host " for target in ("dev", "run")))
+    else:
+        build_and_run(project, ref, env, re.escape("docker buildx bake --progress=plain "))
