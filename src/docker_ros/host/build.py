@@ -466,6 +466,14 @@ def can_bake(settings: Settings, bake_knows_network: bool) -> bool:
     return not imports_cache(settings) and (not settings.build_network or bake_knows_network)
 
 
+def bake_grants(buildx: Sequence[str], settings: Settings, temporary: str) -> Optional[List[str]]:
+    """plan_bake's allow (bake_allow) when one bake run of this buildx can build the targets
+    (can_bake), else None: one `docker buildx build` per target."""
+    if not can_bake(settings, bake_allows(tuple(buildx))):
+        return None
+    return bake_allow(buildx, settings, temporary)
+
+
 def bake_file(targets: Mapping[str, Dict[str, Any]]) -> str:
     """The bake definition (JSON). It names secrets' environment variables, never values."""
     return json.dumps({"target": dict(targets)}, indent=2, sort_keys=True) + "\n"
@@ -954,10 +962,10 @@ def build_images_locked(
                 raise BuildError(str(exc)) from None
             del specs["build-state"]
             built.append(BuiltImage("build-state", targets["build-state"], platform, 0.0))
-        if bake and can_bake(settings, bake_allows(tuple(buildx))):
+        allow = bake_grants(buildx, settings, tmp) if bake else None
+        if allow is not None:
             definition_file = Path(tmp) / "docker-ros.bake.json"
             definition_file.write_text(bake_file(specs))
-            allow = bake_allow(buildx, settings, tmp)
             runs = [(tuple(specs), plan_bake(specs, str(definition_file), buildx, allow))]
         else:
             runs = [((t,), build_argv(specs[t], buildx))

@@ -249,10 +249,10 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
         tags = {t: build.target_ref(settings, t, platform)
                 for t in kinds if t in targets or (t == "build-state" and "run" in targets)}
         buildx = [] if chosen is None else builder.buildx_command(chosen, settings.builder or "")
-        if chosen is not None and build.can_bake(settings, build.bake_allows(tuple(buildx))):
+        allow = None if chosen is None else build.bake_grants(buildx, settings, "<temporary>")
+        if chosen is not None and allow is not None:
             specs = {t: build.shown_definition(settings, chosen, target=t, platform=platform,
                                                tag=tag) for t, tag in tags.items()}
-            allow = build.bake_allow(buildx, settings, "<temporary>")
             print("[dry-run] build:", format_argv(
                 build.plan_bake(specs, "<temporary>/docker-ros.bake.json", buildx, allow)))
             print(f"[dry-run] with <temporary>/docker-ros.bake.json:\n{build.bake_file(specs)}",
