@@ -24,8 +24,7 @@ import pytest
 import yaml
 
 from docker_ros.host import baseimage
-from docker_ros.host.build import IMPORTS_LABEL, imports_owner
-from tests import engines
+from tests import engines, leftovers
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"
 ROS2_BASE_IMAGE = "docker-ros-test/ros2:trixie"
@@ -84,39 +83,27 @@ def docker_client() -> Iterator[docker.DockerClient]:
 
 
 def pytest_collection_modifyitems(items: list) -> None:
-    """Every docker test runs after the foreign cache record exists, and before the imports
-    images of the run's repositories are removed."""
+    """Every docker test runs after the foreign cache record exists, and before the images the
+    run leaves are removed."""
     for item in items:
         if item.get_closest_marker("docker"):
-            for name in ("this_runs_imports_images", "foreign_cache_record"):
+            for name in ("this_runs_images", "foreign_cache_record"):
                 if name not in item.fixturenames:
                     item.fixturenames.insert(0, name)
 
 
-def folders(root: Path, depth: int) -> Iterator[Path]:
-    """root and the folders below it, at most depth levels down (links not followed)."""
-    yield root
-    if depth > 0:
-        for child in sorted(root.iterdir()) if root.is_dir() else []:
-            if child.is_dir() and not child.is_symlink():
-                yield from folders(child, depth - 1)
-
-
 @pytest.fixture(scope="session")
-def this_runs_imports_images(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    """At the end of the run: the imports images of the repositories this run made (each image
-    is labelled with its repository's path, hashed; this run's are under pytest's temporary
-    folder), on the shared engine and on Engine 26. Another repository's stay."""
+def this_runs_images(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """At the end of the run, on the shared engine and on Engine 26: the imports images of the
+    repositories this run made (they are under pytest's temporary folder) and the images its
+    rebuilds untagged (see leftovers.py). Another repository's stay."""
+    since = time.time()
     yield
     root = tmp_path_factory.getbasetemp()
-    owners = {imports_owner(folder) for folder in folders(root, 4)}
     for host in (None, engines.ENGINE26_HOST):
         with contextlib.suppress(docker.errors.DockerException):
             client = docker.DockerClient(base_url=host) if host else docker.from_env()
-            for image in client.images.list(filters={"label": IMPORTS_LABEL}):
-                if image.labels.get(IMPORTS_LABEL) in owners:
-                    for tag in image.tags:
-                        client.images.remove(tag, noprune=False)
+            leftovers.remove_run_images(client, root, since)
             client.close()
 
 
@@ -256,21 +243,10 @@ def serve_registry(docker_client: docker.DockerClient, work: Path,
         yield address
     finally:
         stop(server, timeout=10)
-        # Images named after this registry (a free port of this run) were made by the tests.
-        # (the raw list: images.list() inspects each image and fails when another user of
-        # the engine removes one meanwhile)
-        for image in docker_client.api.images():
-            for tag in image.get("RepoTags") or []:
-                # (an image a container still uses stays, as `docker image rm` would leave it)
-                if tag.startswith(f"{address}/"):
-                    with contextlib.suppress(docker.errors.APIError):
-                        docker_client.images.remove(tag)
-            # pulled by digest (no tag): known by a repository digest of this registry only
-            digests = image.get("RepoDigests") or []
-            if not image.get("RepoTags") and digests and all(
-                    d.startswith(f"{address}/") for d in digests):
-                with contextlib.suppress(docker.errors.APIError):
-                    docker_client.images.remove(image["Id"])
+        # Images named after this registry (a free port of this run) were made by the tests;
+        # its storage is of no use any more (a few GB: the run's folder is kept for its logs)
+        leftovers.remove_registry_images(docker_client, address)
+        shutil.rmtree(work / "storage", ignore_errors=True)
 
 
 def stop(process: subprocess.Popen, *, timeout: float) -> None:

@@ -38,9 +38,10 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-# run from a checkout: the tool's package without installing it
-if str(REPO / "src") not in sys.path:
-    sys.path.insert(0, str(REPO / "src"))
+# run from a checkout: the tool's package without installing it, and the tests' helpers
+for folder in (REPO / "src", REPO):
+    if str(folder) not in sys.path:
+        sys.path.insert(0, str(folder))
 
 
 class BenchError(Exception):

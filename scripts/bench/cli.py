@@ -6,6 +6,7 @@ import argparse
 import shutil
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -15,6 +16,8 @@ from bench.buildlog import docker
 from bench.report import print_report, write_json
 from bench.scenarios import run_all
 from bench.workspace import DEFAULT_BASE_IMAGE, DEV_IMAGE, IMAGE, LEAN_IMAGE, SLIM_IMAGE
+from docker_ros.host import engine
+from tests import leftovers
 
 
 def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
@@ -66,6 +69,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print("bench: docker not found", file=sys.stderr)
         return 2
     tmp = Path(tempfile.mkdtemp(prefix="docker-ros-bench-"))
+    since = time.time()
     try:
         rows, sizes = run_all(args, tmp)
     except BenchError as exc:
@@ -79,6 +83,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"workspace, log and images ({IMAGE}, {DEV_IMAGE}, {LEAN_IMAGE}, {SLIM_IMAGE}) "
               f"kept in {tmp}")
     else:
-        shutil.rmtree(tmp, ignore_errors=True)
         docker("image", "rm", "-f", IMAGE, DEV_IMAGE, LEAN_IMAGE, SLIM_IMAGE)
+        # the imports images of its workspaces (in tmp) and the images its rebuilds untagged
+        leftovers.remove_run_images(engine.client(), tmp, since)
+        shutil.rmtree(tmp, ignore_errors=True)
     return 1 if failed else 0

@@ -52,7 +52,9 @@ from bench.workspace import (
     set_mark,
     write_workspace,
 )
+from docker_ros.host import engine
 from docker_ros.in_image.settings import host_platform
+from tests import leftovers
 
 BUILD_STATE_PULLED = re.compile(r"build state: \S+ pulled in ([\d.]+) s \((\d+) MB\)")
 LEAN = ("--target", "run", "--image-tag", "lean", "--set", "ENABLE_LEAN_RUN_IMAGE=true")
@@ -319,8 +321,7 @@ class Bench:
         run_cli(tmp / "ci-job2", self.log, verbose=self.args.verbose, args=args, task="push")
         row = job("9c CI: nothing changed, empty runner", 3)
         self.check(row, not row.compiled, f"{len(row.compiled)} TUs compiled (0 expected)")
-        for each in (ref, f"{state}-{host_platform()}"):
-            docker("image", "rm", "-f", each)
+        leftovers.remove_registry_images(engine.client(), registry)
 
     def imports(self, root: Path) -> None:
         """The workspace importing packages 0..N-1 through .repos; its own package is N."""

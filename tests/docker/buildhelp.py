@@ -14,7 +14,7 @@ import threading
 import time
 import uuid
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Sequence
 
 import docker
 
@@ -56,9 +56,11 @@ def own_copy(project: Path, destination: Path, image: str) -> Path:
     return destination
 
 
-def import_one_file_image(client: docker.DockerClient, ref: str, content: str) -> None:
+def import_one_file_image(client: docker.DockerClient, ref: str, content: str,
+                          changes: Sequence[str] = ()) -> None:
     """Import an image of one file (hello.txt holding content) as ref, of this machine's
-    architecture: something to push that needs no build."""
+    architecture: something to push that needs no build. changes: Dockerfile instructions
+    (`docker import --change`)."""
     repository, tag = ref.rsplit(":", 1)
     payload = io.BytesIO()
     with tarfile.open(fileobj=payload, mode="w") as tar:
@@ -66,7 +68,8 @@ def import_one_file_image(client: docker.DockerClient, ref: str, content: str) -
         info = tarfile.TarInfo("hello.txt")
         info.size = len(data)
         tar.addfile(info, io.BytesIO(data))
-    client.api.import_image_from_data(payload.getvalue(), repository=repository, tag=tag)
+    client.api.import_image_from_data(payload.getvalue(), repository=repository, tag=tag,
+                                      changes=list(changes) or None)
 
 
 def remove_image(ref: str) -> None:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import time
 import urllib.request
 import uuid
 from pathlib import Path
@@ -11,7 +13,9 @@ from pathlib import Path
 import docker
 import pytest
 
-from tests.docker.buildhelp import import_one_file_image
+from docker_ros.host.build import IMPORTS_LABEL, imports_owner
+from tests import leftovers
+from tests.docker.buildhelp import import_one_file_image, remove_image
 
 pytestmark = pytest.mark.docker
 
@@ -129,3 +133,42 @@ def test_pip_in_a_container_fails_without_the_host_ca(
     out = run(docker_client, ros1_base_image, f"{PIP_INSTALL_SIX} 2>&1 || echo PIP FAILED")
     assert "CERTIFICATE_VERIFY_FAILED" in out
     assert out.rstrip().endswith("PIP FAILED")
+
+
+def test_a_run_removes_the_images_it_left_and_nothing_else(
+    docker_client: docker.DockerClient, ros1_base_image: str, tmp_path: Path
+) -> None:
+    """leftovers.remove_run_images, which this suite and the bench call at their end: the
+    imports images of the run's repositories and the images the run's rebuilds untagged go;
+    another repository's imports image and an image untagged before the run began stay."""
+    name = f"docker-ros-test/leftovers-{uuid.uuid4().hex[:8]}"
+
+    def build(tag: str, content: str) -> str:
+        dockerfile = f"FROM {ros1_base_image}\nRUN echo {content} > /leftover\n"
+        subprocess.run(["docker", "build", "-q", "-t", f"{name}:{tag}", "-"], input=dockerfile,
+                       text=True, capture_output=True, check=True)
+        return str(docker_client.images.get(f"{name}:{tag}").id)
+
+    def imports_image(tag: str, repository: Path) -> str:
+        import_one_file_image(docker_client, f"{name}:{tag}", "imports\n",
+                              changes=[f"LABEL {IMPORTS_LABEL}={imports_owner(repository)}"])
+        return str(docker_client.images.get(f"{name}:{tag}").id)
+
+    before = build("before", uuid.uuid4().hex)
+    time.sleep(1.1)  # image times are whole seconds
+    since = time.time()
+    build("before", uuid.uuid4().hex)  # untags `before`, made before the run
+    rebuilt = build("rebuilt", uuid.uuid4().hex)
+    build("rebuilt", uuid.uuid4().hex)  # untags `rebuilt`, made by the run
+    root = tmp_path / "run"
+    (root / "tests" / "repository").mkdir(parents=True)
+    mine = imports_image("mine", root / "tests" / "repository")
+    other = imports_image("other", tmp_path / "elsewhere")
+    try:
+        leftovers.remove_run_images(docker_client, root, since)
+        left = {image["Id"] for image in docker_client.api.images(all=True)}
+        assert rebuilt not in left and mine not in left
+        assert before in left and other in left
+    finally:
+        for ref in (before, rebuilt, mine, other, f"{name}:before", f"{name}:rebuilt"):
+            remove_image(ref)
