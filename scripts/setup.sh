@@ -104,7 +104,15 @@ fetch_debs() {
             >"$apt_dir/sources.list"
         apt-get "${apt_tmp[@]}" update >/dev/null
     fi
-    (cd "$apt_dir/debs" && apt-get "${apt_tmp[@]}" download "$@" >/dev/null)
+    # (a package this run fetched already, such as docker-buildx for the machine and for the
+    # tests, is not downloaded again)
+    local missing=()
+    for deb in "$@"; do
+        compgen -G "$apt_dir/debs/${deb}_*.deb" >/dev/null || missing+=("$deb")
+    done
+    if [ ${#missing[@]} -gt 0 ]; then
+        (cd "$apt_dir/debs" && apt-get "${apt_tmp[@]}" download "${missing[@]}" >/dev/null)
+    fi
     mkdir -p "$dest"
     for deb in "$@"; do
         dpkg-deb -x "$apt_dir/debs/${deb}"_*.deb "$dest"
