@@ -13,6 +13,7 @@ import pytest
 
 from docker_ros.in_image.runtime.workspace import StepError
 from docker_ros.in_image.steps import clone
+from tests.processes import running
 from tests.rosfixtures import git_http_server, make_git_repo, make_package, write_repos
 
 pytestmark = pytest.mark.host
@@ -85,8 +86,9 @@ def test_https_password_from_buildkit_secret_file(project, private_remote, tmp_p
 
 
 def test_a_terminated_clone_leaves_no_credential_behind(tmp_path):
-    """SIGTERM (a cancelled CI job, `timeout`) while git waits on a server that never answers:
-    the task ends as terminated (143) and its askpass folder is gone, with git."""
+    """SIGTERM (a cancelled CI job, `timeout`, `kill`) to the task alone while git waits on a
+    server that never answers: the task ends as terminated (143), its askpass folder is gone,
+    and so are vcs and the git processes it started (none goes on cloning)."""
     repo = tmp_path / "repo"
     make_package(repo / "pkg_a", "pkg_a")
     with socket.socket() as silent:  # accepts, never answers
@@ -108,7 +110,14 @@ def test_a_terminated_clone_leaves_no_credential_behind(tmp_path):
         time.sleep(1)  # vcs and git are waiting on the server
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=60)
+        # (while the server still holds the connection open: a git left behind would wait)
+        deadline = time.monotonic() + 10
+        while running(server) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        left = running(server)
     assert proc.returncode == 143, err
     assert err.strip().splitlines()[-1] == "docker-ros clone: terminated (SIGTERM)"
     assert list(temp.iterdir()) == []
     assert PASSWORD not in out + err
+    assert not left, f"still cloning after the task ended: {left}"
+

@@ -1,10 +1,20 @@
 """scripts and custom: hook scripts copied into the state, run with bash, failures named."""
 
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import pytest
 
 from docker_ros.in_image.runtime.workspace import StepError
 from docker_ros.in_image.steps import custom, scripts
-from tests.rosfixtures import tree_snapshot
+from tests.processes import running
+from tests.rosfixtures import make_package, tree_snapshot
+
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 pytestmark = pytest.mark.host
 
@@ -121,3 +131,29 @@ def test_no_script_and_dry_run(project, capsys, tmp_path):
     assert "[dry-run] custom: copy " in out
     assert "[dry-run] custom: bash -e " in out
     assert tree_snapshot(project.ws.root) == snapshot
+
+
+def test_a_terminated_hook_leaves_nothing_it_started_running(tmp_path):
+    """SIGTERM to the task alone (`kill`, a CI runner) while a hook waits on a command it
+    started: the task ends as terminated (143), and the hook's command ends with it."""
+    repo = tmp_path / "repo"
+    make_package(repo / "pkg_a", "pkg_a")
+    marker = tmp_path / "started"
+    seconds = 30000 + os.getpid() % 1000  # a sleep of this run alone
+    write(repo / "docker" / "before_dependency_installation.sh",
+          f"sleep {seconds} &\ntouch {marker}\nwait\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    env.update(PYTHONPATH=str(SRC), WORKSPACE=str(tmp_path / "ws"))
+    proc = subprocess.Popen([sys.executable, "-m", "docker_ros", "scripts"], cwd=repo, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not marker.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert marker.exists(), "the hook never started"
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, out + err
+    deadline = time.monotonic() + 10
+    while running(f"sleep {seconds}") and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not running(f"sleep {seconds}"), "the hook's command outlived the task"

@@ -1,13 +1,15 @@
 """Running commands and hook scripts: argv lists only, one clear error per failure.
 Standard library only, Python 3.8+ (runs inside images)."""
 
+import contextlib
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any, Callable, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.in_image.runtime.workspace import LOG, StepError, dry, format_argv
 
@@ -41,7 +43,7 @@ def run(
     full_env = None if env is None else dict(env)
     sys.stdout.flush()
     try:
-        proc = subprocess.run(
+        proc = subprocess.Popen(
             executable_argv(argv),
             cwd=str(cwd) if cwd else None,
             env=full_env,
@@ -52,17 +54,22 @@ def run(
     except FileNotFoundError:
         raise StepError(step, f"command not found: {argv[0]} (needed for: {shown})"
                         f"{host_tool_hint(argv[0])}", 127) from None
+    try:
+        stdout, stderr = proc.communicate()
+    except BaseException:  # interrupted or terminated: the command does not outlive us
+        stop_tree(proc)
+        raise
     if proc.returncode != 0:
         detail = ""
-        if capture and proc.stderr and proc.stderr.strip():
-            detail = ": " + proc.stderr.strip().splitlines()[-1]
+        if capture and stderr and stderr.strip():
+            detail = ": " + stderr.strip().splitlines()[-1]
         subject = f"{what} " if what else ""
         raise StepError(
             step,
             f"{subject}failed with exit code {proc.returncode}: {shown}{detail}",
             proc.returncode,
         )
-    return proc.stdout if capture else ""
+    return stdout if capture else ""
 
 
 def probe(
@@ -232,13 +239,44 @@ def run_tee(
                 line = line.rstrip("\n")
                 lines.append(line)
                 if on_line and on_line(line):
-                    proc.terminate()
+                    stop_tree(proc)
                     break
     except BaseException:  # interrupted or terminated: the command does not outlive us
-        proc.terminate()
-        proc.wait()
+        stop_tree(proc)
         raise
     return proc.wait(), lines
+
+
+def descendants(pid: int, proc_root: Path = Path("/proc")) -> List[int]:
+    """The processes below pid, at any depth (read from /proc; none where there is none)."""
+    children: Dict[int, List[int]] = {}
+    for stat in proc_root.glob("[0-9]*/stat"):
+        try:  # `pid (comm) state ppid ...`; comm may hold spaces and parentheses
+            parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue  # ended meanwhile
+        children.setdefault(parent, []).append(int(stat.parent.name))
+    found: List[int] = []
+    waiting = [pid]
+    while waiting:
+        below = children.get(waiting.pop(), [])
+        found.extend(below)
+        waiting.extend(below)
+    return found
+
+
+def stop_tree(proc: "subprocess.Popen[str]") -> None:
+    """SIGTERM to a command and to every process below it, then wait for the command (SIGKILL
+    to them all after 10 s). A signal to the command alone (as SIGTERM to our process alone:
+    `kill`, a CI runner, `docker-ros ci`) leaves its children running, such as the git clones
+    of vcs or the compilers of colcon."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):  # (SIGKILL: what is left 10 s later)
+        for pid in [proc.pid, *descendants(proc.pid)]:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, sig)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=10)
+            return
 
 
 def is_root() -> bool:

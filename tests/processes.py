@@ -1,0 +1,17 @@
+"""The processes of this machine, for tests that check what an interrupted task leaves running."""
+
+from pathlib import Path
+
+
+def running(text: str) -> list:
+    """The command lines of the live processes (not zombies) that name text."""
+    found = []
+    for folder in Path("/proc").glob("[0-9]*"):
+        try:
+            state = (folder / "stat").read_text().rsplit(")", 1)[1].split()[0]
+            argv = (folder / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except (OSError, IndexError):
+            continue  # ended meanwhile
+        if text in argv and state != "Z":
+            found.append(argv.strip())
+    return found
