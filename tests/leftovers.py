@@ -35,9 +35,10 @@ def remove(client: docker.DockerClient, ref: str) -> None:
 
 
 def remove_run_images(client: docker.DockerClient, root: Path, since: float) -> None:
-    """The imports images of the repositories below root (at most 4 levels down) and the
-    images untagged since `since` (seconds since the epoch). The raw lists: images.list()
-    inspects each image and fails when another user of the engine removes one meanwhile."""
+    """The imports images of the repositories below root (at most 4 levels down), and the
+    images made since `since` (seconds since the epoch) that a later build untagged. The raw
+    lists: images.list() inspects each image and fails when another user of the engine
+    removes one meanwhile."""
     owners = {imports_owner(folder) for folder in folders(root, 4)}
     for image in client.api.images(filters={"label": IMPORTS_LABEL}):
         if (image.get("Labels") or {}).get(IMPORTS_LABEL) in owners:
