@@ -92,19 +92,31 @@ def pytest_collection_modifyitems(items: list) -> None:
                     item.fixturenames.insert(0, name)
 
 
+# An engine that does not answer: the docker SDK's errors, and requests' (OSError) for a socket
+# nobody listens on.
+ENGINE_DOWN = contextlib.suppress(docker.errors.DockerException, OSError)
+
+
 @pytest.fixture(scope="session")
 def this_runs_images(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     """At the end of the run, on the shared engine and on Engine 26: the imports images of the
     repositories this run made (they are under pytest's temporary folder) and the images its
-    rebuilds untagged (see leftovers.py). Another repository's stay."""
-    since = time.time()
+    rebuilds untagged (see leftovers.py). Another repository's stay; an engine that did not
+    answer at the start is left alone."""
+    before = {}
+    for host in (None, engines.ENGINE26_HOST):
+        with ENGINE_DOWN, engine_client(host) as client:
+            before[host] = leftovers.untagged(client)
     yield
     root = tmp_path_factory.getbasetemp()
-    for host in (None, engines.ENGINE26_HOST):
-        with contextlib.suppress(docker.errors.DockerException):
-            client = docker.DockerClient(base_url=host) if host else docker.from_env()
-            leftovers.remove_run_images(client, root, since)
-            client.close()
+    for host, dangling in before.items():
+        with ENGINE_DOWN, engine_client(host) as client:
+            leftovers.remove_run_images(client, root, dangling)
+
+
+def engine_client(host: Optional[str]) -> contextlib.closing:
+    """A client of the shared engine (None) or of host, closed at the end of the block."""
+    return contextlib.closing(docker.DockerClient(base_url=host) if host else docker.from_env())
 
 
 @pytest.fixture(scope="session")

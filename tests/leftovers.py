@@ -2,15 +2,15 @@
 engine is shared with everything else on the machine, so only what the run made goes:
 - the imports images of its repositories (labelled with the repository's path, hashed; the
   run's repositories are below its temporary folder);
-- the images its rebuilds untagged (dangling, built on a base image of docker-ros's recipe,
-  created after the run began);
+- the images its rebuilds untagged (dangling now but not when the run began, built on a base
+  image of docker-ros's recipe);
 - the images named after a registry it served (a free port of the run)."""
 
 from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Set
 
 import docker
 
@@ -34,9 +34,17 @@ def remove(client: docker.DockerClient, ref: str) -> None:
         client.images.remove(ref)
 
 
-def remove_run_images(client: docker.DockerClient, root: Path, since: float) -> None:
+def untagged(client: docker.DockerClient) -> Set[str]:
+    """The IDs of the dangling images (no tag left) built on a base image of docker-ros's
+    recipe: taken when a run begins, those stay (they were not made dangling by it)."""
+    images = client.api.images(filters={"dangling": True, "label": RECIPE_LABEL})
+    return {str(image["Id"]) for image in images}
+
+
+def remove_run_images(client: docker.DockerClient, root: Path, before: Set[str]) -> None:
     """The imports images of the repositories below root (at most 4 levels down), and the
-    images made since `since` (seconds since the epoch) that a later build untagged. The raw
+    images that became dangling since the run began (before: `untagged` then): the run's
+    rebuilds untagged them, its own or a previous run's under the same test names. The raw
     lists: images.list() inspects each image and fails when another user of the engine
     removes one meanwhile."""
     owners = {imports_owner(folder) for folder in folders(root, 4)}
@@ -44,9 +52,8 @@ def remove_run_images(client: docker.DockerClient, root: Path, since: float) -> 
         if (image.get("Labels") or {}).get(IMPORTS_LABEL) in owners:
             for tag in image.get("RepoTags") or []:
                 remove(client, tag)
-    for image in client.api.images(filters={"dangling": True, "label": RECIPE_LABEL}):
-        if image.get("Created", 0) >= since:  # (whole seconds: one made just before stays)
-            remove(client, image["Id"])
+    for image_id in sorted(untagged(client) - before):
+        remove(client, image_id)
 
 
 def remove_registry_images(client: docker.DockerClient, address: str) -> None:

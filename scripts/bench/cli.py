@@ -6,7 +6,6 @@ import argparse
 import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -28,7 +27,7 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                "Timings are wall-clock; other builds on the engine make them noisy.",
     )
     parser.add_argument("-n", "--packages", type=int, default=10,
-                        help="number of C++ packages in the workspace (default 10)")
+                        help="number of C++ packages in the workspace (default 10, at least 2)")
     parser.add_argument("--chain", type=int, default=4,
                         help="package i depends on package i-1 except when i %% CHAIN == 0 "
                              "(default 4: chains 0<-1<-2<-3, 4<-5<-6<-7, ...)")
@@ -58,8 +57,11 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                              "the workspace's dev and run images")
     parser.add_argument("-v", "--verbose", action="store_true", help="stream the build logs")
     args = parser.parse_args(argv)
-    if args.packages < 1 or args.chain < 1 or args.depth < 1:
-        parser.error("--packages, --chain and --depth must be at least 1")
+    if args.packages < 2:
+        parser.error("--packages must be at least 2: scenarios 3 and 5 change the last and the "
+                     "first package, and the later checks tell them apart")
+    if args.chain < 1 or args.depth < 1:
+        parser.error("--chain and --depth must be at least 1")
     return args
 
 
@@ -69,7 +71,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print("bench: docker not found", file=sys.stderr)
         return 2
     tmp = Path(tempfile.mkdtemp(prefix="docker-ros-bench-"))
-    since = time.time()
+    before = leftovers.untagged(engine.client())
     try:
         rows, sizes = run_all(args, tmp)
     except BenchError as exc:
@@ -85,6 +87,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     else:
         docker("image", "rm", "-f", IMAGE, DEV_IMAGE, LEAN_IMAGE, SLIM_IMAGE)
         # the imports images of its workspaces (in tmp) and the images its rebuilds untagged
-        leftovers.remove_run_images(engine.client(), tmp, since)
+        leftovers.remove_run_images(engine.client(), tmp, before)
         shutil.rmtree(tmp, ignore_errors=True)
     return 1 if failed else 0

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import time
 import urllib.request
 import uuid
 from pathlib import Path
@@ -139,12 +138,13 @@ def test_a_run_removes_the_images_it_left_and_nothing_else(
     docker_client: docker.DockerClient, ros1_base_image: str, tmp_path: Path
 ) -> None:
     """leftovers.remove_run_images, which this suite and the bench call at their end: the
-    imports images of the run's repositories and the images the run's rebuilds untagged go;
-    another repository's imports image and an image untagged before the run began stay."""
+    imports images of the run's repositories and the images that became dangling during the
+    run go (a rebuild untagged them: made by the run, or by an earlier run under the same test
+    name); another repository's imports image and an image dangling before the run stay."""
     name = f"docker-ros-test/leftovers-{uuid.uuid4().hex[:8]}"
 
-    def build(tag: str, content: str) -> str:
-        dockerfile = f"FROM {ros1_base_image}\nRUN echo {content} > /leftover\n"
+    def build(tag: str) -> str:
+        dockerfile = f"FROM {ros1_base_image}\nRUN echo {uuid.uuid4().hex} > /leftover\n"
         subprocess.run(["docker", "build", "-q", "-t", f"{name}:{tag}", "-"], input=dockerfile,
                        text=True, capture_output=True, check=True)
         return str(docker_client.images.get(f"{name}:{tag}").id)
@@ -154,21 +154,24 @@ def test_a_run_removes_the_images_it_left_and_nothing_else(
                               changes=[f"LABEL {IMPORTS_LABEL}={imports_owner(repository)}"])
         return str(docker_client.images.get(f"{name}:{tag}").id)
 
-    before = build("before", uuid.uuid4().hex)
-    time.sleep(1.1)  # image times are whole seconds
-    since = time.time()
-    build("before", uuid.uuid4().hex)  # untags `before`, made before the run
-    rebuilt = build("rebuilt", uuid.uuid4().hex)
-    build("rebuilt", uuid.uuid4().hex)  # untags `rebuilt`, made by the run
+    old = build("old")
+    build("old")  # untags `old` before the run begins
+    earlier = build("earlier")  # an earlier run's image under a test name
+    before = leftovers.untagged(docker_client)
+    build("earlier")  # untags `earlier`: the run did
+    rebuilt = build("rebuilt")
+    build("rebuilt")  # untags `rebuilt`, made by the run
     root = tmp_path / "run"
     (root / "tests" / "repository").mkdir(parents=True)
     mine = imports_image("mine", root / "tests" / "repository")
     other = imports_image("other", tmp_path / "elsewhere")
     try:
-        leftovers.remove_run_images(docker_client, root, since)
+        assert old in before and earlier not in before
+        leftovers.remove_run_images(docker_client, root, before)
         left = {image["Id"] for image in docker_client.api.images(all=True)}
-        assert rebuilt not in left and mine not in left
-        assert before in left and other in left
+        assert earlier not in left and rebuilt not in left and mine not in left
+        assert old in left and other in left
     finally:
-        for ref in (before, rebuilt, mine, other, f"{name}:before", f"{name}:rebuilt"):
+        for ref in (old, earlier, rebuilt, mine, other, *(f"{name}:{tag}" for tag in
+                                                          ("old", "earlier", "rebuilt"))):
             remove_image(ref)
