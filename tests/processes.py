@@ -1,5 +1,6 @@
 """The processes of this machine, for tests that check what an interrupted task leaves running."""
 
+import time
 from pathlib import Path
 
 
@@ -15,3 +16,11 @@ def running(text: str) -> list:
         if text in argv and state != "Z":
             found.append(argv.strip())
     return found
+
+
+def left_after(text: str, seconds: float = 10) -> list:
+    """`running(text)` once none is left, or after seconds: what outlived its end."""
+    deadline = time.monotonic() + seconds
+    while running(text) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return running(text)

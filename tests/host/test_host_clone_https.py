@@ -13,7 +13,7 @@ import pytest
 
 from docker_ros.in_image.runtime.workspace import StepError
 from docker_ros.in_image.steps import clone
-from tests.processes import running
+from tests.processes import left_after
 from tests.rosfixtures import git_http_server, make_git_repo, make_package, write_repos
 
 pytestmark = pytest.mark.host
@@ -111,10 +111,7 @@ def test_a_terminated_clone_leaves_no_credential_behind(tmp_path):
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=60)
         # (while the server still holds the connection open: a git left behind would wait)
-        deadline = time.monotonic() + 10
-        while running(server) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        left = running(server)
+        left = left_after(server)
     assert proc.returncode == 143, err
     assert err.strip().splitlines()[-1] == "docker-ros clone: terminated (SIGTERM)"
     assert list(temp.iterdir()) == []

@@ -11,7 +11,7 @@ import pytest
 
 from docker_ros.in_image.runtime.workspace import StepError
 from docker_ros.in_image.steps import custom, scripts
-from tests.processes import running
+from tests.processes import left_after
 from tests.rosfixtures import make_package, tree_snapshot
 
 SRC = Path(__file__).resolve().parents[2] / "src"
@@ -153,7 +153,4 @@ def test_a_terminated_hook_leaves_nothing_it_started_running(tmp_path):
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, out + err
-    deadline = time.monotonic() + 10
-    while running(f"sleep {seconds}") and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not running(f"sleep {seconds}"), "the hook's command outlived the task"
+    assert not left_after(f"sleep {seconds}"), "the hook's command outlived the task"
