@@ -1,6 +1,7 @@
-# A ROS base image made from a Debian mirror, for machines that reach no container registry.
-# ROOTFS_IMAGE is a debootstrap'ed minbase rootfs imported by docker_ros.baseimage; DEBS are the
-# ROS tools Debian packages (ROS 1 in bookworm, ROS 2 build tooling in trixie), all in /usr.
+# A ROS base image made from a Debian or Ubuntu mirror, for machines that reach no container
+# registry. ROOTFS_IMAGE is a debootstrap'ed minbase rootfs imported by docker_ros.baseimage; DEBS
+# are the ROS tools the distribution packages (ROS 1 in bookworm and Ubuntu's jammy, ROS 2 build
+# tooling in trixie), all in /usr.
 ARG ROOTFS_IMAGE
 FROM ${ROOTFS_IMAGE} AS debs
 ARG DEBS
@@ -31,3 +32,15 @@ FROM debs AS ros1
 
 FROM debs AS ros2
 ENV ROS_VERSION=2
+
+# ROS 1 on Ubuntu 22.04 (universe has Debian's ROS 1). PIP_PACKAGES: colcon and vcstool, which
+# Ubuntu does not package, from PyPI. The rules of python3-rosdep2 are listed for Debian only
+# (the list's tag `debian`); untagged they apply on Ubuntu too (they have its names).
+FROM debs AS ros1-ubuntu
+ARG PIP_PACKAGES
+RUN --mount=type=secret,id=EXTRA_CA_CERTS \
+    set -eu; \
+    ca=/run/secrets/EXTRA_CA_CERTS; \
+    if [ -s "$ca" ]; then set -- --cert "$ca"; fi; \
+    pip3 install "$@" --no-cache-dir $PIP_PACKAGES; \
+    sed -i 's/ debian$//' /etc/ros/rosdep/sources.list.d/10-debian.list

@@ -8,6 +8,7 @@ import os
 import secrets
 import shutil
 import socket
+import ssl
 import subprocess
 import sys
 import tempfile
@@ -28,6 +29,7 @@ from tests import engines, leftovers
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"
 ROS2_BASE_IMAGE = "docker-ros-test/ros2:trixie"
+ROS1_UBUNTU_BASE_IMAGE = "docker-ros-test/ros1:jammy"
 # dockerd treats 127.0.0.0/8 as an insecure (plain http) registry without configuration; a free
 # port keeps parallel test runs (and a user's own registry on 5000) apart.
 REGISTRY_HOST = "127.0.0.1"
@@ -183,6 +185,16 @@ def ros1_arm64_base_image(ros1_base_image: str) -> str:
 def ros2_base_image(docker_client: docker.DockerClient) -> str:
     """Tag of a Debian trixie image with ROS 2 build tooling (ament, colcon); built once."""
     return baseimage.bootstrap("ros2", tag=ROS2_BASE_IMAGE)
+
+
+@pytest.fixture(scope="session")
+def ros1_ubuntu_base_image(docker_client: docker.DockerClient) -> str:
+    """Tag of an Ubuntu 22.04 image with Ubuntu's ROS 1 (in /usr), colcon and vcstool from
+    PyPI; built once (about a minute), then reused. The machine's CA bundle is the pip's: where
+    a TLS-intercepting proxy re-signs PyPI, the machine trusts its CA."""
+    bundle = Path(ssl.get_default_verify_paths().openssl_cafile)
+    return baseimage.bootstrap("ros1-ubuntu", tag=ROS1_UBUNTU_BASE_IMAGE,
+                               ca_bundle=bundle if bundle.is_file() else None)
 
 
 @pytest.fixture(scope="session")

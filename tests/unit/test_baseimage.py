@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import re
 from pathlib import Path
 
@@ -13,7 +14,7 @@ from docker_ros.in_image.runtime.workspace import StepError
 
 def test_every_flavor_is_a_dockerfile_stage() -> None:
     stages = re.findall(r"^FROM \S+ AS (\S+)$", baseimage.DOCKERFILE.read_text(), re.MULTILINE)
-    assert set(baseimage.FLAVORS) <= set(stages)
+    assert {spec.stage for spec in baseimage.FLAVORS.values()} <= set(stages)
 
 
 def test_build_argv_passes_the_ca_bundle_as_a_secret_only() -> None:
@@ -64,6 +65,45 @@ def test_debootstrap_argv_is_minbase_for_the_platform() -> None:
     assert argv == [
         "debootstrap", "--variant=minbase", "--arch=arm64", "bookworm", "/tmp/r", "http://m/debian",
     ]  # fmt: skip
+
+
+def test_ubuntu_is_debootstrapped_with_universe_and_checked_against_its_key() -> None:
+    argv = baseimage.debootstrap_argv("jammy", Path("/tmp/r"), "http://m/ubuntu", "amd64",
+                                      components=("main", "universe"), keyring=Path("/k.gpg"))
+    assert argv == [
+        "debootstrap", "--variant=minbase", "--arch=amd64", "--components=main,universe",
+        "--keyring=/k.gpg", "jammy", "/tmp/r", "http://m/ubuntu",
+    ]  # fmt: skip
+
+
+def test_each_distribution_and_architecture_has_its_mirror() -> None:
+    assert baseimage.default_mirror("debian", "arm64") == "http://deb.debian.org/debian"
+    assert baseimage.default_mirror("ubuntu", "amd64") == "http://archive.ubuntu.com/ubuntu"
+    # Ubuntu's archive has no arm64: its ports mirror has
+    assert baseimage.default_mirror("ubuntu", "arm64") == "http://ports.ubuntu.com/ubuntu-ports"
+
+
+def test_the_shipped_key_is_the_ubuntu_archive_signing_key() -> None:
+    """The OpenPGP v4 fingerprint (RFC 4880, 12.2) of the dearmored key: SHA-1 over 0x99, the
+    two-byte length and the public-key packet's body. A wrong or damaged key fails here, not
+    in a debootstrap that then trusts nothing."""
+    key = baseimage.dearmor(baseimage.UBUNTU_KEY.read_text())
+    assert key[0] == 0x99  # an old-format public-key packet with a two-byte length
+    length = int.from_bytes(key[1:3], "big")
+    fingerprint = hashlib.sha1(b"\x99" + key[1:3] + key[3:3 + length]).hexdigest().upper()
+    assert fingerprint == "F6ECB3762474EDA9D21B7022871920D1991BC93C"
+
+
+def test_ubuntu_flavor_names_its_stage_and_pypi_tools() -> None:
+    spec = baseimage.FLAVORS["ros1-ubuntu"]
+    assert baseimage.default_tag("ros1-ubuntu") == "docker-ros/ros1:jammy"
+    argv = baseimage.build_argv(spec, "t:1", "rootfs:x", "amd64", None, Path("/ctx"))
+    assert argv[argv.index("--target") + 1] == "ros1-ubuntu"
+    pip = [a for a in argv if a.startswith("PIP_PACKAGES=")]
+    assert pip == ["PIP_PACKAGES=colcon-common-extensions==0.3.0 vcstool==0.3.0"]
+    assert "colcon" not in spec.debs and "vcstool" not in spec.debs  # not packaged by Ubuntu
+    assert "PIP_PACKAGES=" not in " ".join(baseimage.build_argv(
+        baseimage.FLAVORS["ros1"], "t:1", "rootfs:x", "amd64", None, Path("/ctx")))
 
 
 def test_unknown_flavor_and_missing_ca_bundle_are_clear_errors(tmp_path: Path) -> None:

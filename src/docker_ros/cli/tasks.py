@@ -13,6 +13,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import textwrap
 import time
 from pathlib import Path
@@ -534,16 +535,18 @@ def dev_shell(
 
 @settings_task(
     "bootstrap-base-image",
-    "Build a ROS base image from a Debian mirror (debootstrap, no registry)",
+    "Build a ROS base image from a Debian or Ubuntu mirror (debootstrap, no registry)",
     [
-        ("flavor", "ros1", "ros1 (Debian bookworm + ROS 1) or ros2 (Debian trixie + ament/colcon)"),
-        ("tag", "", "Image tag (default docker-ros/<flavor>:<suite>); the image of another "
+        ("flavor", "ros1", "ros1 (Debian bookworm + ROS 1), ros2 (Debian trixie + ament/colcon) "
+         "or ros1-ubuntu (Ubuntu 22.04 jammy + its ROS 1, colcon and vcstool from PyPI)"),
+        ("tag", "", "Image tag (default docker-ros/<ros1|ros2>:<suite>); the image of another "
          "architecture than this machine's is tagged <tag>-<arch> (a BASE_IMAGE of <tag> finds "
          "it when building for that PLATFORM)"),
-        ("mirror", "http://deb.debian.org/debian", "Debian mirror"),
+        ("mirror", "", "Debian or Ubuntu mirror (default: deb.debian.org; archive.ubuntu.com, "
+         "ports.ubuntu.com for arm64)"),
         ("force", False, "Rebuild even if the tag exists"),
     ],
-    uses=("platform",),
+    uses=("platform", "extra_ca_certs"),
 )
 def bootstrap_base_image(
     c: Context, settings: Settings, *, flavor: str, tag: str, mirror: str, force: bool
@@ -552,8 +555,17 @@ def bootstrap_base_image(
     if flavor not in baseimage.FLAVORS:
         raise TaskError(f"--flavor {flavor!r}: use one of {', '.join(baseimage.FLAVORS)}")
     tag = tag or baseimage.default_tag(flavor)
-    for platform in settings.platform:
-        print(baseimage.bootstrap(flavor, tag=tag, mirror=mirror, platform=platform, force=force))
+    with tempfile.TemporaryDirectory(prefix="docker-ros-ca-") as tmp:
+        bundle = None
+        if settings.extra_ca_certs:  # (ros1-ubuntu's pip behind a TLS-intercepting proxy)
+            try:
+                bundle = build.ca_bundle(Path(settings.extra_ca_certs).expanduser(),
+                                         Path(tmp) / "ca.pem")
+            except build.BuildError as exc:
+                raise TaskError(str(exc)) from None
+        for platform in settings.platform:
+            print(baseimage.bootstrap(flavor, tag=tag, mirror=mirror, platform=platform,
+                                      force=force, ca_bundle=bundle))
 
 
 # the bundled example workspace at the source repository's root (two levels above the package,

@@ -1,12 +1,14 @@
-"""Build a ROS base image from a Debian mirror (debootstrap), for machines without a registry.
+"""Build a ROS base image from a Debian or Ubuntu mirror (debootstrap), for machines without a
+registry.
 
-Debian packages ROS 1 (bookworm) and the ROS 2 build tooling (trixie) in /usr, so a minbase
-rootfs plus those packages is a base image that docker-ros can build on when neither `ros:*`
-nor `rwthika/*` images can be pulled.
+Debian packages ROS 1 (bookworm) and the ROS 2 build tooling (trixie) in /usr, and Ubuntu 22.04
+(jammy) has Debian's ROS 1 in universe, so a minbase rootfs plus those packages is a base image
+that docker-ros can build on when neither `ros:*` nor `rwthika/*` images can be pulled.
 """
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import logging
 import subprocess
@@ -23,7 +25,12 @@ from docker_ros.in_image.settings import host_platform
 LOG = logging.getLogger(__name__)
 STEP = "baseimage"
 DEFAULT_MIRROR = "http://deb.debian.org/debian"
+UBUNTU_MIRROR = "http://archive.ubuntu.com/ubuntu"  # amd64 (and i386)
+UBUNTU_PORTS_MIRROR = "http://ports.ubuntu.com/ubuntu-ports"  # arm64 and the other ports
 DOCKERFILE = Path(__file__).parents[1] / "docker" / "baseimage.Dockerfile"
+# The Ubuntu archive's signing key (2018, F6EC B376 2474 EDA9 D21B 7022 8719 20D1 991B C93C),
+# which Debian does not package: debootstrap checks an Ubuntu suite's Release file against it.
+UBUNTU_KEY = Path(__file__).parents[1] / "docker" / "ubuntu-archive-2018.asc"
 
 # What colcon-common-extensions brings, as Debian packages (same names in bookworm and trixie).
 COLCON_DEBS = tuple(
@@ -48,11 +55,20 @@ RECIPE_LABEL = "org.docker-ros.base-recipe"
 
 @dataclass(frozen=True)
 class Flavor:
-    """A Debian suite and the ROS packages it provides; the name is the Dockerfile target."""
+    """A Debian or Ubuntu suite and the ROS packages it provides. name: the image's (default
+    tag docker-ros/<name>:<suite>) and the Dockerfile target unless `target` names another;
+    pip: what the Dockerfile target installs from PyPI (pinned: it is part of the recipe)."""
 
     name: str
     suite: str
     debs: Tuple[str, ...]
+    distro: str = "debian"
+    pip: Tuple[str, ...] = ()
+    target: str = ""
+
+    @property
+    def stage(self) -> str:
+        return self.target or self.name
 
 
 # ros1 is like `ros:noetic-ros-core`: no compiler, so docker-ros's dev stage must bring it.
@@ -63,15 +79,39 @@ ROS2_DEBS = (
     "ament-cmake", "ament-cmake-python", "python3-ament-index", "python3-ament-package",
     "build-essential",
 )
+# ros1-ubuntu is ROS 1 as Ubuntu 22.04 packages it (a `ros:noetic-ros-core` on Ubuntu). Ubuntu
+# has neither colcon nor vcstool as packages: they come from PyPI, as on a base made with pip.
+UBUNTU_TOOL_DEBS = tuple(d for d in TOOL_DEBS if d not in ("colcon", "vcstool"))
 FLAVORS = {
     "ros1": Flavor("ros1", "bookworm", ROS1_DEBS + TOOL_DEBS + COLCON_DEBS),
     "ros2": Flavor("ros2", "trixie", ROS2_DEBS + TOOL_DEBS + COLCON_DEBS),
+    "ros1-ubuntu": Flavor("ros1", "jammy", ROS1_DEBS + UBUNTU_TOOL_DEBS, distro="ubuntu",
+                          pip=("colcon-common-extensions==0.3.0", "vcstool==0.3.0"),
+                          target="ros1-ubuntu"),
 }
 
 
 def default_tag(flavor: str) -> str:
-    """docker-ros/ros1:bookworm, docker-ros/ros2:trixie."""
-    return f"docker-ros/{flavor}:{FLAVORS[flavor].suite}"
+    """docker-ros/ros1:bookworm, docker-ros/ros2:trixie, docker-ros/ros1:jammy."""
+    spec = FLAVORS[flavor]
+    return f"docker-ros/{spec.name}:{spec.suite}"
+
+
+def default_mirror(distro: str, platform: str) -> str:
+    """Debian's mirror serves every architecture; Ubuntu's archive only amd64 and i386, its
+    ports the others (arm64)."""
+    if distro != "ubuntu":
+        return DEFAULT_MIRROR
+    return UBUNTU_MIRROR if platform in ("amd64", "i386") else UBUNTU_PORTS_MIRROR
+
+
+def dearmor(armored: str) -> bytes:
+    """The binary key of an ASCII-armored OpenPGP key block (RFC 4880, 6.2): what debootstrap's
+    gpgv takes as --keyring."""
+    lines = armored.strip().splitlines()
+    start = lines.index("") + 1  # the armor headers end at the first empty line
+    body = [line for line in lines[start:-1] if not line.startswith("=")]  # "=" CRC-24 line
+    return base64.b64decode("".join(body))
 
 
 def arch_ref(ref: str, platform: str) -> str:
@@ -91,15 +131,16 @@ def bootstrap(
     flavor: str,
     *,
     tag: str,
-    mirror: str = DEFAULT_MIRROR,
+    mirror: str = "",
     platform: str = "",
     ca_bundle: Optional[Path] = None,
     force: bool = False,
     cli: Sequence[str] = ("docker",),
     network: str = "",
 ) -> str:
-    """Build the base image of `flavor` ("ros1" or "ros2") for `platform`, tagged `tag` for the
+    """Build the base image of `flavor` (a key of FLAVORS) for `platform`, tagged `tag` for the
     host's architecture and `<tag>-<platform>` for another (platform_tag); return that name.
+    mirror: the flavor's distribution's for that platform unless given (default_mirror).
     Reuse an image of that name built from the current recipe (RECIPE_LABEL), else rebuild it.
     platform: this machine's architecture unless given. cli: the docker command of the engine
     to build it in (`docker --context NAME` for a docker context's; the SDK client must be
@@ -122,9 +163,18 @@ def bootstrap(
         work = Path(tmp)
         rootfs = work / "rootfs"
         rootfs_tag = f"docker-ros-rootfs/{spec.suite}:{platform}-{work.name.lower()}"
+        mirror = mirror or default_mirror(spec.distro, platform)
+        keyring: Optional[Path] = None
+        components: Tuple[str, ...] = ()
+        if spec.distro == "ubuntu":  # its ROS packages are in universe
+            keyring = work / "ubuntu-archive.gpg"
+            keyring.write_bytes(dearmor(UBUNTU_KEY.read_text()))
+            components = ("main", "universe")
         try:
             with step_log(f"{STEP} debootstrap {spec.suite} ({platform})"):
-                run(privileged(debootstrap_argv(spec.suite, rootfs, mirror, platform)), step=STEP)
+                argv = debootstrap_argv(spec.suite, rootfs, mirror, platform,
+                                        components=components, keyring=keyring)
+                run(privileged(argv), step=STEP)
             with step_log(f"{STEP} import rootfs"):
                 import_rootfs(rootfs, rootfs_tag, platform, work, cli)
         finally:
@@ -142,7 +192,7 @@ def bootstrap(
 
 def recipe(spec: Flavor) -> str:
     """Fingerprint of what an image of `spec` is built from: Dockerfile, target and packages."""
-    text = "\0".join([DOCKERFILE.read_text(), spec.name, spec.suite, *spec.debs])
+    text = "\0".join([DOCKERFILE.read_text(), spec.stage, spec.suite, *spec.debs, *spec.pip])
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -169,8 +219,14 @@ def image_label(tag: str, label: str) -> Optional[str]:
     return str(value) if value is not None else None
 
 
-def debootstrap_argv(suite: str, rootfs: Path, mirror: str, platform: str) -> List[str]:
-    return ["debootstrap", "--variant=minbase", f"--arch={platform}", suite, str(rootfs), mirror]
+def debootstrap_argv(
+    suite: str, rootfs: Path, mirror: str, platform: str, *,
+    components: Sequence[str] = (), keyring: Optional[Path] = None,
+) -> List[str]:
+    argv = ["debootstrap", "--variant=minbase", f"--arch={platform}"]
+    argv += [f"--components={','.join(components)}"] if components else []
+    argv += [f"--keyring={keyring}"] if keyring is not None else []
+    return argv + [suite, str(rootfs), mirror]
 
 
 def build_argv(
@@ -185,9 +241,10 @@ def build_argv(
 ) -> List[str]:
     argv = [*cli, "buildx", "build", "--load", "--platform", f"linux/{platform}"]
     argv += ["--network", network] if network else []
-    argv += ["--file", str(DOCKERFILE), "--target", spec.name, "--tag", tag]
+    argv += ["--file", str(DOCKERFILE), "--target", spec.stage, "--tag", tag]
     argv += ["--build-arg", f"ROOTFS_IMAGE={rootfs_image}"]
     argv += ["--build-arg", "DEBS=" + " ".join(spec.debs)]
+    argv += ["--build-arg", "PIP_PACKAGES=" + " ".join(spec.pip)] if spec.pip else []
     argv += ["--label", f"{RECIPE_LABEL}={recipe(spec)}"]
     if ca_bundle is not None:
         argv += ["--secret", f"id=EXTRA_CA_CERTS,src={ca_bundle}"]

@@ -179,7 +179,8 @@ class Settings:
         build="tool",
     )
     enable_push_as_latest: bool = setting(
-        False, "Push images with tag `latest`/`latest-dev` in addition to the configured names",
+        False, "Push images with tag `latest`/`latest-dev` (and `latest-slim`) in addition to the "
+        "configured names",
         build="none", flags=("push",)
     )
     enable_singlearch_push: bool = setting(
@@ -303,8 +304,9 @@ class Settings:
     workspace: Optional[str] = setting(
         None,
         "Host workspace of the step tasks and `--host` composites (repository at src/target)",
-        default_doc="`~/.cache/docker-ros/ws/<repository folder name>` (`<name>-<hash of its"
-        " path>` when that one is the workspace of another repository of the same name)",
+        default_doc="`${XDG_CACHE_HOME:-~/.cache}/docker-ros/ws/<repository folder name>` "
+        "(`<name>-<hash of its path>` when that one is the workspace of another repository of "
+        "the same name)",
         group="ours", build="none", flags=("host",),
     )
     test_results_dir: Optional[str] = setting(
