@@ -393,3 +393,18 @@ def test_an_invoke_yaml_whose_top_level_is_a_list_is_one_line(repo: Path, args: 
     assert proc.returncode == 2
     assert last_line(proc).endswith("invoke.yaml: the top level must be a mapping (key "
                                     "docker_ros:)")
+
+
+def test_bootstrap_base_image_names_a_bad_flavor_or_ca_bundle_before_debootstrap(
+        tmp_path: Path) -> None:
+    """Both stop at once (no debootstrap, no image): one line naming the option and what to
+    give."""
+    flavor = run(["docker_ros", "bootstrap-base-image", "--flavor", "ros3"], tmp_path)
+    assert flavor.returncode == 1
+    assert last_line(flavor).endswith("--flavor 'ros3': use one of ros1, ros2, ros1-ubuntu")
+    missing = tmp_path / "no-such-ca.pem"
+    ca = run(["docker_ros", "bootstrap-base-image", "--flavor", "ros1-ubuntu",
+              "--extra-ca-certs", str(missing), "--tag", "docker-ros-test/never:1"], tmp_path)
+    assert ca.returncode == 1
+    assert last_line(ca).endswith(f"EXTRA_CA_CERTS '{missing}' not found: give a PEM file or a "
+                                  "folder of them")
