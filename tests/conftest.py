@@ -25,7 +25,7 @@ import pytest
 import yaml
 
 from docker_ros.host import baseimage
-from tests import engines, leftovers
+from tests import engines, leftovers, suitelock
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"
 ROS2_BASE_IMAGE = "docker-ros-test/ros2:trixie"
@@ -85,13 +85,24 @@ def docker_client() -> Iterator[docker.DockerClient]:
 
 
 def pytest_collection_modifyitems(items: list) -> None:
-    """Every docker test runs after the foreign cache record exists, and before the images the
-    run leaves are removed."""
+    """Every docker test runs while this run is the machine's only one, after the foreign cache
+    record exists, and before the images the run leaves are removed."""
     for item in items:
         if item.get_closest_marker("docker"):
-            for name in ("this_runs_images", "foreign_cache_record"):
+            for name in ("this_runs_images", "foreign_cache_record", "only_run_on_this_machine"):
                 if name not in item.fixturenames:
                     item.fixturenames.insert(0, name)
+
+
+@pytest.fixture(scope="session")
+def only_run_on_this_machine() -> Iterator[None]:
+    """Waits (up to an hour) for another run with docker tests on this machine (suitelock)."""
+    with suitelock.LOCK.open("a+") as handle:
+        try:
+            suitelock.acquire(handle, 3600, say=lambda text: print(text, file=sys.__stderr__))
+        except suitelock.Busy as exc:
+            pytest.fail(str(exc))
+        yield
 
 
 # An engine that does not answer: the docker SDK's errors, and requests' (OSError) for a socket

@@ -1,0 +1,47 @@
+"""One test run with Docker at a time on a machine. The docker tests build under fixed names
+(`docker-ros-test/...`, so that the next run's builds find their cache) and remove what their
+run leaves at its end: two runs at once would build over each other's images and remove them
+under each other. A second run waits for the first: an exclusive lock on a file in the
+machine's temporary folder, which the kernel releases when its process ends, however it ends."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import IO, Callable
+
+LOCK = Path(tempfile.gettempdir()) / "docker-ros-test-run.lock"
+
+
+class Busy(Exception):
+    """Another run held the lock for longer than a run may wait."""
+
+
+def acquire(handle: IO[str], seconds: float, say: Callable[[str], None],
+            poll: float = 2.0) -> None:
+    """Take the lock of the open file `handle`, waiting up to `seconds` for the run holding it
+    (named once by `say`), and write this process's id into the file."""
+    deadline = time.monotonic() + seconds
+    said = False
+    while True:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            break
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "?"
+            if time.monotonic() >= deadline:
+                raise Busy(f"another docker-ros test run (pid {holder}) still holds {LOCK} "
+                           f"after {seconds:.0f} s: let it end, then run again") from None
+            if not said:
+                say(f"waiting for another docker-ros test run (pid {holder}) on this machine "
+                    f"to end: they would build over each other's images ({LOCK})")
+                said = True
+            time.sleep(poll)
+    handle.seek(0)
+    handle.truncate()
+    handle.write(str(os.getpid()))
+    handle.flush()
