@@ -16,7 +16,6 @@ import platform
 import re
 import shutil
 import subprocess
-import textwrap
 import time
 import uuid
 from pathlib import Path
@@ -46,6 +45,7 @@ from tests.docker.buildhelp import (
     remove_image,
     run_until,
     sh,
+    write_files,
 )
 from tests.engines import env_for
 
@@ -108,10 +108,7 @@ FILES = {
 
 
 def tiny_workspace(root: Path) -> Path:
-    for rel, text in FILES.items():
-        path = root / rel
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(textwrap.dedent(text))
+    for path in write_files(root, FILES):
         if path.suffix == ".py":
             path.chmod(0o755)
     return root

@@ -10,6 +10,7 @@ import shutil
 import subprocess
 import sys
 import tarfile
+import textwrap
 import threading
 import time
 import uuid
@@ -39,6 +40,17 @@ def docker_ros(project: Path, *args: str, env: Optional[Dict[str, str]] = None,
 
 def write_env(project: Path, **values: str) -> None:
     (project / ".env").write_text("".join(f"{k}={v}\n" for k, v in values.items()))
+
+
+def write_files(root: Path, files: Dict[str, str]) -> List[Path]:
+    """Write each text (dedented) to its path below root; returns the paths."""
+    paths = []
+    for name, text in files.items():
+        path = root / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(textwrap.dedent(text))
+        paths.append(path)
+    return paths
 
 
 def copy_example(destination: Path) -> Path:

@@ -7,7 +7,6 @@ every node; a source edit must reuse its dependency layer."""
 from __future__ import annotations
 
 import re
-import textwrap
 from pathlib import Path
 from typing import Iterator
 
@@ -23,6 +22,7 @@ from tests.docker.buildhelp import (
     run_until,
     sh,
     write_env,
+    write_files,
 )
 
 pytestmark = pytest.mark.docker
@@ -87,9 +87,7 @@ def lean_line(log: str, what: str) -> list:
 @pytest.fixture(scope="module")
 def lean(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
     project = copy_example(tmp_path_factory.mktemp("lean") / "ws")
-    for name, text in FILES.items():
-        (project / name).parent.mkdir(parents=True, exist_ok=True)
-        (project / name).write_text(textwrap.dedent(text))
+    write_files(project, FILES)
     (project / "lean_yaml/scripts/lean_cpus").chmod(0o755)
     run_unique(project / "lean_yaml/src/main.cpp")  # the build below runs, in every run
     write_env(project, BASE_IMAGE=ros1_base_image, IMAGE=IMAGE, TARGET="run",

@@ -11,6 +11,7 @@ import pytest
 from docker_ros.in_image.runtime.packages import (
     blacklisted_dependents,
     condition_context,
+    environment_packages,
     find_package_dirs,
     find_packages,
     package_search_dirs,
@@ -226,3 +227,30 @@ def test_without_catkin_pkg_the_error_names_the_host_extra(tmp_path):
                          text=True, check=True).stdout
     assert out.strip() == ("the Python module catkin_pkg (part of rosdep) is missing; on the "
                            f"host the steps need vcstool, rosdep and colcon: {HOST_EXTRA}")
+
+
+def named_manifest(folder: Path, name: str) -> None:
+    folder.mkdir(parents=True)
+    (folder / "package.xml").write_text(f'<package format="3"><name>{name}</name></package>')
+
+
+def test_environment_packages_are_those_rosdep_ignore_src_leaves_out(tmp_path):
+    """ROS_PACKAGE_PATH folders crawled as catkin does (the name is the manifest's, not the
+    folder's; nothing inside a package or below an ignore marker), and the ament index of
+    each AMENT_PREFIX_PATH prefix; folders that do not exist are passed over."""
+    share = tmp_path / "opt/ros/noetic/share"
+    named_manifest(share / "opt_hello", "opt_hello")
+    named_manifest(share / "folder_of_another_name", "renamed_pkg")
+    named_manifest(share / "opt_hello" / "test" / "inner", "inner_pkg")  # inside a package
+    named_manifest(share / "ignored" / "pkg", "ignored_pkg")
+    (share / "ignored" / "CATKIN_IGNORE").touch()
+    (share / "broken").mkdir()
+    (share / "broken" / "package.xml").write_text("<package")  # passed over, as rosdep does
+    index = tmp_path / "opt/ros/jazzy/share/ament_index/resource_index/packages"
+    index.mkdir(parents=True)
+    (index / "rclcpp").touch()
+    (index / "company_msgs").touch()
+    env = {"ROS_PACKAGE_PATH": f"{share}:{tmp_path / 'missing'}",
+           "AMENT_PREFIX_PATH": f"{tmp_path / 'opt/ros/jazzy'}:{tmp_path / 'no-prefix'}"}
+    assert environment_packages(env) == ["company_msgs", "opt_hello", "rclcpp", "renamed_pkg"]
+    assert environment_packages({}) == []

@@ -26,7 +26,12 @@ from xml.etree import ElementTree
 
 from docker_ros.in_image.runtime.files import walk
 from docker_ros.in_image.runtime.process import HOST_EXTRA
-from docker_ros.in_image.runtime.rosenv import BASE_IMAGE_WS, ros_distro, ros_version
+from docker_ros.in_image.runtime.rosenv import (
+    BASE_IMAGE_WS,
+    env_paths,
+    ros_distro,
+    ros_version,
+)
 from docker_ros.in_image.runtime.workspace import IGNORE_MARKERS, StepError, Workspace
 from docker_ros.in_image.settings import Settings
 
@@ -173,14 +178,19 @@ def repository_duplicates(repository: Path, package_dirs: Sequence[Path]
     package.xml files that do not parse are left to the steps, which name their error."""
     paths: Dict[str, List[str]] = {}
     for directory in package_dirs:
-        try:
-            name = ElementTree.parse(str(directory / "package.xml")).findtext("name")
-        except (ElementTree.ParseError, OSError):
-            continue
-        if name and name.strip():
-            paths.setdefault(name.strip(), []).append(
-                directory.relative_to(repository).as_posix())
+        name = manifest_name(directory)
+        if name:
+            paths.setdefault(name, []).append(directory.relative_to(repository).as_posix())
     return {name: found for name, found in sorted(paths.items()) if len(found) > 1}
+
+
+def manifest_name(directory: Path) -> Optional[str]:
+    """The package name in directory's package.xml; None where it does not parse."""
+    try:
+        name = ElementTree.parse(str(directory / "package.xml")).findtext("name")
+    except (ElementTree.ParseError, OSError):
+        return None
+    return name.strip() if name and name.strip() else None
 
 
 def duplicate_packages(packages: Sequence[Package]) -> Dict[str, List[Path]]:
@@ -237,6 +247,23 @@ def blacklisted_dependents(
                 if key in skip:
                     found.setdefault(key, set()).add(package.name)
     return {name: sorted(users) for name, users in sorted(found.items())}
+
+
+def environment_packages(env: Mapping[str, str]) -> List[str]:
+    """Names of the packages of a (sourced) ROS environment: below each ROS_PACKAGE_PATH folder
+    (ROS 1) and in the ament index of each AMENT_PREFIX_PATH prefix (ROS 2). docker-ros runs
+    `rosdep install --from-paths src --ignore-src` with /opt/ros/$ROS_DISTRO/setup.bash sourced,
+    and rosdep's --ignore-src leaves out exactly these: a package the base image has (in
+    /opt/ros or a workspace its setup chains) is installed, not a key that needs a rule."""
+    names: Set[str] = set()
+    for root in env_paths(env, "ROS_PACKAGE_PATH"):
+        if root.is_dir():
+            names.update(n for n in map(manifest_name, find_package_dirs(root)) if n)
+    for prefix in env_paths(env, "AMENT_PREFIX_PATH"):
+        index = prefix / "share/ament_index/resource_index/packages"
+        if index.is_dir():
+            names.update(entry.name for entry in index.iterdir())
+    return sorted(names)
 
 
 def underlay_packages(root: Path = BASE_IMAGE_WS) -> List[str]:

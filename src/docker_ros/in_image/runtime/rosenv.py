@@ -63,6 +63,11 @@ def ros_version(distro: Optional[str], environ: Optional[Mapping[str, str]] = No
     return "2"
 
 
+def env_paths(env: Mapping[str, str], name: str) -> List[Path]:
+    """The folders of a path list variable (ROS_PACKAGE_PATH, AMENT_PREFIX_PATH, ...)."""
+    return [Path(p) for p in env.get(name, "").split(os.pathsep) if p]
+
+
 def ros_setup_files(
     settings: Settings, *, environ: Optional[Mapping[str, str]] = None, root: Path = Path("/")
 ) -> List[Path]:

@@ -20,6 +20,7 @@ from docker_ros.in_image.runtime.lock import locked_rosdep_plan
 from docker_ros.in_image.runtime.packages import (
     DEPENDENCY_SETS,
     blacklisted_dependents,
+    environment_packages,
     find_packages,
     select_keys,
     underlay_packages,
@@ -32,7 +33,7 @@ from docker_ros.in_image.runtime.rosdeprules import (
     override_lines,
     rules_problem,
 )
-from docker_ros.in_image.runtime.rosenv import ros_distro
+from docker_ros.in_image.runtime.rosenv import ros_distro, ros_setup_files, sourced_env
 from docker_ros.in_image.runtime.workspace import (
     StepError,
     Workspace,
@@ -356,7 +357,15 @@ def collect(
     distro = ros_distro(settings)
     packages = find_packages(ws, settings, step=STEP)
     blacklist = blacklisted_packages(ws, settings)
-    underlay = underlay_packages()
+    # the packages of the ROS environment the build sources (the base image's), as
+    # `rosdep install --ignore-src` after sourcing it (docker-ros)
+    installed = environment_packages(sourced_env(ros_setup_files(settings), step=STEP))
+    underlay = sorted({*underlay_packages(), *installed})
+    needed = {key for package in packages for tag in DEPENDENCY_SETS["all"]
+              for key in package.depends.get(tag, ())}
+    if needed & set(installed):
+        LOG.info("%s: installed in the base image's ROS environment, so not rosdep keys: %s",
+                 STEP, ", ".join(sorted(needed & set(installed))))
     selected = {
         types: select_keys(packages, types, blacklist, underlay) for types in DEPENDENCY_SETS
     }
