@@ -535,7 +535,7 @@ def dev_shell(
 
 @settings_task(
     "bootstrap-base-image",
-    "Build a ROS base image from a Debian or Ubuntu mirror (debootstrap, no registry)",
+    "Build a ROS base image from a Debian/Ubuntu mirror (debootstrap, no registry)",
     [
         ("flavor", "ros1", "ros1 (Debian bookworm + ROS 1), ros2 (Debian trixie + ament/colcon) "
          "or ros1-ubuntu (Ubuntu 22.04 jammy + its ROS 1, colcon and vcstool from PyPI)"),
