@@ -42,7 +42,7 @@ UNDERLAY = {
         """,
     "opt_hello/CMakeLists.txt": """\
         cmake_minimum_required(VERSION 3.10)
-        project(opt_hello NONE)
+        project(opt_hello)
         find_package(catkin REQUIRED)
         catkin_package(INCLUDE_DIRS include)
         install(DIRECTORY include/${PROJECT_NAME}/
@@ -56,7 +56,7 @@ UNDERLAY = {
     "Dockerfile": """\
         ARG BASE
         FROM ${BASE} AS build
-        RUN apt-get update && apt-get install -y --no-install-recommends make
+        RUN apt-get update && apt-get install -y --no-install-recommends build-essential
         COPY opt_hello /tmp/src/opt_hello
         RUN cmake -S /tmp/src/opt_hello -B /tmp/build -DCMAKE_INSTALL_PREFIX=/opt/ros/noetic && \\
             cmake --build /tmp/build --target install
