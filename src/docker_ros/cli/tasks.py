@@ -556,13 +556,10 @@ def bootstrap_base_image(
         raise TaskError(f"--flavor {flavor!r}: use one of {', '.join(baseimage.FLAVORS)}")
     tag = tag or baseimage.default_tag(flavor)
     with tempfile.TemporaryDirectory(prefix="docker-ros-ca-") as tmp:
-        bundle = None
-        if settings.extra_ca_certs:  # (ros1-ubuntu's pip behind a TLS-intercepting proxy)
-            try:
-                bundle = build.ca_bundle(Path(settings.extra_ca_certs).expanduser(),
-                                         Path(tmp) / "ca.pem")
-            except build.BuildError as exc:
-                raise TaskError(str(exc)) from None
+        try:  # (ros1-ubuntu's pip behind a TLS-intercepting proxy)
+            bundle = build.extra_ca_bundle(settings, Path(tmp))
+        except build.BuildError as exc:
+            raise TaskError(str(exc)) from None
         for platform in settings.platform:
             print(baseimage.bootstrap(flavor, tag=tag, mirror=mirror, platform=platform,
                                       force=force, ca_bundle=bundle))

@@ -852,6 +852,13 @@ def ca_bundle(path: Path, destination: Path) -> Path:
     return destination
 
 
+def extra_ca_bundle(settings: Settings, folder: Path, name: str = "ca.pem") -> Optional[Path]:
+    """EXTRA_CA_CERTS as one file `name` in folder (ca_bundle); None when it is not set."""
+    if not settings.extra_ca_certs:
+        return None
+    return ca_bundle(Path(settings.extra_ca_certs).expanduser(), folder / name)
+
+
 def check_engine(settings: Optional[Settings] = None) -> None:
     """A Docker daemon that answers and the buildx plugin, or one message saying what to do;
     with settings, the builder too (selected_builder)."""
@@ -933,9 +940,7 @@ def build_images_locked(
         tag_local_base(settings, platform)
         # Passed by environment to buildx only: never argv, never a file, never a log.
         child_env.update(secret_env(settings))
-        bundle = None
-        if settings.extra_ca_certs:
-            bundle = ca_bundle(Path(settings.extra_ca_certs).expanduser(), Path(tmp) / "ca.pem")
+        bundle = extra_ca_bundle(settings, Path(tmp))
         pin_args, pin_secrets = prepare_pin_secrets(settings, platform, Path(tmp))
         dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
         expand_mount_ids(dockerfile, mount_ids(settings, platform))

@@ -229,9 +229,7 @@ def secrets_dir(settings: Settings) -> Iterator[Optional[Path]]:
             path = Path(tmp) / name
             path.touch(mode=0o600)
             path.write_text(value)
-        if settings.extra_ca_certs:
-            build.ca_bundle(Path(settings.extra_ca_certs).expanduser(),
-                            Path(tmp) / "EXTRA_CA_CERTS")
+        build.extra_ca_bundle(settings, Path(tmp), "EXTRA_CA_CERTS")
         yield Path(tmp)
 
 

@@ -361,11 +361,11 @@ def collect(
     # `rosdep install --ignore-src` after sourcing it (docker-ros)
     installed = environment_packages(sourced_env(ros_setup_files(settings), step=STEP))
     underlay = sorted({*underlay_packages(), *installed})
-    needed = {key for package in packages for tag in DEPENDENCY_SETS["all"]
-              for key in package.depends.get(tag, ())}
-    if needed & set(installed):
+    found = sorted({key for package in packages for tag in DEPENDENCY_SETS["all"]
+                    for key in package.depends.get(tag, ())}.intersection(installed))
+    if found:
         LOG.info("%s: installed in the base image's ROS environment, so not rosdep keys: %s",
-                 STEP, ", ".join(sorted(needed & set(installed))))
+                 STEP, ", ".join(found))
     selected = {
         types: select_keys(packages, types, blacklist, underlay) for types in DEPENDENCY_SETS
     }
