@@ -4,6 +4,7 @@ defaults, every setting wired, no expression inside a script."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -166,6 +167,22 @@ def test_switching_gitlab_is_one_include_line() -> None:
     owner_repo = include.split("raw.githubusercontent.com/", 1)[1].rsplit("/", 3)[0]
     assert url == f"https://github.com/{owner_repo}.git"
     assert "DOCKER_ROS_GIT_URL" not in load(EXAMPLES / "gitlab-ci.yml")["variables"]
+
+
+def test_the_placeholder_url_installs_nothing(tmp_path: Path) -> None:
+    """Until publication DOCKER_ROS_GIT_URL names OWNER, which anybody may register: the job
+    stops before pip, saying what to set, instead of running that repository's code."""
+    template = load(TEMPLATE)
+    setup = template["default"]["before_script"][0]
+    env = {"PATH": os.environ["PATH"], "TMPDIR": str(tmp_path), "CI_JOB_ID": "1",
+           "DOCKER_ROS_GIT_URL": template["variables"]["DOCKER_ROS_GIT_URL"],
+           "DOCKER_ROS_GIT_REF": "main"}
+    assert "/OWNER/" in env["DOCKER_ROS_GIT_URL"], "published: drop this test and the guard"
+    run = subprocess.run(["bash", "-ec", setup], env=env, capture_output=True, text=True)
+    assert run.returncode == 1
+    assert "DOCKER_ROS_GIT_URL (https://github.com/OWNER/docker-ros-python.git) names the " \
+        "placeholder OWNER: set it to the git URL this template comes from" in run.stderr
+    assert not (tmp_path / "docker-ros-job-1" / "venv").exists()
 
 
 def stage_of(template: dict, job: str) -> object:

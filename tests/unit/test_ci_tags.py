@@ -18,6 +18,7 @@ from docker_ros.in_image.ci import (
     github_slug,
     missing_tasks,
     plan_ci_job,
+    slim_skipped,
     slugify,
     tag_postfix,
 )
@@ -121,13 +122,31 @@ def test_tag_pipeline_with_own_image_tag_pushes_the_git_tag_only_as_latest():
 
 @pytest.mark.parametrize("case,expected", [
     ("none", ("latest",)), ("github-default", ("latest",)), ("gitlab-default", ("latest",)),
-    ("github-feature", ()), ("gitlab-feature", ()), ("github-pr", ()), ("gitlab-mr", ()),
+    ("gitlab-feature", ()), ("gitlab-mr", ()),
 ])
-def test_push_as_latest_only_from_the_default_branch(case, expected):
+def test_push_as_latest_from_the_default_branch(case, expected):
     s = settings(case, IMAGE_TAG="v1", ENABLE_PUSH_AS_LATEST="true")
     assert s.push_also_as == expected
     pushed = [c[-1] for c in plan_push(s, s.target) if c[1] == "push"]
     assert ("reg/img:latest" in pushed) == bool(expected)
+
+
+@pytest.mark.parametrize("case", ["github-feature", "github-pr"])
+def test_github_pushes_as_latest_off_the_default_branch_with_the_postfix(case):
+    """docker-ros's action: its "Push images (as latest)" step runs on every branch, with the
+    branch's `_<slug>_ci` (its GitLab template's "Push latest" only on the default branch)."""
+    s = settings(case, IMAGE_TAG="v1", ENABLE_PUSH_AS_LATEST="true", ENABLE_SLIM="true")
+    assert s.push_also_as == ("latest_feature-my-thing_ci",)
+    pushed = [c[-1] for c in plan_push(s, ["dev", "run", "slim"]) if c[1] == "push"]
+    assert pushed == ["reg/img:v1-dev_feature-my-thing_ci",
+                      "reg/img:latest-dev_feature-my-thing_ci",
+                      "reg/img:v1_feature-my-thing_ci", "reg/img:latest_feature-my-thing_ci",
+                      "reg/img:v1-slim_feature-my-thing_ci",
+                      "reg/img:latest-slim_feature-my-thing_ci"]
+    # IMAGE_TAG latest: those are the configured names, pushed once
+    s = settings(case, ENABLE_PUSH_AS_LATEST="true")
+    assert [c[-1] for c in plan_push(s, s.target) if c[1] == "push"] == [
+        "reg/img:latest-dev_feature-my-thing_ci", "reg/img:latest_feature-my-thing_ci"]
 
 
 def test_singlearch_push_on_a_feature_branch_pushes_postfix_then_arch():
@@ -173,6 +192,23 @@ def test_ci_job_plan_tests_before_pushing_and_names_missing_tasks():
     # a slim target is the slim task's; the build before it makes the images without it
     slim = plan_ci_job(target=("run", "slim"), enable_industrial_ci=False, enable_slim=True)
     assert slim[0][-2:] == ["--target", "run"] and [a[0] for a in slim] == ["build", "slim", "push"]
+
+
+def test_a_ci_job_on_a_runner_of_another_architecture_slims_nothing_and_says_why():
+    """docker-ros slims a foreign architecture in a job of its own, on a runner of it; here
+    the job's push then leaves the slim image out (and the manifest job its slim list entry)."""
+    plan = plan_ci_job(target=("dev", "run"), enable_industrial_ci=False, enable_slim=True,
+                       slims_here=False)
+    assert plan[1:] == [["push", "--set", "ENABLE_INDUSTRIAL_CI=false",
+                         "--set", "ENABLE_SLIM=false"]]
+    # a slim target asks for it: slim runs, and fails saying why
+    asked = plan_ci_job(target=("run", "slim"), enable_industrial_ci=False, enable_slim=True,
+                        slims_here=False)
+    assert [a[0] for a in asked] == ["build", "slim", "push"]
+    assert "ENABLE_SLIM=false" not in asked[-1]
+    assert slim_skipped(("arm64",), "amd64").startswith(
+        "slim: arm64 not slimmed on this amd64 runner (slimming runs the image): a slim arm64 "
+        "image needs a job on a runner of that architecture")
 
 
 def test_ci_jobs_reuse_the_pushed_dev_and_run_images_as_cache_by_default() -> None:

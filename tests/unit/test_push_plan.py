@@ -72,6 +72,17 @@ def test_manifest_joins_the_arch_images_of_every_platform_under_every_name():
                        "127.0.0.1:5000/img:v1", "127.0.0.1:5000/img:latest"]
 
 
+def test_the_slim_lists_leave_out_the_slim_images_a_foreign_runner_did_not_make():
+    s = settings(IMAGE="reg/img:v1", TARGET="run", PLATFORM="amd64,arm64", ENABLE_SLIM="true")
+    created = {c[5]: c[6:] for c in plan_manifest(s, ["run", "slim"], ["reg/img:v1-slim-arm64"])}
+    assert created == {"reg/img:v1": ["reg/img:v1-amd64", "reg/img:v1-arm64"],
+                       "reg/img:v1-slim": ["reg/img:v1-slim-amd64"]}
+    # none slimmed: no slim list; an absent run image is left to the command's own failure
+    gone = ["reg/img:v1-slim-amd64", "reg/img:v1-slim-arm64", "reg/img:v1-arm64"]
+    assert [c[5:] for c in plan_manifest(s, ["run", "slim"], gone)] == [
+        ["reg/img:v1", "reg/img:v1-amd64", "reg/img:v1-arm64"]]
+
+
 def test_outputs_name_the_pushed_images_per_target():
     s = settings(IMAGE="reg.example/img:v1", TARGET="dev,run", PLATFORM="amd64",
                  ENABLE_SINGLEARCH_PUSH="true")

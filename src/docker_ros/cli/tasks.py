@@ -44,7 +44,7 @@ from docker_ros.host.pipeline import (
     slimmed_here,
 )
 from docker_ros.host.push import manifest, push, push_targets
-from docker_ros.in_image.ci import error_annotation, plan_ci_job
+from docker_ros.in_image.ci import error_annotation, plan_ci_job, slim_skipped
 from docker_ros.in_image.runtime.lock import LockError
 from docker_ros.in_image.runtime.workspace import StepError, setup_logging
 from docker_ros.in_image.settings import (
@@ -55,6 +55,7 @@ from docker_ros.in_image.settings import (
     env_name,
     flag_name,
     has_bare_set,
+    host_platform,
     is_secret,
     kind_of,
     made_images,
@@ -490,9 +491,12 @@ def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 )
 def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
+    host = host_platform()
     plan = plan_ci_job(target=settings.target, enable_industrial_ci=settings.enable_industrial_ci,
-                       enable_slim=settings.enable_slim)
+                       enable_slim=settings.enable_slim, slims_here=host in settings.platform)
     require_tasks(plan, ns.task_names)
+    if "slim" in made_images(settings) and ["slim"] not in plan:
+        print(slim_skipped(settings.platform, host), flush=True)
     if ["slim"] in plan:
         check_slim_options(settings)
     run_ci_plan(settings, plan, dry_run=dry_run)

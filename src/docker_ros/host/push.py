@@ -4,7 +4,7 @@ docker commands that --dry-run prints) and run."""
 from __future__ import annotations
 
 import subprocess
-from typing import Dict, List, Mapping, Optional, Sequence
+from typing import Collection, Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.host import engine
 from docker_ros.host.build import BuildError, image_ref, platform_ref, slim_platforms, target_ref
@@ -12,11 +12,15 @@ from docker_ros.in_image.runtime.workspace import format_argv
 from docker_ros.in_image.settings import Settings, host_platform, made_images
 
 
-def also_ref(ref: str, tag: str, target: str) -> str:
+def also_ref(ref: str, tag: str, target: str, postfix: str = "") -> str:
     """The name pushed for an extra tag (`latest`, a git tag): `<tag>` for run, `<tag>-dev`,
-    `<tag>-slim` (docker-ros's ENABLE_PUSH_AS_LATEST and tag-pipeline names)."""
+    `<tag>-slim` (docker-ros's ENABLE_PUSH_AS_LATEST and tag-pipeline names); a tag that ends
+    in the postfix gets the target before it (`latest-dev_<slug>_ci`, as docker-ros's)."""
     name = ref.rsplit(":", 1)[0] if ":" in ref.rsplit("/", 1)[-1] else ref
-    return f"{name}:{tag}-{target}" if target in ("dev", "slim") else f"{name}:{tag}"
+    if target not in ("dev", "slim"):
+        return f"{name}:{tag}"
+    stem = tag[:-len(postfix)] if postfix and tag.endswith(postfix) and tag != postfix else tag
+    return f"{name}:{stem}-{target}{tag[len(stem):]}"
 
 
 def push_targets(settings: Settings) -> List[str]:
@@ -31,7 +35,8 @@ def push_targets(settings: Settings) -> List[str]:
 def pushed_names(settings: Settings, target: str) -> List[str]:
     """The configured name of a target and its extra tags (Settings.push_also_as)."""
     ref = image_ref(settings, target)
-    names = [ref] + [also_ref(ref, tag, target) for tag in settings.push_also_as]
+    names = [ref] + [also_ref(ref, tag, target, settings.image_postfix or "")
+                     for tag in settings.push_also_as]
     return list(dict.fromkeys(names))  # IMAGE_TAG latest and ENABLE_PUSH_AS_LATEST: once
 
 
@@ -81,15 +86,33 @@ def plan_push(settings: Settings, targets: Sequence[str], *, host: str = "") -> 
     return commands
 
 
-def plan_manifest(settings: Settings, targets: Sequence[str]) -> List[List[str]]:
+def plan_manifest(settings: Settings, targets: Sequence[str],
+                  absent: Collection[str] = ()) -> List[List[str]]:
     """Manifest lists over the `<name>-<arch>` images that per-architecture jobs pushed with
-    ENABLE_SINGLEARCH_PUSH (one job per PLATFORM entry)."""
+    ENABLE_SINGLEARCH_PUSH (one job per PLATFORM entry). The slim lists leave out the absent
+    slim images: a job on a runner of another architecture slims nothing (ci.plan_ci_job)."""
     commands: List[List[str]] = []
     for target in targets:
         ref = image_ref(settings, target)
         arch_refs = [f"{ref}-{platform}" for platform in settings.platform]
-        commands += manifest_commands(pushed_names(settings, target), arch_refs)
+        if target == "slim":
+            arch_refs = [arch for arch in arch_refs if arch not in absent]
+        if arch_refs:
+            commands += manifest_commands(pushed_names(settings, target), arch_refs)
     return commands
+
+
+def absent_slim_images(settings: Settings) -> List[str]:
+    """The `<slim name>-<arch>` images the registry does not have (buildx's `not found`; any
+    other failure is left to the manifest command, which then says it)."""
+    ref = image_ref(settings, "slim")
+    absent = []
+    for arch in [f"{ref}-{platform}" for platform in settings.platform]:
+        proc = subprocess.run(["docker", "buildx", "imagetools", "inspect", "--raw", arch],
+                              capture_output=True, text=True)
+        if proc.returncode != 0 and proc.stderr.rstrip().endswith(": not found"):
+            absent.append(arch)
+    return absent
 
 
 def plan_outputs(
@@ -132,7 +155,11 @@ def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[s
 
 def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
     """Write the manifest lists (plan_manifest); return their names."""
-    commands = plan_manifest(settings, targets)
+    absent = absent_slim_images(settings) if "slim" in targets and not dry_run else []
+    for arch in absent:
+        print(f"manifest: {arch} is not in the registry (its job ran on a runner of another "
+              "architecture, which does not slim it): the slim lists leave it out", flush=True)
+    commands = plan_manifest(settings, targets, absent)
     return run_commands(settings, commands, dry_run=dry_run, label="manifest")
 
 

@@ -96,20 +96,26 @@ def tag_postfix(pipeline: Optional[Pipeline]) -> str:
 
 
 def push_also_as(
-    pipeline: Optional[Pipeline], *, image_tag: str, enable_push_as_latest: bool
+    pipeline: Optional[Pipeline], *, image_tag: str, enable_push_as_latest: bool,
+    postfix: str = "",
 ) -> Tuple[str, ...]:
-    """Tags pushed besides the configured ones (run: `<t>`, dev: `<t>-dev`, slim: `<t>-slim`).
+    """Tags pushed besides the configured ones (run: `<t>`, dev: `<t>-dev`, slim: `<t>-slim`;
+    a tag ending in postfix, IMAGE_POSTFIX: `<t>-dev<postfix>`...).
 
-    ENABLE_PUSH_AS_LATEST pushes `latest` outside CI and on the default branch only; a tag
-    pipeline pushes the git tag itself when IMAGE_TAG is `latest` or ENABLE_PUSH_AS_LATEST is
-    set (docker-ros's GitLab "Push latest" and "Push tag" jobs)."""
+    ENABLE_PUSH_AS_LATEST pushes `latest` outside CI and on the default branch; off it, on
+    GitHub, `latest<postfix>` (docker-ros's action pushes its "as latest" names on every branch,
+    its GitLab template from the default branch only). A tag pipeline pushes the git tag itself
+    when IMAGE_TAG is `latest` or ENABLE_PUSH_AS_LATEST is set (docker-ros's GitLab "Push
+    latest" and "Push tag" jobs)."""
     if pipeline is not None and pipeline.kind == "tag":
         if enable_push_as_latest or image_tag == "latest":
             return (docker_tag_part(pipeline.ref),)
         return ()
-    if enable_push_as_latest and (pipeline is None or pipeline.on_default_branch):
+    if not enable_push_as_latest:
+        return ()
+    if pipeline is None or pipeline.on_default_branch:
         return ("latest",)
-    return ()
+    return (f"latest{postfix}",) if pipeline.ci == "github" else ()
 
 
 def github_default_branch(environ: Mapping[str, str]) -> str:
@@ -148,19 +154,33 @@ SEPARATE = ("--set", "ENABLE_SLIM=false", "--set", "ENABLE_INDUSTRIAL_CI=false")
 
 
 def plan_ci_job(
-    *, target: Tuple[str, ...], enable_industrial_ci: bool, enable_slim: bool
+    *, target: Tuple[str, ...], enable_industrial_ci: bool, enable_slim: bool,
+    slims_here: bool = True,
 ) -> List[List[str]]:
     """The docker-ros tasks (argv after `docker-ros`) of one CI job: build, test, slim, push.
     Tests run before anything is pushed, so a failing test pushes nothing. A `slim` target is
-    the slim task's: the build makes the images without it."""
+    the slim task's: the build makes the images without it. ENABLE_SLIM on a runner that can
+    slim none of the platforms (slims_here false: slimming runs the image, and docker-ros
+    slims a job's foreign architecture in a job of its own, on a runner of that architecture)
+    slims and pushes no slim image; a `slim` target asked for it, and slim says why it cannot."""
     images = [t for t in target if t != "slim"]
     plan = [["build", *SEPARATE, *(["--target", ",".join(images)] if "slim" in target else [])]]
     if enable_industrial_ci:
         plan.append(["test"])
-    if enable_slim and "run" in target:
+    slim = enable_slim and "run" in target  # (a slim target sets ENABLE_SLIM)
+    if slim and (slims_here or "slim" in target):
         plan.append(["slim"])
-    plan.append(["push", "--set", "ENABLE_INDUSTRIAL_CI=false"])
+    plan.append(["push", "--set", "ENABLE_INDUSTRIAL_CI=false",
+                 *(["--set", "ENABLE_SLIM=false"] if slim and ["slim"] not in plan else [])])
     return plan
+
+
+def slim_skipped(platforms: Sequence[str], host: str) -> str:
+    """What a CI job says when ENABLE_SLIM slims nothing on this runner (plan_ci_job)."""
+    names = "/".join(platforms)
+    return (f"slim: {names} not slimmed on this {host} runner (slimming runs the image): a slim "
+            f"{names} image needs a job on a runner of that architecture, as docker-ros's "
+            "`Slim run-<arch>` jobs; ENABLE_SLIM=false leaves it out without this note")
 
 
 def missing_tasks(plan: Sequence[Sequence[str]], available: Collection[str]) -> List[str]:

@@ -829,7 +829,8 @@ def ci_tags(values: Mapping[str, object], environ: Mapping[str, str]) -> Dict[st
     latest = bool(values.get("enable_push_as_latest"))
     out: Dict[str, object] = {
         "image_postfix": postfix or None,
-        "push_also_as": push_also_as(pipeline, image_tag=tag, enable_push_as_latest=latest),
+        "push_also_as": push_also_as(pipeline, image_tag=tag, enable_push_as_latest=latest,
+                                     postfix=postfix),
     }
     if postfix:
         for name in ("image_tag", "dev_image_tag", "slim_image_tag"):
