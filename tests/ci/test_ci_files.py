@@ -216,17 +216,23 @@ def test_template_keeps_docker_ros_stages_and_job_names() -> None:
     assert template[".docker-ros-moved"]["rules"] == [{"when": "never"}]
 
 
+# A binfmt_misc handler's status file: enabled or disabled, its flags.
+HANDLER = "{state}\ninterpreter /usr/bin/qemu-aarch64-static\nflags: {flags}\noffset 0\n"
+REGISTER = ("registering QEMU (multiarch/qemu-user-static:7.2.0-1)",
+            "run --rm --privileged multiarch/qemu-user-static:7.2.0-1 --reset -p yes")
 QEMU_CASES = [
-    ("amd64", ["qemu-aarch64"], "", None),
-    ("arm64", ["qemu-aarch64"], "QEMU (qemu-aarch64) is registered", None),
-    ("arm64", [], "registering QEMU (multiarch/qemu-user-static:7.2.0-1)",
-     "run --rm --privileged multiarch/qemu-user-static:7.2.0-1 --reset -p yes"),
+    ("amd64", {"qemu-aarch64": ("enabled", "F")}, "", None),
+    ("arm64", {"qemu-aarch64": ("enabled", "PF")}, "QEMU (qemu-aarch64) is registered", None),
+    ("arm64", {}, *REGISTER),
+    ("arm64", {"qemu-aarch64": ("disabled", "F")}, *REGISTER),
+    # without F the kernel looks for the interpreter inside each container, which has none
+    ("arm64", {"qemu-aarch64": ("enabled", "")}, *REGISTER),
 ]
 
 
 @pytest.mark.parametrize("platform,handlers,said,docker_argv", QEMU_CASES)
 def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
-        tmp_path: Path, platform: str, handlers: list, said: str, docker_argv: object) -> None:
+        tmp_path: Path, platform: str, handlers: dict, said: str, docker_argv: object) -> None:
     """The build jobs' QEMU snippet's decision, run by bash on this amd64 machine with a
     `docker` that only writes its command line: the default image's exact command. The
     registration itself runs for real in tests/ci/test_multiarch.py, with an image standing in
@@ -235,8 +241,8 @@ def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
     snippet = template[".docker-ros-qemu"]["script"][0]
     binfmt = tmp_path / "binfmt"
     binfmt.mkdir()
-    for handler in handlers:
-        (binfmt / handler).touch()
+    for handler, (state, flags) in handlers.items():
+        (binfmt / handler).write_text(HANDLER.format(state=state, flags=flags))
     shim = tmp_path / "bin"
     shim.mkdir()
     (shim / "docker").write_text(f"#!/bin/sh\necho \"$*\" > {tmp_path}/docker-argv\n")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import uuid
 from pathlib import Path
 
 import pytest
@@ -94,7 +95,9 @@ def pipelines(ros1_base_image: str, auth_registry, docker_ros_wheel: Path,
                 "TMPDIR": str(runner_tmp)})
     results = {}
     git(repo, "checkout", "-q", "-b", FEATURE)
-    secrets = {"REGISTRY_PASSWORD": auth_registry.password}
+    # GIT_HTTPS_PASSWORD: GitLab's job token by default, which gitlab-ci-local does not set
+    secrets = {"REGISTRY_PASSWORD": auth_registry.password,
+               "GIT_HTTPS_PASSWORD": f"glpat-{uuid.uuid4().hex}"}
     results["feature"] = gitlab_ci_local(repo, variables, secrets=secrets, env=env)
     git(repo, "checkout", "-q", "main")
     forget_local(base)  # the main pipeline pulls it again
@@ -132,16 +135,17 @@ def test_feature_branch_and_main_push_docker_ros_tags(pipelines: dict) -> None:
 
 
 def test_secrets_and_setup_stay_out_of_the_log(pipelines: dict) -> None:
-    """Each job logs in first, password on standard input; the password is in no log and no
-    docker command line; no credential is left behind."""
+    """Each job logs in first, password on standard input; the password and the git token
+    are in no log and no docker command line; no credential is left behind."""
     auth = pipelines["registry"]
+    token = pipelines["secrets"]["GIT_HTTPS_PASSWORD"]
     log = pipelines["main"].stdout
     for task in ("build", "test", "slim", "push"):
         assert f"docker-ros ci: docker-ros {task}" in log, task
     assert "docker-ros test (amd64): " in log
     for branch in ("feature", "main"):
         out = pipelines[branch].stdout
-        assert auth.password not in out
+        assert auth.password not in out and token not in out
         assert f"docker-ros ci: logged in to {auth.address} as {auth.user}" in out
         assert f"docker-ros manifest: logged in to {auth.address} as {auth.user}" in out
         # once per job: the tasks `ci` runs use its login
@@ -149,7 +153,7 @@ def test_secrets_and_setup_stay_out_of_the_log(pipelines: dict) -> None:
     argvs = pipelines["argv_log"].read_text()
     assert f"login --username {auth.user} --password-stdin {auth.address}" in argvs
     assert "buildx build" in argvs or "buildx bake" in argvs
-    assert auth.password not in argvs
+    assert auth.password not in argvs and token not in argvs
     # the DOCKER_CONFIG of the runner holds no login; the jobs' folders are gone
     config = pipelines["docker_config"] / "config.json"
     assert auth.address not in (config.read_text() if config.exists() else "")
@@ -173,12 +177,13 @@ def test_pushed_run_image_runs(pipelines: dict) -> None:
 
 
 def test_pushed_dev_image_holds_no_credential(pipelines: dict) -> None:
-    """gitlab-ci-local's variables file (REGISTRY_PASSWORD) and git's folder of the checkout
-    stay out of the dev image's sources."""
+    """gitlab-ci-local's variables file (REGISTRY_PASSWORD, GIT_HTTPS_PASSWORD) and git's
+    folder of the checkout stay out of the dev image's sources."""
     auth = pipelines["registry"]
-    assert auth.password in (pipelines["repo"] / ".gitlab-ci-local-variables.yml").read_text()
-    assert_sources_hold_no_secret(f"{auth.address}/{IMAGE}:latest-dev", [auth.password],
-                                  auth.auth)
+    secrets = list(pipelines["secrets"].values())
+    variables = (pipelines["repo"] / ".gitlab-ci-local-variables.yml").read_text()
+    assert all(secret in variables for secret in secrets)
+    assert_sources_hold_no_secret(f"{auth.address}/{IMAGE}:latest-dev", secrets, auth.auth)
 
 
 def test_pushed_slim_image_runs(pipelines: dict) -> None:

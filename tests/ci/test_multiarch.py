@@ -19,7 +19,7 @@ import subprocess
 import time
 import uuid
 from pathlib import Path
-from typing import List
+from typing import List, Mapping, Optional
 
 import pytest
 
@@ -34,6 +34,7 @@ from tests.ci.cihelp import (
     index_architectures,
     load,
     manifest_architectures,
+    push_private_multiarch_base,
     registry_get,
     registry_tags,
 )
@@ -125,15 +126,16 @@ def repository(ros1_base_image: str, ros1_arm64_base_image: str,
     return example_repository(root, ros1_base_image, source=source, command=COMMAND)
 
 
-def image_architectures(registry: str, name: str, tag: str) -> List[str]:
+def image_architectures(registry: str, name: str, tag: str,
+                        auth: Optional[Mapping[str, str]] = None) -> List[str]:
     """The architectures of name:tag in the registry: a list's entries, or one image's."""
-    listed = index_architectures(registry, name, tag)
+    listed = index_architectures(registry, name, tag, auth)
     if listed:
         return listed
-    manifest = registry_get(registry, f"{name}/manifests/{tag}", None,
+    manifest = registry_get(registry, f"{name}/manifests/{tag}", auth,
                             "application/vnd.docker.distribution.manifest.v2+json,"
                             "application/vnd.oci.image.manifest.v1+json")
-    config = registry_get(registry, f"{name}/blobs/{manifest['config']['digest']}")
+    config = registry_get(registry, f"{name}/blobs/{manifest['config']['digest']}", auth)
     return [config["architecture"]]
 
 
@@ -237,29 +239,41 @@ def test_gitlab_jobs_per_architecture_then_the_manifest_job(
 
 
 def test_action_single_job_multiarch_example(
-    repository: Path, ros1_base_image: str, local_registry: str, tmp_path: Path
+    repository: Path, ros1_base_image: str, ros1_arm64_base_image: str, auth_registry,
+    tmp_path: Path
 ) -> None:
-    """docker-ros's README example "multi-arch images in one job" through the Action, slim
-    left at its default (on): both architectures are built and pushed with one manifest list,
-    the runner's architecture is slimmed and pushed, the job passes. TARGET is run only (the
-    README's dev adds two pushes of about 1 GB, the same commands per name)."""
+    """docker-ros's README example "Build multi-arch images" through the Action as it is
+    (dev and run, both architectures, slim left at its default: on), plus where to push: a
+    registry that wants a login, which also holds the private multi-arch base image. The job
+    logs in first (the build pulls each architecture's base from there), pushes one manifest
+    list per name, slims the runner's architecture only, and passes; the password is in no log."""
     image = f"{IMAGE}-action"
-    inputs = {"base-image": ros1_base_image, "command": COMMAND, "target": "run",
-              "platform": "amd64,arm64", "image-name": f"{local_registry}/{image}",
-              "registry": local_registry, "enable-push-as-latest": "true"}
+    base = push_private_multiarch_base(
+        {"amd64": ros1_base_image, "arm64": ros1_arm64_base_image}, auth_registry.address,
+        auth_registry.auth, tmp_path)
+    inputs = {"base-image": base, "command": COMMAND, "target": "dev,run",
+              "platform": "amd64,arm64", "image-name": f"{auth_registry.address}/{image}",
+              "registry": auth_registry.address}
     event = Event(origin=repository.parent / "origin.git", repository="Org/Multiarch",
-                  ref_name="main")
+                  ref_name="main", actor=auth_registry.user, token=auth_registry.password)
     env = {k: v for k, v in os.environ.items()
            if k not in ("TARGET", "COMMAND", "IMAGE") and not k.startswith(("GITHUB_", "CI_"))}
     began = time.monotonic()
     run = run_action(REPO, inputs, event, tmp_path / "action", env)
-    print(f"action, platform amd64,arm64 with slim: {time.monotonic() - began:.0f} s")
+    print(f"action, platform amd64,arm64, dev and run, with slim: "
+          f"{time.monotonic() - began:.0f} s")
     assert run.returncode == 0, run.log[-6000:]
-    tags = registry_tags(local_registry, image)
-    assert {"latest", "latest-slim"} <= set(tags), tags
-    assert manifest_architectures(f"{local_registry}/{image}:latest") == ["amd64", "arm64"]
+    assert "Set up QEMU" not in run.skipped  # a foreign platform: the action sets it up
+    assert auth_registry.password not in run.log
+    auth = auth_registry.auth
+    tags = registry_tags(auth_registry.address, image, auth)
+    assert {"latest", "latest-dev", "latest-slim"} <= set(tags), tags
+    for tag in ("latest", "latest-dev"):
+        assert index_architectures(auth_registry.address, image, tag, auth) == [
+            "amd64", "arm64"], tag
     # the slim names hold the runner's architecture only (slimming runs the image)
-    assert image_architectures(local_registry, image, "latest-slim") == [host_arch()]
+    assert image_architectures(auth_registry.address, image, "latest-slim", auth) == [
+        host_arch()]
 
 
 def test_a_docker_container_builder_builds_both_platforms_from_a_multiarch_base(

@@ -1,6 +1,7 @@
 """Bad input caught before the build, one line naming the culprit (issue 11): the pure checks."""
 
 import io
+import logging
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -9,10 +10,22 @@ from docker.errors import APIError, NotFound
 from dotenv import dotenv_values
 
 from docker_ros.host import build, engine
-from docker_ros.host.config import config_table, dotenv_warnings, image_problems, path_problems
+from docker_ros.host.config import (
+    config_table,
+    dotenv_warnings,
+    image_problems,
+    input_problems,
+    path_problems,
+    read_settings,
+    repository_env_file,
+)
 from docker_ros.host.pipeline import TaskError, check_slim_options, host_workspace
 from docker_ros.in_image.runtime.files import path_problem
-from docker_ros.in_image.runtime.packages import Package, duplicate_packages
+from docker_ros.in_image.runtime.packages import (
+    Package,
+    duplicate_packages,
+    duplicates_message,
+)
 from docker_ros.in_image.runtime.process import script_hint
 from docker_ros.in_image.runtime.workspace import read_user_text
 from docker_ros.in_image.settings import (
@@ -81,7 +94,12 @@ def test_explicitly_set_files_must_exist_defaults_may_be_absent(tmp_path: Path) 
         "additional_files_dir": "ADDITIONAL_FILES_DIR 'files' not found in the repository, but "
         "set explicitly: fix the path or unset it",
     }
-    # Recursive discovery may still find the file in imported repositories: the step decides.
+    # Recursive discovery may still find the file in imported repositories, when one of that
+    # name is there to import them: the step decides. With none anywhere, nothing can.
+    assert path_problems(settings_for(tmp_path, VCS_IMPORT_FILE="deps.repos")) == {
+        "vcs_import_file": problems["vcs_import_file"]}
+    (tmp_path / "third_party").mkdir()
+    (tmp_path / "third_party" / "deps.repos").write_text("repositories: {}\n")
     assert "vcs_import_file" not in path_problems(settings_for(tmp_path,
                                                                VCS_IMPORT_FILE="deps.repos"))
 
@@ -488,3 +506,55 @@ def test_dotenv_old_docker_ros_names_name_the_new_ones() -> None:
         "ENABLE_RECURSIVE_CUSTOM_SCRIPT ignored: docker-ros's earlier name, now "
         "ENABLE_RECURSIVE_AFTER_DEPENDENCY_INSTALLATION_SCRIPT",
     ]
+
+
+def test_running_in_a_package_folder_names_the_repository_s_env(tmp_path, caplog):
+    """invoke finds tasks.py above the folder it runs in; .env is read from that folder only:
+    a user who runs docker-ros in a package folder is told where it should run."""
+    repo = tmp_path / "repo"
+    (repo / ".git").mkdir(parents=True)
+    (repo / ".env").write_text("BASE_IMAGE=b:1\n")
+    (repo / "src" / "pkg").mkdir(parents=True)
+    assert repository_env_file(repo / "src" / "pkg") == repo / ".env"
+    assert repository_env_file(repo) is None  # its own .env is read
+    (tmp_path / ".env").write_text("X=1\n")  # above the repository: not its
+    (repo / ".env").unlink()
+    assert repository_env_file(repo / "src" / "pkg") is None
+    (repo / ".env").write_text("BASE_IMAGE=b:1\n")
+    caplog.set_level(logging.WARNING)
+    settings = read_settings({}, {}, project_dir=repo / "src" / "pkg", environ={})
+    assert not settings.base_image
+    assert (f"no .env in {repo / 'src' / 'pkg'}, but {repo} has one: run docker-ros in "
+            f"{repo}") in caplog.text
+
+
+def test_broken_manifests_and_list_files_that_are_not_text_are_found_before_the_build(
+        tmp_path: Path) -> None:
+    """What the blacklist and debs steps would stop on, in the image, after BuildKit started."""
+    for name, text in (("good", "<package><name>good</name></package>"),
+                       ("cut", "<package><name>cut</name>"), ("nameless", "<package/>"),
+                       ("other", "<project><name>x</name></project>")):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "package.xml").write_text(text)
+    (tmp_path / "folder" / "package.xml").mkdir(parents=True)
+    (tmp_path / "docker").mkdir()
+    (tmp_path / "docker" / "additional-debs.txt").write_bytes("libf\xf6\n".encode("latin-1"))
+    problems = input_problems(settings_for(tmp_path), (), images=False)
+    assert problems == {
+        "packages": "cut/package.xml is not valid XML (no element found: line 1, column 25); "
+        "folder/package.xml is not a file; nameless/package.xml has no <name>; "
+        "other/package.xml holds <project>, not <package>: fix it, or put a CATKIN_IGNORE file "
+        "in its folder (colcon and rosdep would stop on it)",
+        "additional_debs_file": "ADDITIONAL_DEBS_FILE docker/additional-debs.txt is not UTF-8 "
+        "text (invalid start byte at byte 4): save it as UTF-8",
+    }
+
+
+def test_many_duplicates_are_counted_not_all_listed() -> None:
+    many = {f"pkg_{i}": [f"a/pkg_{i}", f"b/pkg_{i}"] for i in range(7)}
+    message = duplicates_message(many)
+    assert message.startswith("two packages with the same name: pkg_0 in a/pkg_0 and b/pkg_0; ")
+    assert "pkg_4 in a/pkg_4 and b/pkg_4; and 2 more (colcon cannot build both" in message
+    assert "pkg_5" not in message and message.endswith(
+        "so many look like a folder of several checkouts: run docker-ros in one repository, or "
+        "set BUILD_CONTEXT to it")

@@ -1,7 +1,9 @@
 """CI jobs: registry login (argv, the job-private DOCKER_CONFIG) and the single-job multi-arch
 slim (the runner's architecture only, pushed under the slim names as docker-ros does)."""
 
+import contextlib
 import json
+import os
 import socket
 import time
 from pathlib import Path
@@ -111,6 +113,50 @@ def test_a_task_of_a_logged_in_job_uses_its_login(tmp_path: Path) -> None:
     with job_login(s, environ, label="docker-ros push"):
         assert environ["DOCKER_CONFIG"] == str(tmp_path)
     assert environ == {LOGGED_IN: "reg:5000 me", "DOCKER_CONFIG": str(tmp_path)}
+
+
+# A `docker` that does what `docker login --password-stdin` does to DOCKER_CONFIG, and keeps
+# its command line and standard input where the test reads them.
+FAKE_DOCKER = """#!/bin/sh
+echo "$*" > {out}/argv
+cat > {out}/stdin
+printf '{{"auths": {{"%s": {{"auth": "bWU6cHc="}}}}}}' "$5" > "$DOCKER_CONFIG/config.json"
+"""
+
+
+def test_the_login_lives_in_a_folder_of_the_task_removed_at_its_end(tmp_path: Path,
+                                                                   monkeypatch) -> None:
+    """Self-hosted and shell runners keep ~/.docker: the login goes to a task-private copy of
+    it, removed when the task ends (also when it fails); the user's stays as it was."""
+    user = tmp_path / "user-config"
+    user.mkdir()
+    before = json.dumps({"auths": {"other.example": {"auth": "dXNlcjpwYXNz"}}})
+    (user / "config.json").write_text(before)
+    shim = tmp_path / "bin"
+    shim.mkdir()
+    (shim / "docker").write_text(FAKE_DOCKER.format(out=tmp_path))
+    (shim / "docker").chmod(0o755)
+    monkeypatch.setenv("PATH", f"{shim}:{os.environ['PATH']}")
+    monkeypatch.setenv("DOCKER_CONFIG", str(user))
+    monkeypatch.delenv(LOGGED_IN, raising=False)
+    s = load_settings(environ={"REGISTRY": "reg.example:5000", "REGISTRY_USER": "me",
+                               "REGISTRY_PASSWORD": "pw-on-stdin-only"})
+    folders = []
+    for fails in (False, True):
+        with contextlib.suppress(RuntimeError), job_login(s, os.environ, label="docker-ros push"):
+            private = Path(os.environ["DOCKER_CONFIG"])
+            folders.append(private.parent)
+            assert private.parent.name.startswith("docker-ros-login-")
+            assert "reg.example:5000" in json.loads((private / "config.json").read_text())[
+                "auths"]
+            if fails:
+                raise RuntimeError("the task failed")
+        assert os.environ["DOCKER_CONFIG"] == str(user) and LOGGED_IN not in os.environ
+    assert folders[0] != folders[1] and not any(folder.exists() for folder in folders)
+    assert (user / "config.json").read_text() == before
+    assert (tmp_path / "stdin").read_text().strip() == "pw-on-stdin-only"
+    assert (tmp_path / "argv").read_text().split() == [
+        "login", "--username", "me", "--password-stdin", "reg.example:5000"]
 
 
 def test_a_failed_login_only_stops_a_task_that_needs_it(tmp_path: Path, capsys) -> None:

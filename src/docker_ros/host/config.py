@@ -19,6 +19,8 @@ from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import (
     duplicates_message,
     find_package_dirs,
+    listed,
+    manifest_problem,
     repository_duplicates,
 )
 from docker_ros.in_image.runtime.repos import repos_problem
@@ -68,6 +70,11 @@ def read_settings(
         raise SettingsError(f"{env_file}: " + "; ".join(unreadable) + ": write NAME=VALUE "
                             "(quote a value with spaces or #, and close the quotes)")
     dotenv = dotenv_values(stream=io.StringIO(text)) if env_file.is_file() else {}
+    above = None if env_file.is_file() else repository_env_file(project)
+    if above is not None:
+        LOG.warning("docker-ros: no .env in %s, but %s has one: run docker-ros in %s (it "
+                    "reads .env and BUILD_CONTEXT from the folder it runs in)", project,
+                    above.parent, above.parent)
     environ = os.environ if environ is None else environ
     if environ.get("GITHUB_ACTIONS") == "true" and not environ.get("GITHUB_DEFAULT_BRANCH"):
         # GitHub has no variable for it; the event payload names it (CI tag postfix rules).
@@ -83,6 +90,19 @@ def read_settings(
         lenient=lenient,
         command=command,
     )
+
+
+def repository_env_file(folder: Path) -> Optional[Path]:
+    """The .env of a folder above folder, up to its git repository's top (a folder with
+    `.git`): where a user who runs docker-ros in a package folder meant to run it."""
+    here = folder.resolve()
+    found = None
+    for each in (here, *here.parents):
+        if found is None and each != here and (each / ".env").is_file():
+            found = each / ".env"
+        if (each / ".git").exists():
+            return found
+    return None  # (no repository: a .env above is nobody's to guess)
 
 
 def dotenv_problems(text: str) -> List[str]:
@@ -158,7 +178,10 @@ def path_problems(settings: Settings) -> Dict[str, str]:
             problems[name] = (f"{env_name(name)} '{value}' is a {found}, not a {wanted}: give "
                               f"the path of a {wanted}")
             continue
-        # With recursive discovery the file may come with the imported repositories.
+        # With recursive discovery the file may come with the imported repositories (a
+        # VCS_IMPORT_FILE only if one of that name is somewhere to import them).
+        if recursive and name == "vcs_import_file":
+            recursive = any(found.is_file() for found in repository.rglob(Path(value).name))
         if explicitly_set(settings, name) and not exists and not recursive:
             problems[name] = (f"{env_name(name)} '{value}' not found in the repository, but "
                               "set explicitly: fix the path or unset it")
@@ -180,9 +203,15 @@ def content_problems(settings: Settings) -> Dict[str, str]:
     problem = repos_problem(repos, settings.vcs_import_file) if repos.is_file() else None
     if problem:
         problems["vcs_import_file"] = f"VCS_IMPORT_FILE {problem}"
+    problems.update(list_file_problems(settings, repository))
     package_dirs = find_package_dirs(repository)  # (one walk of the repository for both checks)
+    broken = [f"{d.relative_to(repository).as_posix()}/package.xml {problem}"
+              for d in package_dirs for problem in [manifest_problem(d)] if problem]
     duplicates = repository_duplicates(repository, package_dirs)
-    if duplicates:
+    if broken:
+        problems["packages"] = (f"{listed(broken)}: fix it, or put a CATKIN_IGNORE file in its "
+                                "folder (colcon and rosdep would stop on it)")
+    elif duplicates:
         problems["packages"] = duplicates_message(duplicates)
     inputs = [name for name in path_settings() if (repository / getattr(settings, name)).exists()]
     if not inputs and not package_dirs and not any(repository.rglob("*.repos")):
@@ -190,6 +219,23 @@ def content_problems(settings: Settings) -> Dict[str, str]:
             f"BUILD_CONTEXT '{repository.resolve()}' holds no ROS package (package.xml), no "
             ".repos file and none of docker-ros's input files: run this in your ROS repository, "
             "or set BUILD_CONTEXT to it")
+    return problems
+
+
+# The list files the steps read as text (a script is bash's to read).
+LIST_FILES = ("additional_debs_file", "additional_pip_file", "blacklisted_packages_file")
+
+
+def list_file_problems(settings: Settings, repository: Path) -> Dict[str, str]:
+    """The repository's list files that are not UTF-8 text, named as the settings give them."""
+    problems: Dict[str, str] = {}
+    for name in LIST_FILES:
+        value = str(getattr(settings, name))
+        if (repository / value).is_file():
+            try:
+                read_user_text(repository / value, ValueError, value)
+            except ValueError as exc:
+                problems[name] = f"{env_name(name)} {exc}"
     return problems
 
 

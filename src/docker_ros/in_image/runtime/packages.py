@@ -78,9 +78,14 @@ def catkin_pkg(step: str) -> Any:
 
 
 def one_line(error: Exception) -> str:
-    """catkin_pkg's message on one line, without its header naming the file (the caller does)."""
+    """catkin_pkg's message on one line, without its header naming the file (the caller does):
+    `The manifest contains invalid XML: no element found...`."""
     lines = [line.strip() for line in str(error).splitlines()]
-    return "; ".join(line for line in lines if line and not line.startswith("Error(s) in"))
+    text = ""
+    for line in lines:
+        if line and not line.startswith("Error(s) in"):
+            text += (" " if text.endswith(":") else "; " if text else "") + line
+    return text
 
 
 def parse_package_xml(
@@ -165,10 +170,41 @@ def find_packages(
     return packages
 
 
+SHOWN = 5  # entries a message lists; it counts the rest
+
+
+def listed(items: Sequence[str]) -> str:
+    """The first SHOWN items, '; '-joined, and how many more there are."""
+    more = f"; and {len(items) - SHOWN} more" if len(items) > SHOWN else ""
+    return "; ".join(items[:SHOWN]) + more
+
+
 def duplicates_message(duplicates: Mapping[str, Sequence[str]]) -> str:
-    listed = "; ".join(f"{name} in {' and '.join(paths)}" for name, paths in duplicates.items())
-    return (f"two packages with the same name: {listed} (colcon cannot build both: remove one, "
-            "or put a COLCON_IGNORE file in its folder)")
+    found = [name + " in " + " and ".join(paths) for name, paths in duplicates.items()]
+    text = (f"two packages with the same name: {listed(found)} (colcon cannot build both: "
+            "remove one, or put a COLCON_IGNORE file in its folder)")
+    if len(duplicates) > SHOWN:
+        text += ("; so many look like a folder of several checkouts: run docker-ros in one "
+                 "repository, or set BUILD_CONTEXT to it")
+    return text
+
+
+def manifest_problem(directory: Path) -> Optional[str]:
+    """What keeps directory's package.xml from naming a package (colcon and the steps would
+    stop on it), found without catkin_pkg; None when it names one."""
+    path = directory / "package.xml"
+    if not path.is_file():
+        return "is not a file"
+    try:
+        root = ElementTree.parse(str(path)).getroot()
+    except ElementTree.ParseError as exc:
+        return f"is not valid XML ({exc})"
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror})"
+    if root.tag != "package":
+        return f"holds <{root.tag}>, not <package>"
+    name = root.findtext("name")
+    return None if name and name.strip() else "has no <name>"
 
 
 def repository_duplicates(repository: Path, package_dirs: Sequence[Path]

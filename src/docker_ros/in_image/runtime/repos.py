@@ -14,7 +14,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple
 
 from docker_ros.in_image.runtime.process import tool_path
-from docker_ros.in_image.runtime.rosdeprules import yaml_problem
+from docker_ros.in_image.runtime.rosdeprules import yaml_module, yaml_problem
 from docker_ros.in_image.runtime.workspace import StepError, read_user_text
 
 Repos = Dict[str, Dict[str, str]]
@@ -73,7 +73,7 @@ def read_repos(path: Path, *, step: str, shown: str = "") -> Repos:
             repos = normalise(get_repositories(io.StringIO(text)))
         except RuntimeError as exc:
             raise StepError(step, unreadable(shown or str(path), str(exc))) from None
-        problems = entry_problems(yaml.safe_load(text))
+        problems = entry_problems(yaml.safe_load(text), yaml.load(text, Loader=yaml.BaseLoader))
     problems = problems or name_problems(repos)
     if problems:
         raise StepError(step, f"{shown or path}: {'; '.join(problems)}: fix the file")
@@ -101,13 +101,27 @@ def raw_entries(data: Any) -> List[Tuple[str, Mapping[str, Any], Tuple[str, str]
     return []
 
 
-def entry_problems(data: Any) -> List[str]:
+def entry_problems(data: Any, text: Any = None) -> List[str]:
     """What vcstool would skip with only a warning (an entry without type or url, or without
-    local-name or uri) or clone outside src/upstream (a name with '..')."""
+    local-name or uri), clone outside src/upstream (a name with '..'), or read otherwise than
+    written: a list or mapping as a value (vcstool fails with a traceback), a value that YAML
+    reads as another text (`version: 1.10` is the number 1.1, and vcstool would check out
+    `1.1`). text: the same file read with all values as written (YAML's BaseLoader)."""
     entries = raw_entries(data)
-    return [f"repository '{name}' has no {key}" for name, spec, keys in entries
-            for key in keys if spec.get(key) in (None, "")] + name_problems(
-        name for name, _, _ in entries)
+    written = {name: spec for name, spec, _ in raw_entries(text)}
+    problems = [f"repository '{name}' has no {key}" for name, spec, keys in entries
+                for key in keys if spec.get(key) in (None, "")]
+    for name, spec, _ in entries:
+        for key, value in spec.items():
+            as_written = written.get(name, {}).get(key)
+            if isinstance(value, (list, dict)):
+                problems.append(f"repository '{name}' has a {type(value).__name__} as {key}: "
+                                "give one value")
+            elif (value is not None and not isinstance(value, str)
+                  and isinstance(as_written, str) and str(value) != as_written):
+                problems.append(f"repository '{name}': YAML reads {key} {as_written} as "
+                                f"{value}: quote it ({key}: '{as_written}')")
+    return problems + name_problems(name for name, _, _ in entries)
 
 
 def unreadable(shown: str, reason: str) -> str:
@@ -127,7 +141,10 @@ def repos_problem(path: Path, shown: str) -> Optional[str]:
         return f"{problem}: fix the file (vcstool cannot import it)"
     if data is None or isinstance(data, list) or (
             isinstance(data, dict) and isinstance(data.get("repositories"), dict)):
-        problems = entry_problems(data)
+        yaml = yaml_module()
+        text = yaml.load(read_user_text(path, ValueError, shown), Loader=yaml.BaseLoader) if (
+            yaml and data is not None) else None
+        problems = entry_problems(data, text)
         return f"{shown}: {'; '.join(problems)}: fix the file" if problems else None
     return f"{shown}: not a .repos file: {EXPECTED}"
 

@@ -16,7 +16,7 @@ Rules = Dict[str, Any]
 CACHE = Path("rosdep") / "sources.cache"  # below ROS_HOME
 
 
-def _yaml() -> Any:
+def yaml_module() -> Any:
     """PyYAML (rosdep's), else invoke's (the host's docker-ros has invoke), else None."""
     import importlib
 
@@ -32,7 +32,7 @@ def _yaml() -> Any:
 def yaml_problem(path: Path, shown: str) -> Tuple[Any, Optional[str]]:
     """(the file's data, None), or (None, one line naming `shown`:line:column and YAML's
     reason) when it is not valid YAML; (None, None) when no YAML reader is here."""
-    yaml = _yaml()
+    yaml = yaml_module()
     if yaml is None:
         return None, None
     try:

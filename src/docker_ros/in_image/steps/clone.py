@@ -123,6 +123,12 @@ def url_host(url: str) -> str:
     return ""
 
 
+def shown_url(url: str) -> str:
+    """url as a message shows it: a password written into it (`https://user:pw@host/...`)
+    as `***`."""
+    return re.sub(r"^([A-Za-z][A-Za-z0-9+.-]*://[^/@:]*):[^/@]*@", r"\1:***@", url)
+
+
 _NOT_A_REPOSITORY = re.compile(r"does not appear to be a git repository|does not exist|"
                                r"no such file", re.IGNORECASE)
 
@@ -169,6 +175,10 @@ def login_hint(url: str, output: Sequence[str], env: Mapping[str, str]) -> str:
         return (f" (the server asks for a login: set GIT_HTTPS_SERVER={host}, GIT_HTTPS_USER "
                 "and GIT_HTTPS_PASSWORD in the environment or .env)")
     if _LOGIN_REFUSED.search(text):
+        if shown_url(url) != url:
+            return (" (the server refused the user and password written into the URL: fix "
+                    "them, or better take them out of the .repos file and set GIT_HTTPS_USER "
+                    "and GIT_HTTPS_PASSWORD, which stay out of the images and logs)")
         return (" (the server refused the login: check GIT_HTTPS_USER and GIT_HTTPS_PASSWORD, "
                 "and that the user may read the repository)")
     keyscan = f"`ssh-keyscan {host or 'HOST'}`"
@@ -218,7 +228,7 @@ def require_ssh(repos: Mapping[str, Mapping[str, str]], env: Mapping[str, str]) 
         apt_install(["openssh-client"], step=STEP, dry_run=False, what="installing ssh")
         if shutil.which("ssh"):
             return
-    listed = ", ".join(f"'{name}' ({repos[name]['url']})" for name in needing)
+    listed = ", ".join(f"'{name}' ({shown_url(repos[name]['url'])})" for name in needing)
     what = "repository" if len(needing) == 1 else "repositories"
     raise StepError(
         STEP,
@@ -367,7 +377,7 @@ def import_file(
         remove_tree(ws.upstream / name, step=STEP, dry_run=False)
     if failures:
         detail = "; ".join(
-            f"repository '{name}' ({repos[name].get('url', '?')}"
+            f"repository '{name}' ({shown_url(repos[name].get('url', '?'))}"
             + (f" @ {repos[name]['version']}" if repos[name].get("version") else "")
             + f"): {reason}"
             + failure_hint(repos[name].get("url", ""), reason,
