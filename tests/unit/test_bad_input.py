@@ -558,3 +558,18 @@ def test_many_duplicates_are_counted_not_all_listed() -> None:
     assert "pkg_5" not in message and message.endswith(
         "so many look like a folder of several checkouts: run docker-ros in one repository, or "
         "set BUILD_CONTEXT to it")
+
+
+def test_a_build_error_naming_ros_distro_says_where_it_comes_from() -> None:
+    """A shell with ROS sourced exports ROS_DISTRO; the image's prepare step cannot know that."""
+    failed = build.BuildError("building target 'run' (amd64) failed in step prepare: "
+                              "ROS_DISTRO=noetic, but BASE_IMAGE has ROS humble in /opt/ros: "
+                              "set ROS_DISTRO=humble, or leave it unset", 1, step="prepare")
+    shell = load_settings(environ={"ROS_DISTRO": "noetic"})
+    told = build.with_sources(failed, shell)
+    assert str(told).endswith("leave it unset (ROS_DISTRO=noetic comes from the environment, "
+                              "where a sourced ROS setup file exports it)")
+    assert told.step == "prepare"
+    assert build.with_sources(failed, load_settings(environ={})) is failed
+    other = build.BuildError("failed in step colcon: x")
+    assert build.with_sources(other, shell) is other

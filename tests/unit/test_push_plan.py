@@ -12,6 +12,8 @@ from docker_ros.host.push import (
     plan_manifest,
     plan_outputs,
     plan_push,
+    ref_registry,
+    registry_warning,
     write_outputs,
 )
 from docker_ros.in_image.settings import load_settings
@@ -125,3 +127,19 @@ def test_a_push_the_registry_refuses_for_want_of_a_login_names_the_login_setting
     with pytest.raises(BuildError) as raised:
         execute(["docker", "push", "reg:5000/x:1"], None)
     assert str(raised.value) == "docker push reg:5000/x:1 failed: connection refused"
+
+
+def test_a_registry_the_images_do_not_go_to_is_a_warning():
+    """REGISTRY is only the login: an image name without a host is pushed to Docker Hub."""
+    hub = settings(IMAGE="team/app:v1", TARGET="dev,run", REGISTRY="reg.example:5000")
+    assert registry_warning(hub, hub.target) == (
+        "warning: REGISTRY is reg.example:5000 (the login), but team/app:v1-dev, team/app:v1 go "
+        "to Docker Hub: put reg.example:5000/ in front of IMAGE/IMAGE_NAME to push there")
+    assert registry_warning(settings(IMAGE="reg.example:5000/team/app:v1", TARGET="run",
+                                     REGISTRY="https://reg.example:5000"), ["run"]) == ""
+    assert registry_warning(settings(IMAGE="team/app:v1", REGISTRY="docker.io"), ["run"]) == ""
+    assert registry_warning(settings(IMAGE="team/app:v1"), ["run"]) == ""
+    other = settings(IMAGE="ghcr.io/team/app:v1", REGISTRY="reg.example")
+    assert "ghcr.io/team/app:v1 goes to ghcr.io" in registry_warning(other, ["run"])
+    assert ref_registry("localhost/app") == "localhost"
+    assert ref_registry("docker.io/team/app") == "docker.io"

@@ -171,8 +171,8 @@ def test_apt_reason_names_the_packages_apt_does_not_know() -> None:
     assert apt_reason(["Reading package lists...", "E: Unable to locate package no-such",
                        "E: Package 'gone' has no installation candidate",
                        "E: Version '9' for 'jq' was not found"]) == (
-        "; apt has no package no-such, gone, jq=9 (check the name, and the apt sources of the "
-        "base image)")
+        "; apt has no package no-such, gone, jq=9 (check the name, or the version: "
+        "`apt-cache policy jq` lists those apt has, and the apt sources of the base image)")
     assert apt_reason(["E: Could not get lock /var/lib/dpkg/lock"]) == (
         "; apt: Could not get lock /var/lib/dpkg/lock")
     assert apt_reason(["done"]) == ""
@@ -236,5 +236,6 @@ def test_an_apt_package_of_a_rosdep_key_apt_does_not_have_names_the_key() -> Non
              "E: Version '1.2' for 'libyaml-cpp-dev' was not found"]
     assert apt_reason(lines, (), origins) == (
         "; apt has no package libmy-sdk-dev (rosdep key my_sdk of driver, viewer), "
-        "libyaml-cpp-dev=1.2 (rosdep key yaml-cpp of driver) (check the rosdep rule, and the "
-        "apt sources of the base image)")
+        "libyaml-cpp-dev=1.2 (rosdep key yaml-cpp of driver) (check the rosdep rule, or the "
+        "version: `apt-cache policy libyaml-cpp-dev` lists those apt has, and the apt sources of "
+        "the base image)")

@@ -998,6 +998,20 @@ def with_built(error: BuildError, built: Sequence[BuiltImage]) -> BuildError:
                       error.returncode, stage=error.stage, step=error.step)
 
 
+def with_sources(error: BuildError, settings: Settings) -> BuildError:
+    """error, saying where a setting it names came from when the build cannot tell: a step
+    that names `ROS_DISTRO=noetic` is not told that the value is the shell's (a sourced ROS
+    setup exports it), which the user may not know they gave."""
+    name = "ros_distro"
+    value, source = getattr(settings, name), settings.source_of(name)
+    if not value or source == "default" or f"ROS_DISTRO={value}" not in str(error):
+        return error
+    where = ("the environment, where a sourced ROS setup file exports it"
+             if source == "environment" else source)
+    return BuildError(f"{error} (ROS_DISTRO={value} comes from {where})", error.returncode,
+                      stage=error.stage, step=error.step)
+
+
 def built_note(target: str, ref: str) -> str:
     """How a message names an image that was built and tagged before a failure or Ctrl-C."""
     return f"{target!r} was built: {ref}"

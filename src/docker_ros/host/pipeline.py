@@ -31,7 +31,7 @@ from docker_ros.host.build import BuiltImage
 from docker_ros.host.config import image_problems, input_problems
 from docker_ros.host.lock import lock_status
 from docker_ros.host.login import LoginError, job_login, plan_login
-from docker_ros.host.push import plan_outputs, write_outputs
+from docker_ros.host.push import plan_outputs, registry_warning, write_outputs
 from docker_ros.in_image import testing
 from docker_ros.in_image.ci import missing_tasks
 from docker_ros.in_image.runtime.workspace import STATE_DIR_NAME, Workspace, format_argv
@@ -267,7 +267,7 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
                 built += build.build_images(settings, targets=tags, platform=platform)
             except build.BuildError as exc:
                 # (naming what the platforms before this one built and tagged)
-                exc = build.with_built(exc, built)
+                exc = build.with_built(build.with_sources(exc, settings), built)
                 code = reproduce_failure(settings, exc) if shell_on_failure else None
                 raise TaskError(str(exc), code or 1) from None
             except KeyboardInterrupt as exc:
@@ -436,6 +436,9 @@ def push_and_report(
 ) -> None:
     """Run push or manifest; print the pushed names and hand them to the CI as outputs."""
 
+    warning = registry_warning(settings, targets)
+    if warning:
+        print(f"{action.__name__}: {warning}", file=sys.stderr, flush=True)
     try:
         pushed = action(settings, targets, dry_run=dry_run)
     except build.BuildError as exc:

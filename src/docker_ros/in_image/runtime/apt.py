@@ -120,6 +120,10 @@ def apt_reason(lines: Sequence[str], update_lines: Sequence[str] = (),
     if missing:
         # (origins come from the rosdep step: a rule of its key gave the name)
         check = "the rosdep rule" if traced else "the name"
+        pinned = [package for _, _, version, package in found if version]
+        if pinned:  # `name=version`: apt knows the name, not that version
+            check += (f", or the version: `apt-cache policy {' '.join(dict.fromkeys(pinned))}` "
+                      "lists those apt has")
         return (f"; apt has no package {', '.join(dict.fromkeys(missing))} (check {check}, "
                 "and the apt sources of the base image)")
     fetch = [line[3:].strip() for line in lines
