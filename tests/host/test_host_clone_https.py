@@ -73,19 +73,25 @@ def test_https_credentials_clone_without_leaking(project, private_remote, caplog
 
 def test_a_password_written_into_a_repos_url_is_not_shown(project, private_remote, capsys,
                                                           caplog):
-    """A .repos URL with `user:password@` (a wrong password here): git hides it, and so does
-    the clone step's message, which says where the refused login came from."""
+    """A .repos URL with `user:password@` (a wrong password here): git hides it; vcstool does
+    not when it clones (no version: `Could not clone repository '<url>'`), and neither did the
+    clone step's message. Both show `***`, and the message says where the refused login came
+    from."""
     wrong = "wr0ng-but-still-secret"
     url = f"http://{USER}:{wrong}@{private_remote}/private_lib.git"
-    write_repos(project.repo / ".repos", {"private_lib": {"url": url, "version": "main"}})
     caplog.set_level(logging.DEBUG)
-    with pytest.raises(StepError) as err:
-        clone.main(project.ws, project.settings())
-    message = err.value.message
-    assert f"(http://{USER}:***@{private_remote}/private_lib.git @ main)" in message, message
-    assert "refused the user and password written into the URL" in message, message
-    captured = capsys.readouterr()
-    assert wrong not in message + caplog.text + captured.out + captured.err
+    for version in ("main", None):
+        spec = {"url": url, **({"version": version} if version else {})}
+        write_repos(project.repo / ".repos", {"private_lib": spec})
+        with pytest.raises(StepError) as err:
+            clone.main(project.ws, project.settings())
+        message = err.value.message
+        shown = f"(http://{USER}:***@{private_remote}/private_lib.git"
+        assert shown + (f" @ {version})" if version else ")") in message, message
+        assert "refused the user and password written into the URL" in message, message
+        captured = capsys.readouterr()
+        assert wrong not in message + caplog.text + captured.out + captured.err
+    assert f"Could not clone repository 'http://{USER}:***@" in captured.out  # vcstool's line
 
 
 def test_https_password_from_buildkit_secret_file(project, private_remote, tmp_path, monkeypatch):

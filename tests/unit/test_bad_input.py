@@ -573,3 +573,14 @@ def test_a_build_error_naming_ros_distro_says_where_it_comes_from() -> None:
     assert build.with_sources(failed, load_settings(environ={})) is failed
     other = build.BuildError("failed in step colcon: x")
     assert build.with_sources(other, shell) is other
+
+
+def test_passwords_and_tokens_in_urls_are_hidden_wherever_they_are_in_a_text() -> None:
+    from docker_ros.in_image.steps.clone import hide_url_passwords as hide
+    assert hide("Could not clone repository 'http://bob:s3cret@h:80/x.git': fatal") == (
+        "Could not clone repository 'http://bob:***@h:80/x.git': fatal")
+    assert hide("https://ghp_T0KEN@github.com/o/r.git") == "https://***@github.com/o/r.git"
+    assert hide("https://a@b.com:p@ss@host/x") == "https://a@b.com:***@host/x"
+    assert hide("ssh://git@host/x and https://host/x@y") == "ssh://git@host/x and https://host/x@y"
+    assert hide("ssh://root@127.0.0.1:22/r.git") == "ssh://root@127.0.0.1:22/r.git"
+    assert hide("git@github.com:o/r.git") == "git@github.com:o/r.git"

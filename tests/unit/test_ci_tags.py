@@ -143,6 +143,9 @@ def test_github_pushes_as_latest_off_the_default_branch_with_the_postfix(case):
                       "reg/img:v1_feature-my-thing_ci", "reg/img:latest_feature-my-thing_ci",
                       "reg/img:v1-slim_feature-my-thing_ci",
                       "reg/img:latest-slim_feature-my-thing_ci"]
+    # IMAGE_POSTFIX=none: no `latest` from another branch (it is the default branch's)
+    assert settings(case, IMAGE_TAG="v1", ENABLE_PUSH_AS_LATEST="true",
+                    IMAGE_POSTFIX="none").push_also_as == ()
     # IMAGE_TAG latest: those are the configured names, pushed once
     s = settings(case, ENABLE_PUSH_AS_LATEST="true")
     assert [c[-1] for c in plan_push(s, s.target) if c[1] == "push"] == [

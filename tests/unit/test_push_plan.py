@@ -41,6 +41,10 @@ def test_push_as_latest_tags_latest_and_latest_dev():
     assert ["docker", "push", "127.0.0.1:5000/img:latest"] in commands
     assert also_ref("127.0.0.1:5000/img", "latest", "run") == "127.0.0.1:5000/img:latest"
     assert also_ref("127.0.0.1:5000/img:v1", "latest", "slim") == "127.0.0.1:5000/img:latest-slim"
+    # `latest<postfix>` (GitHub, another branch) gets the target before the postfix; a git tag
+    # that happens to end like a custom IMAGE_POSTFIX stays whole
+    assert also_ref("r/img:v1", "latest_b_ci", "dev", "_b_ci") == "r/img:latest-dev_b_ci"
+    assert also_ref("r/img:v1", "v1.2.0", "dev", "0") == "r/img:v1.2.0-dev"
 
 
 def test_several_platforms_push_arch_images_and_one_manifest_list():

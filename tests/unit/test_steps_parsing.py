@@ -335,8 +335,8 @@ def test_unreadable_repos_names_the_file_and_line(tmp_path):
     # YAML's numbers: vcstool would check out the tag 1.1
     ("repositories:\n  up: {type: git, url: /x, version: 1.10}\n",
      "repository 'up': YAML reads version 1.10 as 1.1: quote it (version: '1.10')"),
-    ("- git: {local-name: up, uri: /x, version: 2.0.10, other: 3.10}\n",
-     "repository 'up': YAML reads other 3.10 as 3.1"),
+    ("- git: {local-name: up, uri: /x, version: 3.10, other: 3.10}\n",
+     "repository 'up': YAML reads version 3.10 as 3.1: quote it (version: '3.10')"),
     ("repositories:\n  up: {type: git, url: [/x, /y]}\n",
      "repository 'up' has a list as url: give one value"),
 ])
@@ -352,8 +352,9 @@ def test_repos_entries_vcstool_would_skip_or_clone_elsewhere_stop_the_step(tmp_p
 
 
 def test_repos_names_with_dots_inside_stay_allowed(tmp_path):
+    """(and values vcstool does not read are not checked: `recursive: true`, a list of tags)"""
     text = ("repositories:\n  a..b/c.d: {type: git, url: /x}\n  ./e: {type: git, url: /y, "
-            "version: 2}\n  f: {type: git, url: /z, version: 1.0}\n")
+            "version: 2}\n  f: {type: git, url: /z, version: 1.0, recursive: on, tags: [a]}\n")
     assert sorted(read_repos(write(tmp_path, text), step="clone")) == ["./e", "a..b/c.d", "f"]
     assert repos_problem(write(tmp_path, text), "x.repos") is None
 

@@ -1006,8 +1006,8 @@ def with_sources(error: BuildError, settings: Settings) -> BuildError:
     value, source = getattr(settings, name), settings.source_of(name)
     if not value or source == "default" or f"ROS_DISTRO={value}" not in str(error):
         return error
-    where = ("the environment, where a sourced ROS setup file exports it"
-             if source == "environment" else source)
+    where = {"environment": "the environment, where a sourced ROS setup file exports it",
+             "flag": "a flag"}.get(source, source)
     return BuildError(f"{error} (ROS_DISTRO={value} comes from {where})", error.returncode,
                       stage=error.stage, step=error.step)
 

@@ -179,9 +179,12 @@ def path_problems(settings: Settings) -> Dict[str, str]:
                               f"the path of a {wanted}")
             continue
         # With recursive discovery the file may come with the imported repositories (a
-        # VCS_IMPORT_FILE only if one of that name is somewhere to import them).
-        if recursive and name == "vcs_import_file":
-            recursive = any(found.is_file() for found in repository.rglob(Path(value).name))
+        # VCS_IMPORT_FILE only if a .repos file is somewhere to import them, or a hook may
+        # write one).
+        if (recursive and name == "vcs_import_file" and not exists
+                and explicitly_set(settings, name)):
+            recursive = (repository / settings.before_dependency_identification_script
+                         ).is_file() or any(f.is_file() for f in repository.rglob("*.repos"))
         if explicitly_set(settings, name) and not exists and not recursive:
             problems[name] = (f"{env_name(name)} '{value}' not found in the repository, but "
                               "set explicitly: fix the path or unset it")
@@ -236,6 +239,8 @@ def list_file_problems(settings: Settings, repository: Path) -> Dict[str, str]:
                 read_user_text(repository / value, ValueError, value)
             except ValueError as exc:
                 problems[name] = f"{env_name(name)} {exc}"
+            except OSError as exc:
+                problems[name] = f"{env_name(name)} {value}: cannot be read ({exc.strerror})"
     return problems
 
 

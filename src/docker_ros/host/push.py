@@ -19,7 +19,7 @@ def also_ref(ref: str, tag: str, target: str, postfix: str = "") -> str:
     name = ref.rsplit(":", 1)[0] if ":" in ref.rsplit("/", 1)[-1] else ref
     if target not in ("dev", "slim"):
         return f"{name}:{tag}"
-    stem = tag[:-len(postfix)] if postfix and tag.endswith(postfix) and tag != postfix else tag
+    stem = "latest" if postfix and tag == f"latest{postfix}" else tag
     return f"{name}:{stem}-{target}{tag[len(stem):]}"
 
 
@@ -186,8 +186,8 @@ def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> Li
     """Write the manifest lists (plan_manifest); return their names."""
     absent = absent_slim_images(settings) if "slim" in targets and not dry_run else []
     for arch in absent:
-        print(f"manifest: {arch} is not in the registry (its job ran on a runner of another "
-              "architecture, which does not slim it): the slim lists leave it out", flush=True)
+        print(f"manifest: {arch} is not in the registry (a job on a runner of another "
+              "architecture slims nothing): the slim lists leave it out", flush=True)
     commands = plan_manifest(settings, targets, absent)
     return run_commands(settings, commands, dry_run=dry_run, label="manifest")
 

@@ -115,7 +115,8 @@ def push_also_as(
         return ()
     if pipeline is None or pipeline.on_default_branch:
         return ("latest",)
-    return (f"latest{postfix}",) if pipeline.ci == "github" else ()
+    # (no postfix there, IMAGE_POSTFIX=none: `latest` would overwrite the default branch's)
+    return (f"latest{postfix}",) if pipeline.ci == "github" and postfix else ()
 
 
 def github_default_branch(environ: Mapping[str, str]) -> str:
@@ -179,8 +180,8 @@ def slim_skipped(platforms: Sequence[str], host: str) -> str:
     """What a CI job says when ENABLE_SLIM slims nothing on this runner (plan_ci_job)."""
     names = "/".join(platforms)
     return (f"slim: {names} not slimmed on this {host} runner (slimming runs the image): a slim "
-            f"{names} image needs a job on a runner of that architecture, as docker-ros's "
-            "`Slim run-<arch>` jobs; ENABLE_SLIM=false leaves it out without this note")
+            f"{names} image needs a job on a runner of that architecture; ENABLE_SLIM=false "
+            "leaves it out without this note")
 
 
 def missing_tasks(plan: Sequence[Sequence[str]], available: Collection[str]) -> List[str]:

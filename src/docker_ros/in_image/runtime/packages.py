@@ -201,8 +201,9 @@ def manifest_problem(directory: Path) -> Optional[str]:
         return f"is not valid XML ({exc})"
     except OSError as exc:
         return f"cannot be read ({exc.strerror})"
-    if root.tag != "package":
-        return f"holds <{root.tag}>, not <package>"
+    tag = root.tag.rpartition("}")[2]  # (a namespace, which catkin_pkg allows)
+    if tag != "package":
+        return f"holds <{tag}>, not <package>"
     name = root.findtext("name")
     return None if name and name.strip() else "has no <name>"
 

@@ -209,10 +209,12 @@ def run_tee(
     cwd: Optional[Path] = None,
     env: Optional[Mapping[str, str]] = None,
     on_line: Optional[Callable[[str], bool]] = None,
+    shown: Callable[[str], str] = str,
 ) -> Tuple[int, List[str]]:
     """Run argv with stdout+stderr streamed line by line to our stdout (the user sees the tool's
     output as it comes) and also returned, for parsing. Returns (exit code, lines).
-    `on_line` returning True stops the command (a failure already known, no use waiting)."""
+    `on_line` returning True stops the command (a failure already known, no use waiting);
+    `shown` makes each line what is printed and returned (e.g. with passwords hidden)."""
     LOG.info("%s: %s", step, format_argv(argv))
     sys.stdout.flush()
     lines: List[str] = []
@@ -234,6 +236,7 @@ def run_tee(
     try:
         with proc.stdout:
             for line in proc.stdout:
+                line = shown(line)
                 sys.stdout.write(line)
                 sys.stdout.flush()
                 line = line.rstrip("\n")

@@ -50,6 +50,9 @@ def normalise(repos: Mapping[str, Any]) -> Repos:
     }
 
 
+# The keys of an entry vcstool reads (vcstool format, then rosinstall's).
+READ_KEYS = ("type", "url", "version", "local-name", "uri")
+
 EXPECTED = ("expected `repositories:` with `name: {type, url, version}` entries, or a "
             "rosinstall list of `- git: {local-name, uri, version}`")
 
@@ -113,6 +116,8 @@ def entry_problems(data: Any, text: Any = None) -> List[str]:
                 for key in keys if spec.get(key) in (None, "")]
     for name, spec, _ in entries:
         for key, value in spec.items():
+            if key not in READ_KEYS:
+                continue  # (vcstool reads no other key)
             as_written = written.get(name, {}).get(key)
             if isinstance(value, (list, dict)):
                 problems.append(f"repository '{name}' has a {type(value).__name__} as {key}: "

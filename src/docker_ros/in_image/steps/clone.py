@@ -123,10 +123,21 @@ def url_host(url: str) -> str:
     return ""
 
 
-def shown_url(url: str) -> str:
-    """url as a message shows it: a password written into it (`https://user:pw@host/...`)
-    as `***`."""
-    return re.sub(r"^([A-Za-z][A-Za-z0-9+.-]*://[^/@:]*):[^/@]*@", r"\1:***@", url)
+# The user information of a URL: what lies between `scheme://` and the last `@` before the host.
+USERINFO = re.compile(r"\b([A-Za-z][A-Za-z0-9+.-]*://)([^/\s'\"]+)@")
+
+
+def hide_url_passwords(text: str) -> str:
+    """text as a message or the log shows it: in every URL, a password written into it
+    (`https://user:pw@host/...`) or, over HTTP(S), a token standing alone
+    (`https://ghp_...@github.com/...`) as `***` (an SSH user, `ssh://git@`, stays)."""
+    def hidden(match: "re.Match[str]") -> str:
+        user, colon, _ = match.group(2).partition(":")
+        token = match.group(1).lower() in ("http://", "https://")
+        shown = f"{user}:***" if colon else ("***" if token else user)
+        return f"{match.group(1)}{shown}@"
+
+    return USERINFO.sub(hidden, text)
 
 
 _NOT_A_REPOSITORY = re.compile(r"does not appear to be a git repository|does not exist|"
@@ -175,7 +186,7 @@ def login_hint(url: str, output: Sequence[str], env: Mapping[str, str]) -> str:
         return (f" (the server asks for a login: set GIT_HTTPS_SERVER={host}, GIT_HTTPS_USER "
                 "and GIT_HTTPS_PASSWORD in the environment or .env)")
     if _LOGIN_REFUSED.search(text):
-        if shown_url(url) != url:
+        if hide_url_passwords(url) != url:
             return (" (the server refused the user and password written into the URL: fix "
                     "them, or better take them out of the .repos file and set GIT_HTTPS_USER "
                     "and GIT_HTTPS_PASSWORD, which stay out of the images and logs)")
@@ -228,7 +239,7 @@ def require_ssh(repos: Mapping[str, Mapping[str, str]], env: Mapping[str, str]) 
         apt_install(["openssh-client"], step=STEP, dry_run=False, what="installing ssh")
         if shutil.which("ssh"):
             return
-    listed = ", ".join(f"'{name}' ({shown_url(repos[name]['url'])})" for name in needing)
+    listed = ", ".join(f"'{name}' ({hide_url_passwords(repos[name]['url'])})" for name in needing)
     what = "repository" if len(needing) == 1 else "repositories"
     raise StepError(
         STEP,
@@ -367,7 +378,9 @@ def import_file(
     argv = import_argv(repos_file, ws.upstream, skip_existing=skip_existing)
     # Never wait for a password on a terminal (builds have none; vcs runs clones in parallel).
     full_env = {**os.environ, "GIT_TERMINAL_PROMPT": "0", **env}
-    returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env=full_env)
+    # (vcstool prints a failed clone's URL as written: with a password in it, too)
+    returncode, lines = run_tee(argv, step=STEP, cwd=ws.root, env=full_env,
+                                shown=hide_url_passwords)
     if returncode == 0:
         return
     blocks = vcs_blocks(lines, ws.upstream, names)
@@ -377,7 +390,7 @@ def import_file(
         remove_tree(ws.upstream / name, step=STEP, dry_run=False)
     if failures:
         detail = "; ".join(
-            f"repository '{name}' ({shown_url(repos[name].get('url', '?'))}"
+            f"repository '{name}' ({hide_url_passwords(repos[name].get('url', '?'))}"
             + (f" @ {repos[name]['version']}" if repos[name].get("version") else "")
             + f"): {reason}"
             + failure_hint(repos[name].get("url", ""), reason,
