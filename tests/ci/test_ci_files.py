@@ -178,7 +178,7 @@ def test_the_placeholder_url_installs_nothing(tmp_path: Path) -> None:
            "DOCKER_ROS_GIT_URL": template["variables"]["DOCKER_ROS_GIT_URL"],
            "DOCKER_ROS_GIT_REF": "main"}
     assert "/OWNER/" in env["DOCKER_ROS_GIT_URL"], "published: drop this test and the guard"
-    run = subprocess.run(["bash", "-ec", setup], env=env, capture_output=True, text=True)
+    run = subprocess.run(["sh", "-ec", setup], env=env, capture_output=True, text=True)
     assert run.returncode == 1
     assert "DOCKER_ROS_GIT_URL (https://github.com/OWNER/docker-ros-python.git) names the " \
         "placeholder OWNER: set it to the git URL this template comes from" in run.stderr
@@ -233,7 +233,7 @@ QEMU_CASES = [
 @pytest.mark.parametrize("platform,handlers,said,docker_argv", QEMU_CASES)
 def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
         tmp_path: Path, platform: str, handlers: dict, said: str, docker_argv: object) -> None:
-    """The build jobs' QEMU snippet's decision, run by bash on this amd64 machine with a
+    """The build jobs' QEMU snippet's decision, run by sh on this amd64 machine with a
     `docker` that only writes its command line: the default image's exact command. The
     registration itself runs for real in tests/ci/test_multiarch.py, with an image standing in
     for multiarch/qemu-user-static (Docker Hub, out of this machine's reach)."""
@@ -249,7 +249,8 @@ def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
     (shim / "docker").chmod(0o755)
     env = {"PATH": f"{shim}:/usr/bin:/bin", "_PLATFORM": platform, "BINFMT_MISC": str(binfmt),
            "DOCKER_ROS_QEMU_IMAGE": template["variables"]["DOCKER_ROS_QEMU_IMAGE"]}
-    result = subprocess.run(["bash", "-ec", snippet], env=env, capture_output=True, text=True)
+    # (sh, as the docker:*-git image's busybox runs it)
+    result = subprocess.run(["sh", "-ec", snippet], env=env, capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert said in result.stdout and (said or result.stdout == "")
     recorded = tmp_path / "docker-argv"

@@ -126,8 +126,10 @@ printf '{{"auths": {{"%s": {{"auth": "bWU6cHc="}}}}}}' "$5" > "$DOCKER_CONFIG/co
 
 def test_the_login_lives_in_a_folder_of_the_task_removed_at_its_end(tmp_path: Path,
                                                                    monkeypatch) -> None:
-    """Self-hosted and shell runners keep ~/.docker: the login goes to a task-private copy of
-    it, removed when the task ends (also when it fails); the user's stays as it was."""
+    """Self-hosted and shell runners keep ~/.docker: the login goes to a task-private
+    DOCKER_CONFIG, removed when the task ends (also when it fails); the user's stays as it
+    was. (What the copy keeps of the user's config: the test before, test_private_docker_
+    config_copies_logins_and_links_the_rest.)"""
     user = tmp_path / "user-config"
     user.mkdir()
     before = json.dumps({"auths": {"other.example": {"auth": "dXNlcjpwYXNz"}}})

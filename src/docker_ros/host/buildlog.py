@@ -8,6 +8,7 @@ import re
 import time
 from typing import IO, Dict, Iterator, List, Mapping, Sequence, Tuple
 
+from docker_ros.in_image.settings import ref_host
 from docker_ros.in_image.steps import IMAGE_STEPS, STEPS
 
 STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")
@@ -108,9 +109,7 @@ def tagged_in_log(lines: Sequence[str], ref: str) -> bool:
     """Whether BuildKit's log says it named an image ref (`naming to docker.io/library/x:1
     done`: a name without registry as BuildKit writes it), e.g. the target of a bake run that
     finished before another failed."""
-    first, slash, _ = ref.partition("/")
-    qualified = slash and ("." in first or ":" in first or first == "localhost")
-    full = ref if qualified else f"docker.io/{ref if slash else 'library/' + ref}"
+    full = ref if ref_host(ref) else f"docker.io/{ref if '/' in ref else 'library/' + ref}"
     return any(f"naming to {name} done" in line for line in lines for name in (full, ref))
 
 

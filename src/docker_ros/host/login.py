@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, MutableMapping, Optional
 
 from docker_ros.host.engine import docker_config_dir
-from docker_ros.in_image.settings import Settings, server_host
+from docker_ros.in_image.settings import Settings, registry_of, server_host
 
 # Set while a job's login is in force: the registry and user it logged in as.
 LOGGED_IN = "DOCKER_ROS_LOGGED_IN"
@@ -67,7 +67,7 @@ def credential_keys(registry: str) -> List[str]:
     """The names docker's CLI may file the registry's login under: as given, its host name
     (scheme and path dropped), and Docker Hub's index address for Docker Hub."""
     host = server_host(registry)
-    hub = host in ("", "docker.io", "index.docker.io", "registry-1.docker.io")
+    hub = registry_of(host) == "docker.io"
     keys = [registry, host] + ([DOCKER_HUB_INDEX] if hub else [])
     return list(dict.fromkeys(k for k in keys if k))
 

@@ -9,7 +9,14 @@ from typing import Collection, Dict, List, Mapping, Optional, Sequence
 from docker_ros.host import engine
 from docker_ros.host.build import BuildError, image_ref, platform_ref, slim_platforms, target_ref
 from docker_ros.in_image.runtime.workspace import format_argv
-from docker_ros.in_image.settings import Settings, host_platform, made_images, server_host
+from docker_ros.in_image.settings import (
+    Settings,
+    host_platform,
+    made_images,
+    ref_host,
+    registry_of,
+    server_host,
+)
 
 
 def also_ref(ref: str, tag: str, target: str, postfix: str = "") -> str:
@@ -52,15 +59,9 @@ def manifest_commands(names: Sequence[str], arch_refs: Sequence[str]) -> List[Li
             for name in names]
 
 
-DOCKER_HUB = ("docker.io", "index.docker.io", "registry-1.docker.io")
-
-
 def ref_registry(ref: str) -> str:
-    """The registry docker pushes ref to: its first part when that names a host, else Docker
-    Hub (`docker.io`)."""
-    first, slash, _ = ref.partition("/")
-    host = slash and ("." in first or ":" in first or first == "localhost")
-    return first if host and first not in DOCKER_HUB else "docker.io"
+    """The registry docker pushes ref to (Docker Hub: `docker.io`)."""
+    return registry_of(ref_host(ref))
 
 
 def registry_warning(settings: Settings, targets: Sequence[str]) -> str:
@@ -68,8 +69,7 @@ def registry_warning(settings: Settings, targets: Sequence[str]) -> str:
     registry host is pushed to Docker Hub ('' when they match, or REGISTRY is unset)."""
     if not settings.registry:
         return ""
-    wanted = server_host(settings.registry)
-    wanted = "docker.io" if wanted in DOCKER_HUB else wanted
+    wanted = registry_of(server_host(settings.registry))
     names = [image_ref(settings, t) for t in targets if t != "build-state"]
     elsewhere = [name for name in dict.fromkeys(names) if ref_registry(name) != wanted]
     if not elsewhere:

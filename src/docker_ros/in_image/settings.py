@@ -889,6 +889,22 @@ def required_for_build(settings: Settings) -> List[str]:
     return ["base_image"] + (["command"] if "run" in settings.target else [])
 
 
+# The names of Docker Hub's registry.
+DOCKER_HUB_HOSTS = ("docker.io", "index.docker.io", "registry-1.docker.io")
+
+
+def ref_host(ref: str) -> str:
+    """The registry host an image reference names: its first part when that is a host name
+    (`reg.example/`, `reg:5000/`, `localhost/`), else '' (a Docker Hub name)."""
+    first, slash, _ = ref.partition("/")
+    return first if slash and ("." in first or ":" in first or first == "localhost") else ""
+
+
+def registry_of(host: str) -> str:
+    """A registry host as docker means it: Docker Hub's names (and none) as `docker.io`."""
+    return "docker.io" if host in ("", *DOCKER_HUB_HOSTS) else host
+
+
 def server_host(address: str) -> str:
     """The host[:port] of a server setting (GIT_HTTPS_SERVER, REGISTRY): scheme and path
     dropped."""
