@@ -84,6 +84,19 @@ def test_image_refs_follow_docker_ros():
     assert build.platform_ref("reg/img:v1", "amd64", ("amd64",)) == "reg/img:v1"
 
 
+def test_jobs_of_two_architectures_on_one_engine_build_under_names_of_their_own():
+    """With ENABLE_SINGLEARCH_PUSH (GitLab's build-<arch> jobs) every image is built, tested,
+    slimmed and pushed as `<name>-<arch>`, as docker-ros's CI builds it: an amd64 and an arm64
+    job on one shell runner never tag each other's image (they did: the amd64 job pushed the
+    arm64 image as `-amd64`). Without it, one platform keeps the plain name."""
+    for target, name in (("run", "reg/img:v1"), ("dev", "reg/img:v1-dev"),
+                         ("slim", "reg/img:v1-slim"), ("build-state", "reg/img:v1-build-state")):
+        s = settings(IMAGE="reg/img:v1", PLATFORM="arm64", ENABLE_SINGLEARCH_PUSH="true")
+        assert build.target_ref(s, target, "arm64") == f"{name}-arm64"
+        plain = build.target_ref(settings(IMAGE="reg/img:v1", PLATFORM="arm64"), target, "arm64")
+        assert plain == (f"{name}-arm64" if target == "build-state" else name)
+
+
 def test_log_folding_per_ci():
     lines = ["#5 0.1 Starting >>> rosdep\n", "#5 0.2 something\n",
              "#5 0.3 Finished <<< rosdep [0.2s]\n"]

@@ -58,12 +58,29 @@ def test_several_platforms_push_arch_images_and_one_manifest_list():
 
 
 def test_singlearch_push_pushes_only_the_arch_name_on_arch_specific_runners():
-    """docker-ros: the runner of one architecture pushes `-<arch>`, never the shared name."""
+    """docker-ros: the runner of one architecture pushes `-<arch>`, never the shared name; the
+    image was built under that name (build.target_ref), so it is pushed as it is."""
     s = settings(IMAGE="reg.example/img:v1", PLATFORM="arm64", ENABLE_SINGLEARCH_PUSH="true")
+    assert plan_push(s, s.target) == [["docker", "push", "reg.example/img:v1-arm64"]]
+    s = settings(IMAGE="reg.example/img:v1", PLATFORM="arm64", ENABLE_SINGLEARCH_PUSH="true",
+                 TARGET="dev,run", ENABLE_PUSH_AS_LATEST="true", ENABLE_SLIM="false")
     assert plan_push(s, s.target) == [
-        ["docker", "tag", "reg.example/img:v1", "reg.example/img:v1-arm64"],
+        ["docker", "push", "reg.example/img:v1-dev-arm64"],
+        ["docker", "tag", "reg.example/img:v1-dev-arm64", "reg.example/img:latest-dev-arm64"],
+        ["docker", "push", "reg.example/img:latest-dev-arm64"],
         ["docker", "push", "reg.example/img:v1-arm64"],
+        ["docker", "tag", "reg.example/img:v1-arm64", "reg.example/img:latest-arm64"],
+        ["docker", "push", "reg.example/img:latest-arm64"],
     ]
+
+
+def test_singlearch_push_of_several_platforms_pushes_each_arch_name_and_no_list():
+    """docker-ros's CI with ENABLE_SINGLEARCH_PUSH builds and pushes each `-<arch>` image and
+    writes no manifest list under the shared name (a later `manifest` job does)."""
+    s = settings(IMAGE="reg.example/img:v1", PLATFORM="amd64,arm64",
+                 ENABLE_SINGLEARCH_PUSH="true")
+    assert plan_push(s, s.target) == [["docker", "push", "reg.example/img:v1-amd64"],
+                                      ["docker", "push", "reg.example/img:v1-arm64"]]
 
 
 def test_manifest_joins_the_arch_images_of_every_platform_under_every_name():

@@ -413,8 +413,7 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failur
 def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     settings = dataclasses.replace(settings, target=("run",))
     check_slim_options(settings)
-    refs = [build.platform_ref(build.image_ref(settings, "run"), p, settings.platform)
-            for p in settings.platform]
+    refs = [build.target_ref(settings, "run", p) for p in settings.platform]
     if not dry_run:
         try:  # (the builder first: a docker context's engine holds the run image)
             build.check_engine(settings)

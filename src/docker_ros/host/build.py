@@ -118,11 +118,14 @@ def slim_platforms(platforms: Sequence[str], host: str) -> Tuple[str, ...]:
 
 
 def target_ref(settings: Settings, target: str, platform: str) -> str:
-    """The local name of a target's image built for one platform. A build state is always
-    per architecture (`-<arch>`): the jobs of several architectures push one each."""
+    """The local name of a target's image built for one platform. Per architecture (`-<arch>`)
+    are a build state (the jobs of several architectures push one each) and, with
+    ENABLE_SINGLEARCH_PUSH, every image, as docker-ros's CI builds them: jobs of two
+    architectures on one engine (a shell runner) then never tag, test or push each other's."""
     ref = image_ref(settings, target)
-    return f"{ref}-{platform}" if target == "build-state" else platform_ref(
-        ref, platform, settings.platform)
+    if target == "build-state" or settings.enable_singlearch_push:
+        return f"{ref}-{platform}"
+    return platform_ref(ref, platform, settings.platform)
 
 
 @dataclass(frozen=True)

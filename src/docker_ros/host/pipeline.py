@@ -365,8 +365,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
         problem = testing.check_results_dir(dest)
         if problem:
             raise TaskError(f"{origin}: {problem}")
-        tag = build.platform_ref(build.image_ref(settings, "dev") + "-test", platform,
-                                 settings.platform)
+        tag = build.target_ref(settings, "dev", platform) + "-test"
         run = {"DOCKER_ROS_TEST_RUN": str(time.time_ns())}
         with tempfile.TemporaryDirectory(prefix="docker-ros-test-") as tmp:
             output = f"type=local,dest={tmp}"

@@ -7,7 +7,7 @@ import subprocess
 from typing import Collection, Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.host import engine
-from docker_ros.host.build import BuildError, image_ref, platform_ref, slim_platforms, target_ref
+from docker_ros.host.build import BuildError, image_ref, slim_platforms, target_ref
 from docker_ros.in_image.runtime.workspace import format_argv
 from docker_ros.in_image.settings import (
     Settings,
@@ -87,29 +87,28 @@ def plan_push(settings: Settings, targets: Sequence[str], *, host: str = "") -> 
     platforms = settings.platform
     commands: List[List[str]] = []
     for target in targets:
-        ref = image_ref(settings, target)
         names = pushed_names(settings, target)
         if target == "build-state":
             # one per architecture, under the name the next job pulls (BUILD_STATE_FROM)
             commands += [["docker", "push", target_ref(settings, target, p)] for p in platforms]
             continue
-        mine = slim_platforms(platforms, host or host_platform()) if target == "slim" else ()
-        if len(platforms) == 1 or len(mine) == 1:
-            # (slim of several platforms: the runner's image under the slim names, docker-ros's)
-            platform = mine[0] if mine else platforms[0]
-            local = platform_ref(ref, platform, platforms)
-            if settings.enable_singlearch_push:
-                # Only `<name>-<arch>`, as docker-ros: the runner of one architecture must not
-                # overwrite the multi-arch name; `docker-ros manifest` writes that later.
-                names = [f"{name}-{platform}" for name in names]
-            for name in names:
-                if name != local:
-                    commands.append(["docker", "tag", local, name])
-                commands.append(["docker", "push", name])
+        here = slim_platforms(platforms, host or host_platform()) if target == "slim" else (
+            tuple(platforms))
+        if settings.enable_singlearch_push or len(here) == 1:
+            # ENABLE_SINGLEARCH_PUSH: only `<name>-<arch>`, as docker-ros: the runner of one
+            # architecture must not overwrite the multi-arch name (`docker-ros manifest` writes
+            # it later). Slim of several platforms: the runner's image under the slim names.
+            for platform in here:
+                local = target_ref(settings, target, platform)
+                for name in names:
+                    name = f"{name}-{platform}" if settings.enable_singlearch_push else name
+                    if name != local:
+                        commands.append(["docker", "tag", local, name])
+                    commands.append(["docker", "push", name])
             continue
         # Several platforms: the per-arch images (`-amd64`, `-arm64`) go to the registry, as the
         # manifest list refers to them; then one manifest list per name.
-        arch_refs = [platform_ref(ref, p, platforms) for p in platforms]
+        arch_refs = [target_ref(settings, target, p) for p in platforms]
         commands += [["docker", "push", arch] for arch in arch_refs]
         commands += manifest_commands(names, arch_refs)
     return commands

@@ -26,7 +26,7 @@ from typing import IO, Any, Callable, Dict, Iterator, List, Mapping, Optional, S
 from docker.errors import DockerException
 from docker.models.containers import Container
 
-from docker_ros.host.build import PACKAGE_DIR, image_ref, image_size, platform_ref
+from docker_ros.host.build import PACKAGE_DIR, image_size, target_ref
 from docker_ros.host.engine import client, inspect_image, signals_held, tag
 from docker_ros.host.lock import LOCK_LABEL, lock_labels, lock_path
 from docker_ros.in_image.settings import SLIM_BUILD_ARGS_DEFAULT, Settings, host_platform
@@ -721,8 +721,8 @@ class SlimResult:
 def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> SlimResult:
     """Slim IMAGE_NAME:IMAGE_TAG (of one platform) into SLIM_IMAGE_NAME:SLIM_IMAGE_TAG."""
     began = time.monotonic()
-    run_ref = platform_ref(image_ref(settings, "run"), platform, settings.platform)
-    slim_ref = platform_ref(image_ref(settings, "slim"), platform, settings.platform)
+    run_ref = target_ref(settings, "run", platform)
+    slim_ref = target_ref(settings, "slim", platform)
     options = slim_options(settings)
     ignored = [option for option in options.ignored if option not in DEFAULT_IGNORED]
     if ignored:

@@ -185,7 +185,7 @@ class Settings:
     )
     enable_singlearch_push: bool = setting(
         False, "Enable push of single arch images with `-amd64`/`-arm64` postfix",
-        build="none", flags=("push",)
+        build="none", flags=("image", "push")
     )
     enable_recursive_additional_debs: bool = setting(
         False, "Enable recursive discovery of files named `additional-debs-file`"
