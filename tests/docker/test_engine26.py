@@ -106,7 +106,8 @@ def test_the_secret_stays_out_of_engine26_images_and_the_log(first_pipeline: dic
     secret = first_pipeline["secret"]
     assert secret not in first_pipeline["build"]
     env = {**os.environ, "DOCKER_HOST": first_pipeline["host"]}
-    for tag in ("latest", "latest-dev", "latest-slim"):
+    # (the build job's local images carry its architecture: ENABLE_SINGLEARCH_PUSH)
+    for tag in ("latest-amd64", "latest-dev-amd64", "latest-slim-amd64"):
         ref = f"{first_pipeline['registry']}/{IMAGE}:{tag}"
         for argv in (["docker", "history", "--no-trunc", ref], ["docker", "image", "inspect", ref]):
             shown = subprocess.run(argv, env=env, capture_output=True, text=True)
