@@ -141,3 +141,19 @@ def test_build_dry_run_shows_secret_arguments_without_their_values(project: Path
     secret = '"id=GIT_HTTPS_PASSWORD,env=DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD"'
     assert secret in result.stdout
     assert "hunter2" not in result.stdout + result.stderr
+
+
+def test_singlearch_push_names_every_local_image_by_its_architecture(project: Path) -> None:
+    """ENABLE_SINGLEARCH_PUSH (GitLab's per-architecture jobs): the build tags `-<arch>` names,
+    as docker-ros's CI, and the dev shell runs the image under that name."""
+    arch = {"x86_64": "amd64", "aarch64": "arm64"}[os.uname().machine]
+    env = {"BASE_IMAGE": "docker-ros-test/ros1:bookworm", "IMAGE": "reg.invalid/team/app:v1",
+           "ENABLE_SINGLEARCH_PUSH": "true", "TARGET": "dev,run"}
+    built = cli(project, "build", "--dry-run", env=env)
+    assert built.returncode == 0, built.stderr
+    for name in (f"reg.invalid/team/app:v1-dev-{arch}", f"reg.invalid/team/app:v1-{arch}"):
+        assert f'"{name}"' in built.stdout, built.stdout[-3000:]
+    assert '"reg.invalid/team/app:v1"' not in built.stdout
+    shell = cli(project, "dev-shell", "--dry-run", env=env)
+    assert shell.returncode == 0, shell.stderr
+    assert f" reg.invalid/team/app:v1-dev-{arch} bash" in shell.stdout, shell.stdout
