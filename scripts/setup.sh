@@ -194,10 +194,7 @@ else
     fi
     "${SUDO[@]}" ip link set "$ENGINE26_BRIDGE" up
     "${SUDO[@]}" mkdir -p "$ENGINE26_RUN" "$ENGINE26_DATA"
-    # dns: its bridge's own address, where nothing answers: with no outbound NAT, a build step
-    # that looks a name up fails at once instead of after the resolver's timeouts (builds with
-    # BUILD_NETWORK=host use the machine's resolver as before)
-    echo '{"features": {"containerd-snapshotter": true}, "dns": ["'"${ENGINE26_SUBNET%/*}"'"]}' \
+    echo '{"features": {"containerd-snapshotter": true}}' \
         | "${SUDO[@]}" tee "$ENGINE26_DATA/daemon.json" >/dev/null
     "${SUDO[@]}" env PATH="$ENGINE26_ROOT/usr/bin:$ENGINE26_ROOT/usr/sbin:$PATH" setsid \
         "$ENGINE26_ROOT/usr/sbin/dockerd" --config-file "$ENGINE26_DATA/daemon.json" \

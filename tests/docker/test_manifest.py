@@ -15,6 +15,7 @@ from typing import Tuple
 import pytest
 
 from docker_ros.host.push import manifest
+from docker_ros.host.slim import LABEL_SOURCE
 from docker_ros.in_image.settings import load_settings
 
 pytestmark = pytest.mark.docker
@@ -23,11 +24,14 @@ LIST_TYPES = ("application/vnd.docker.distribution.manifest.list.v2+json",
               "application/vnd.oci.image.index.v1+json")
 
 
-def push_one_file_image(ref: str, platform: str, content: str, context: Path) -> str:
-    """Build an image of one file for platform straight into the registry; its digest."""
+def push_one_file_image(ref: str, platform: str, content: str, context: Path,
+                        slimmed_from: str = "") -> str:
+    """Build an image of one file for platform straight into the registry (slimmed_from: with
+    the label slim gives its images, naming the run image's local ID); its digest."""
     context.mkdir(exist_ok=True)
     (context / "hello.txt").write_text(content)
-    (context / "Dockerfile").write_text("FROM scratch\nCOPY hello.txt /\n")
+    label = f"LABEL {LABEL_SOURCE}={slimmed_from}\n" if slimmed_from else ""
+    (context / "Dockerfile").write_text(f"FROM scratch\nCOPY hello.txt /\n{label}")
     subprocess.run(["docker", "buildx", "build", "--quiet", "--provenance=false", "--platform",
                     f"linux/{platform}", "--tag", ref, "--push", str(context)],
                    check=True, capture_output=True)
@@ -72,3 +76,45 @@ def test_manifest_lists_the_platform_images_the_registry_holds_now(
     second = push_one_file_image(f"{name}-amd64", "amd64", "second build\n", tmp_path / "a")
     assert manifest(settings, ["run"], dry_run=False) == [name]
     assert listed() == {"amd64": second, "arm64": arm64}
+
+
+def test_the_slim_lists_leave_out_an_earlier_pipelines_slim_image(
+    local_registry: str, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A slim image joins the slim lists only when it was slimmed from the `-<arch>` run image
+    the registry holds now (its label names the run image's local ID: the configuration's
+    digest in the classic store, the manifest's or index's in the containerd one). A job on a
+    runner of another architecture slims nothing, so an earlier pipeline's `-slim-arm64`
+    stays in the registry: it is left out, saying so, not joined with today's amd64 one."""
+    name = f"{local_registry}/docker-ros-test/manifest:{uuid.uuid4().hex[:8]}"
+    push_one_file_image(f"{name}-amd64", "amd64", "run amd64\n", tmp_path / "a")
+    push_one_file_image(f"{name}-arm64-image", "arm64", "run arm64\n", tmp_path / "b")
+    wrap_in_index(f"{name}-arm64", f"{name}-arm64-image", tmp_path / "docker-config")
+    amd64_config = raw_manifest(f"{name}-amd64")[1]["config"]["digest"]  # classic store's ID
+    arm64_index = raw_manifest(f"{name}-arm64")[0]  # the containerd store's ID
+    slim_amd64 = push_one_file_image(f"{name}-slim-amd64", "amd64", "slim amd64\n",
+                                     tmp_path / "c", slimmed_from=amd64_config)
+    slim_arm64 = push_one_file_image(f"{name}-slim-arm64", "arm64", "slim arm64\n",
+                                     tmp_path / "d", slimmed_from=arm64_index)
+    settings = load_settings(environ={"BASE_IMAGE": "b:1", "COMMAND": "c", "IMAGE": name,
+                                      "TARGET": "run", "PLATFORM": "amd64,arm64"},
+                             project_dir=tmp_path)
+
+    def slim_listed() -> dict:
+        entries = raw_manifest(f"{name}-slim")[1]["manifests"]
+        return {e["platform"]["architecture"]: e["digest"] for e in entries}
+
+    assert manifest(settings, ["run", "slim"], dry_run=False) == [name, f"{name}-slim"]
+    assert slim_listed() == {"amd64": slim_amd64, "arm64": slim_arm64}
+    assert "leave it out" not in capsys.readouterr().out
+    # The next pipeline: both run images again, the arm64 one on an amd64 runner (no slim).
+    push_one_file_image(f"{name}-amd64", "amd64", "run amd64, next\n", tmp_path / "a")
+    push_one_file_image(f"{name}-arm64", "arm64", "run arm64, next\n", tmp_path / "b")
+    slim_again = push_one_file_image(
+        f"{name}-slim-amd64", "amd64", "slim amd64, next\n", tmp_path / "c",
+        slimmed_from=raw_manifest(f"{name}-amd64")[1]["config"]["digest"])
+    assert manifest(settings, ["run", "slim"], dry_run=False) == [name, f"{name}-slim"]
+    assert slim_listed() == {"amd64": slim_again}
+    assert (f"manifest: {name}-slim-arm64 was not slimmed from {name}-arm64 (it is an earlier "
+            "pipeline's; this one slimmed nothing for it): the slim lists leave it out"
+            ) in capsys.readouterr().out

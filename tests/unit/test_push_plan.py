@@ -14,6 +14,7 @@ from docker_ros.host.push import (
     plan_push,
     ref_registry,
     registry_warning,
+    slimmed_from,
     write_outputs,
 )
 from docker_ros.in_image.settings import load_settings
@@ -104,6 +105,25 @@ def test_the_slim_lists_leave_out_the_slim_images_a_foreign_runner_did_not_make(
     gone = ["reg/img:v1-slim-amd64", "reg/img:v1-slim-arm64", "reg/img:v1-arm64"]
     assert [c[5:] for c in plan_manifest(s, ["run", "slim"], gone)] == [
         ["reg/img:v1", "reg/img:v1-amd64", "reg/img:v1-arm64"]]
+
+
+def test_a_slim_image_belongs_to_the_run_image_its_label_names():
+    """The label holds the run image's local ID: its configuration's digest (classic store),
+    or the digest of its manifest or index (containerd store)."""
+    label = "io.docker-ros.slim.source"
+    run = {"manifest": {"digest": "sha256:m"}}
+    raw = {"config": {"digest": "sha256:c"}}
+
+    def slim(source: str) -> dict:
+        return {"image": {"config": {"Labels": {label: source}}}}
+
+    assert slimmed_from(slim("sha256:c"), run, raw)
+    assert slimmed_from(slim("sha256:m"), run, raw)
+    assert not slimmed_from(slim("sha256:other"), run, raw)
+    assert not slimmed_from({"image": {"config": {}}}, run, raw)  # made elsewhere: no label
+    # a slim image pushed as an index: buildx gives one configuration per platform
+    assert slimmed_from({"image": {"linux/amd64": slim("sha256:m")["image"]}}, run, {})
+    assert not slimmed_from(slim("sha256:c"), {}, {"manifests": []})
 
 
 def test_outputs_name_the_pushed_images_per_target():

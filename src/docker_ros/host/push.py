@@ -3,11 +3,13 @@ docker commands that --dry-run prints) and run."""
 
 from __future__ import annotations
 
+import json
 import subprocess
-from typing import Collection, Dict, List, Mapping, Optional, Sequence
+from typing import Any, Collection, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.host import engine
 from docker_ros.host.build import BuildError, image_ref, slim_platforms, target_ref
+from docker_ros.host.slim import LABEL_SOURCE
 from docker_ros.in_image.runtime.workspace import format_argv
 from docker_ros.in_image.settings import (
     Settings,
@@ -115,32 +117,72 @@ def plan_push(settings: Settings, targets: Sequence[str], *, host: str = "") -> 
 
 
 def plan_manifest(settings: Settings, targets: Sequence[str],
-                  absent: Collection[str] = ()) -> List[List[str]]:
+                  left_out: Collection[str] = ()) -> List[List[str]]:
     """Manifest lists over the `<name>-<arch>` images that per-architecture jobs pushed with
-    ENABLE_SINGLEARCH_PUSH (one job per PLATFORM entry). The slim lists leave out the absent
-    slim images: a job on a runner of another architecture slims nothing (ci.plan_ci_job)."""
+    ENABLE_SINGLEARCH_PUSH (one job per PLATFORM entry). The slim lists leave out the slim
+    images of left_out (slim_left_out: absent, or an earlier pipeline's)."""
     commands: List[List[str]] = []
     for target in targets:
         ref = image_ref(settings, target)
         arch_refs = [f"{ref}-{platform}" for platform in settings.platform]
         if target == "slim":
-            arch_refs = [arch for arch in arch_refs if arch not in absent]
+            arch_refs = [arch for arch in arch_refs if arch not in left_out]
         if arch_refs:
             commands += manifest_commands(pushed_names(settings, target), arch_refs)
     return commands
 
 
-def absent_slim_images(settings: Settings) -> List[str]:
-    """The `<slim name>-<arch>` images the registry does not have (buildx's `not found`; any
-    other failure is left to the manifest command, which then says it)."""
-    ref = image_ref(settings, "slim")
-    absent = []
-    for arch in [f"{ref}-{platform}" for platform in settings.platform]:
-        proc = subprocess.run(["docker", "buildx", "imagetools", "inspect", "--raw", arch],
+def remote_image(ref: str) -> Optional[Tuple[Dict[str, Any], Dict[str, Any]]]:
+    """What the registry holds under ref: buildx's summary (manifest descriptor, image
+    configuration) and the manifest as stored; None when it has no such image. LookupError
+    when buildx could not say (left to the manifest command, which then says why)."""
+    found: List[Dict[str, Any]] = []
+    for form in (["--format", "{{json .}}"], ["--raw"]):
+        proc = subprocess.run(["docker", "buildx", "imagetools", "inspect", *form, ref],
                               capture_output=True, text=True)
         if proc.returncode != 0 and proc.stderr.rstrip().endswith(": not found"):
-            absent.append(arch)
-    return absent
+            return None
+        try:
+            found.append(json.loads(proc.stdout) if proc.returncode == 0 else {})
+        except ValueError:
+            found.append({})
+        if not isinstance(found[-1], dict) or not found[-1]:
+            raise LookupError(proc.stderr.strip())
+    return found[0], found[1]
+
+
+def slimmed_from(slim: Mapping[str, Any], run: Mapping[str, Any],
+                 run_raw: Mapping[str, Any]) -> bool:
+    """Was the slim image (buildx's summary) made from the run image (summary and stored
+    manifest)? Its label names the run image's local ID: the configuration's digest in the
+    classic image store, the manifest's (or index's) in the containerd one."""
+    image = slim.get("image") or {}
+    configs = [image] if "config" in image else list(image.values())
+    sources = {(c.get("config") or {}).get("Labels", {}).get(LABEL_SOURCE) for c in configs}
+    ids = {(run.get("manifest") or {}).get("digest"), (run_raw.get("config") or {}).get("digest")}
+    return bool(sources & ids - {None})
+
+
+def slim_left_out(settings: Settings) -> Dict[str, str]:
+    """The `<slim name>-<arch>` images the slim lists leave out, each with why: absent from the
+    registry (a job on a runner of another architecture slims nothing), or slimmed from
+    another image than this pipeline's `<run name>-<arch>` (an earlier pipeline's, when this
+    one slimmed nothing for that architecture)."""
+    slim_ref, run_ref = image_ref(settings, "slim"), image_ref(settings, "run")
+    left: Dict[str, str] = {}
+    for platform in settings.platform:
+        arch, run_arch = f"{slim_ref}-{platform}", f"{run_ref}-{platform}"
+        try:
+            slim, run = remote_image(arch), remote_image(run_arch)
+        except LookupError:
+            continue
+        if slim is None:
+            left[arch] = ("is not in the registry (a job on a runner of another architecture "
+                          "slims nothing)")
+        elif run is not None and not slimmed_from(slim[0], *run):
+            left[arch] = (f"was not slimmed from {run_arch} (it is an earlier pipeline's; "
+                          "this one slimmed nothing for it)")
+    return left
 
 
 def plan_outputs(
@@ -183,11 +225,10 @@ def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[s
 
 def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
     """Write the manifest lists (plan_manifest); return their names."""
-    absent = absent_slim_images(settings) if "slim" in targets and not dry_run else []
-    for arch in absent:
-        print(f"manifest: {arch} is not in the registry (a job on a runner of another "
-              "architecture slims nothing): the slim lists leave it out", flush=True)
-    commands = plan_manifest(settings, targets, absent)
+    left_out = slim_left_out(settings) if "slim" in targets and not dry_run else {}
+    for arch, why in left_out.items():
+        print(f"manifest: {arch} {why}: the slim lists leave it out", flush=True)
+    commands = plan_manifest(settings, targets, left_out)
     return run_commands(settings, commands, dry_run=dry_run, label="manifest")
 
 
