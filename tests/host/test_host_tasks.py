@@ -157,3 +157,16 @@ def test_singlearch_push_names_every_local_image_by_its_architecture(project: Pa
     shell = cli(project, "dev-shell", "--dry-run", env=env)
     assert shell.returncode == 0, shell.stderr
     assert f" reg.invalid/team/app:v1-dev-{arch} bash" in shell.stdout, shell.stdout
+
+
+def test_slim_asked_for_a_dev_only_build_says_there_is_none(project: Path) -> None:
+    """ENABLE_SLIM applies to the run image: asked for with TARGET dev, the build says it
+    makes no slim image; left at its default, it says nothing."""
+    env = {"BASE_IMAGE": "docker-ros-test/ros1:bookworm", "TARGET": "dev"}
+    asked = cli(project, "build", "--enable-slim", "--dry-run", env=env)
+    assert asked.returncode == 0, asked.stderr
+    assert asked.stdout.startswith(
+        "build: ENABLE_SLIM slims the run image, which TARGET dev does not build: no slim "
+        "image (add run to TARGET for one)\n"), asked.stdout[:500]
+    quiet = cli(project, "build", "--dry-run", env=env)
+    assert quiet.returncode == 0 and "ENABLE_SLIM" not in quiet.stdout, quiet.stdout[:500]

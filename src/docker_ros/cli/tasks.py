@@ -394,6 +394,10 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failur
     if until:
         build_until(settings, until, dry_run=dry_run, shell_on_failure=shell_on_failure)
         return
+    if settings.enable_slim and "run" not in settings.target and (
+            settings.source_of("enable_slim") != "default"):
+        print(f"build: ENABLE_SLIM slims the run image, which TARGET {','.join(settings.target)} "
+              "does not build: no slim image (add run to TARGET for one)", flush=True)
     build_targets(settings, settings.target, dry_run=dry_run, shell_on_failure=shell_on_failure,
            slim=settings.enable_slim)
     if settings.enable_industrial_ci:
