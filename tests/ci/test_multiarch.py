@@ -1,7 +1,7 @@
 """Two architectures for real (issue 21): amd64 natively and arm64 under QEMU, each from its
 own base image (`<BASE_IMAGE>-arm64`, as bootstrap tags it), pushed to a local registry with
-one manifest list per image, both by `docker-ros push` with PLATFORM=amd64,arm64 and by the
-GitLab template's per-architecture jobs and its Push job (gitlab-ci-local). The pulled
+one manifest list per image, both by the Action's single job with platform amd64,arm64 and by
+the GitLab template's per-architecture jobs and its Push job (gitlab-ci-local). The pulled
 arm64 run image runs its talker and listener. `inv lock` resolves each platform's entries in
 its own image stages, and a locked arm64 build installs its platform's entry (issue 23).
 

@@ -298,7 +298,7 @@ def test_a_build_without_network_on_engine26_names_build_network_host(
     warns), so the hook's own look-up is what fails."""
     if not engines.has_image(engine26, ros2_base_image):
         engines.copy_image(ros2_base_image, engine26)
-    env = {**os.environ, "DOCKER_HOST": engine26}
+    env = engines.env_for(engine26)
     base = f"docker-ros-test/ros2-no-apt-sources:{uuid.uuid4().hex[:12]}"
     (tmp_path / "base").mkdir()
     (tmp_path / "base" / "Dockerfile").write_text(

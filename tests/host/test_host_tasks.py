@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.in_image.settings import host_platform
 from tests.rosfixtures import make_package, tree_snapshot
 
 pytestmark = pytest.mark.host
@@ -146,7 +147,7 @@ def test_build_dry_run_shows_secret_arguments_without_their_values(project: Path
 def test_singlearch_push_names_every_local_image_by_its_architecture(project: Path) -> None:
     """ENABLE_SINGLEARCH_PUSH (GitLab's per-architecture jobs): the build tags `-<arch>` names,
     as docker-ros's CI, and the dev shell runs the image under that name."""
-    arch = {"x86_64": "amd64", "aarch64": "arm64"}[os.uname().machine]
+    arch = host_platform()
     env = {"BASE_IMAGE": "docker-ros-test/ros1:bookworm", "IMAGE": "reg.invalid/team/app:v1",
            "ENABLE_SINGLEARCH_PUSH": "true", "TARGET": "dev,run"}
     built = cli(project, "build", "--dry-run", env=env)

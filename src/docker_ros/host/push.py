@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import subprocess
-from typing import Any, Collection, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Collection, Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.host import engine
 from docker_ros.host.build import BuildError, image_ref, slim_platforms, target_ref
@@ -132,23 +132,25 @@ def plan_manifest(settings: Settings, targets: Sequence[str],
     return commands
 
 
-def remote_image(ref: str) -> Optional[Tuple[Dict[str, Any], Dict[str, Any]]]:
-    """What the registry holds under ref: buildx's summary (manifest descriptor, image
-    configuration) and the manifest as stored; None when it has no such image. LookupError
-    when buildx could not say (left to the manifest command, which then says why)."""
-    found: List[Dict[str, Any]] = []
-    for form in (["--format", "{{json .}}"], ["--raw"]):
-        proc = subprocess.run(["docker", "buildx", "imagetools", "inspect", *form, ref],
-                              capture_output=True, text=True)
-        if proc.returncode != 0 and proc.stderr.rstrip().endswith(": not found"):
-            return None
-        try:
-            found.append(json.loads(proc.stdout) if proc.returncode == 0 else {})
-        except ValueError:
-            found.append({})
-        if not isinstance(found[-1], dict) or not found[-1]:
-            raise LookupError(proc.stderr.strip())
-    return found[0], found[1]
+def remote_image(ref: str, *form: str) -> Optional[Dict[str, Any]]:
+    """What the registry holds under ref, as `docker buildx imagetools inspect` prints it with
+    form (`--raw`: the manifest as stored; `--format {{json .}}`: its descriptor and image
+    configuration); None when it has no such image. LookupError when buildx could not say
+    (left to the manifest command, which then says why)."""
+    proc = subprocess.run(["docker", "buildx", "imagetools", "inspect", *form, ref],
+                          capture_output=True, text=True)
+    if proc.returncode != 0 and proc.stderr.rstrip().endswith(": not found"):
+        return None
+    try:
+        found = json.loads(proc.stdout) if proc.returncode == 0 else None
+    except ValueError:
+        found = None
+    if not isinstance(found, dict) or not found:
+        raise LookupError(proc.stderr.strip())
+    return found
+
+
+SUMMARY = ("--format", "{{json .}}")
 
 
 def slimmed_from(slim: Mapping[str, Any], run: Mapping[str, Any],
@@ -173,13 +175,15 @@ def slim_left_out(settings: Settings) -> Dict[str, str]:
     for platform in settings.platform:
         arch, run_arch = f"{slim_ref}-{platform}", f"{run_ref}-{platform}"
         try:
-            slim, run = remote_image(arch), remote_image(run_arch)
+            slim = remote_image(arch, *SUMMARY)
+            if slim is None:
+                left[arch] = ("is not in the registry (a job on a runner of another "
+                              "architecture slims nothing)")
+                continue
+            run, run_raw = remote_image(run_arch, *SUMMARY), remote_image(run_arch, "--raw")
         except LookupError:
             continue
-        if slim is None:
-            left[arch] = ("is not in the registry (a job on a runner of another architecture "
-                          "slims nothing)")
-        elif run is not None and not slimmed_from(slim[0], *run):
+        if run is not None and run_raw is not None and not slimmed_from(slim, run, run_raw):
             left[arch] = (f"was not slimmed from {run_arch} (it is an earlier pipeline's; "
                           "this one slimmed nothing for it)")
     return left
