@@ -96,12 +96,16 @@ def pytest_collection_modifyitems(items: list) -> None:
 
 @pytest.fixture(scope="session")
 def only_run_on_this_machine() -> Iterator[None]:
-    """Waits (up to an hour) for another run with docker tests on this machine (suitelock)."""
+    """Waits (up to an hour) for another run with docker tests on this machine (suitelock);
+    then removes what an earlier run that was killed left named after its registries."""
     with suitelock.LOCK.open("a+") as handle:
         try:
             suitelock.acquire(handle, 3600, say=lambda text: print(text, file=sys.__stderr__))
         except suitelock.Busy as exc:
             pytest.fail(str(exc))
+        for host in (None, engines.ENGINE26_HOST):
+            with ENGINE_DOWN, engine_client(host) as client:
+                leftovers.remove_killed_runs_images(client)
         yield
 
 

@@ -4,13 +4,15 @@ engine is shared with everything else on the machine, so only what the run made 
   run's repositories are below its temporary folder);
 - the images its rebuilds untagged (dangling now but not when the run began, built on a base
   image of docker-ros's recipe);
-- the images named after a registry it served (a free port of the run)."""
+- the images named after a registry it served (a free port of the run), and at its start
+  those of an earlier run that was killed before its end."""
 
 from __future__ import annotations
 
 import contextlib
+import re
 from pathlib import Path
-from typing import Iterator, Set
+from typing import Callable, Iterator, Set
 
 import docker
 
@@ -58,11 +60,29 @@ def remove_run_images(client: docker.DockerClient, root: Path, before: Set[str])
 
 def remove_registry_images(client: docker.DockerClient, address: str) -> None:
     """The images named after the registry at address (tagged, or pulled by digest only)."""
+    remove_named(client, lambda ref: ref.startswith(f"{address}/"))
+
+
+# The names the tests give images in a registry they serve: a free port of this machine's
+# loopback, the suite's own namespace
+SUITE_REGISTRY_REF = re.compile(r"127\.0\.0\.1:\d+/docker-ros-test/")
+
+
+def remove_killed_runs_images(client: docker.DockerClient) -> None:
+    """The images named after a registry of an earlier run that was killed before its end (its
+    registries' images stay then). Called while this run holds the suite lock: no other run
+    serves a registry, and none of this run's has started."""
+    remove_named(client, lambda ref: SUITE_REGISTRY_REF.match(ref) is not None)
+
+
+def remove_named(client: docker.DockerClient, made: Callable[[str], bool]) -> None:
+    """The tags that made says the run made, and the images pulled by digest only whose every
+    digest it made."""
     for image in client.api.images():
         tags = image.get("RepoTags") or []
         for tag in tags:
-            if tag.startswith(f"{address}/"):
+            if made(tag):
                 remove(client, tag)
         digests = image.get("RepoDigests") or []
-        if not tags and digests and all(d.startswith(f"{address}/") for d in digests):
+        if not tags and digests and all(made(d) for d in digests):
             remove(client, image["Id"])
