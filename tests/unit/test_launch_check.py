@@ -121,6 +121,18 @@ def test_ros1_packages_and_files(command, problem, ros1_env):
     assert (problem in problems[0]) if problem else problems == [], problems
 
 
+@pytest.mark.parametrize("command, hint", [
+    ("ros2 launch talk bth.launch.py", "; did you mean both.launch.py? (looked in"),
+    ("ros2 launch talk launch/both.lauch.py", "; did you mean both.launch.py? (looked in"),
+    ("ros2 run talk talkr", "; did you mean talker? (looked in"),
+    ("ros2 run talk note.txt", " (looked in"),  # not executable: not a candidate
+    ("ros2 launch talk zzz", " (looked in"),
+])
+def test_a_name_close_to_an_installed_file_is_suggested(command, hint, ros2_env):
+    problems = command_problems(command, ros2_env, FOUND)
+    assert len(problems) == 1 and f" {command.split()[-1]}{hint}" in problems[0], problems
+
+
 def test_ros1_package_found_by_its_folder_in_ros_package_path(tmp_path):
     make(tmp_path / "src/chat/package.xml")
     make(tmp_path / "src/chat/launch/chat.launch")

@@ -5,6 +5,7 @@ the shell decides only at run time (expansions, compound commands, anything afte
 `cd`) is not checked, and a program named by its path may come from a volume.
 Standard library only, Python 3.8+ (runs inside images)."""
 
+import difflib
 import os
 import shlex
 from pathlib import Path
@@ -144,22 +145,33 @@ def _paths(env: Mapping[str, str], name: str) -> List[Path]:
     return [Path(p) for p in env.get(name, "").split(os.pathsep) if p]
 
 
+def files_below(folders: Sequence[Path], *, executable: bool) -> Iterator[Path]:
+    """The files below folders (executable ones if asked), hidden folders left out."""
+    for folder in folders:
+        for dirpath, dirnames, filenames in os.walk(folder, followlinks=True):
+            dirnames[:] = [d for d in dirnames if not d.startswith(".")]
+            for name in filenames:
+                path = Path(dirpath, name)
+                if not executable or os.access(path, os.X_OK):
+                    yield path
+
+
 def find_file(folders: Sequence[Path], name: str, *, executable: bool) -> bool:
     """Whether a file called name is anywhere below folders (an executable one if asked), as
     `ros2 run` looks in lib/<package> and `ros2 launch`/`roslaunch`/`rosrun` in its share; a
     name with a folder in it (`launch/x.launch.py`) is looked for there only."""
-    for folder in folders:
-        if "/" in name:
-            path = folder / name
-            if path.is_file() and (not executable or os.access(path, os.X_OK)):
-                return True
-            continue
-        for dirpath, dirnames, filenames in os.walk(folder, followlinks=True):
-            dirnames[:] = [d for d in dirnames if not d.startswith(".")]
-            if name in filenames and (not executable
-                                      or os.access(os.path.join(dirpath, name), os.X_OK)):
-                return True
-    return False
+    if "/" in name:
+        return any((folder / name).is_file() and (not executable or os.access(folder / name,
+                                                                               os.X_OK))
+                   for folder in folders)
+    return any(path.name == name for path in files_below(folders, executable=executable))
+
+
+def closest_file(folders: Sequence[Path], name: str, *, executable: bool) -> str:
+    """The file below folders whose name is closest to name (a typo's), or ""."""
+    names = sorted({path.name for path in files_below(folders, executable=executable)})
+    close = difflib.get_close_matches(name.rsplit("/", 1)[-1], names, n=1)
+    return close[0] if close else ""
 
 
 def launcher_problem(name: str, positional: Sequence[str], env: Mapping[str, str]) -> str:
@@ -182,9 +194,11 @@ def launcher_problem(name: str, positional: Sequence[str], env: Mapping[str, str
     if find_file(where, item, executable=runs):
         return ""
     kind = "executable" if runs else "launch file"
-    return (f"package {package} has no {kind} {item} (looked in "
-            f"{', '.join(str(w) for w in where)}; check the name, and that the package "
-            "installs it)")
+    close = closest_file(where, item, executable=runs)
+    return (f"package {package} has no {kind} {item}"
+            + (f"; did you mean {close}?" if close else "")
+            + f" (looked in {', '.join(str(w) for w in where)}; check the name, and that the "
+            "package installs it)")
 
 
 def package_executables(name: str, env: Mapping[str, str]) -> List[Tuple[str, Path, bool]]:
