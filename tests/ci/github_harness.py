@@ -19,9 +19,12 @@ What GitHub does and this harness does too:
   As its default `persist-credentials: true` does, the token stays in the checkout's
   `.git/config` (`http.https://github.com/.extraheader`, `AUTHORIZATION: basic <base64>`).
 - docker/setup-qemu-action: nothing (binfmt handlers come from scripts/setup.sh); recorded.
+- gacts/github-slug: its output `slug` made as its v1 (v1.3.5) makes it, by npm's slugify 1.6.8
+  (the version its lock file bundles; scripts/setup.sh installs it) run by node.
 Any other `uses:` or an expression outside the small grammar below makes the harness fail
-rather than guess. Grammar: `path`, `'literal'`, `a == b`, `a != b` (paths like
-`inputs.enable-checkout`, `github.event.repository.default_branch`).
+rather than guess. Grammar: `path`, `'literal'`, `a == b`, `a != b`, `a || b || ...` (the
+first operand that is not empty; paths like `inputs.enable-checkout`,
+`github.event.repository.default_branch`).
 """
 
 from __future__ import annotations
@@ -81,8 +84,11 @@ def value(expression: str, contexts: Mapping[str, Any]) -> Any:
 
 
 def evaluate(expression: str, contexts: Mapping[str, Any]) -> Any:
-    if "&&" in expression or "||" in expression or "(" in expression:
+    if "&&" in expression or "(" in expression:
         raise HarnessError(f"expression not reproduced by the harness: {expression!r}")
+    if "||" in expression:
+        operands = [evaluate(part, contexts) for part in expression.split("||")]
+        return next((result for result in operands if result not in ("", False)), operands[-1])
     match = COMPARISON.match(expression)
     if match:
         left, op, right = match.groups()
@@ -184,9 +190,9 @@ def run_action(action_dir: Path, inputs: Mapping[str, str], event: Event, work: 
             result = replaced_step(step["uses"], with_, event, workspace)
         else:
             result = run_step(step, contexts, env, workspace, work / f"step{index}")
-            if step.get("id"):
-                contexts["steps"][step["id"]] = {"outputs": result.outputs}
-                run.outputs[step["id"]] = result.outputs
+        if step.get("id"):
+            contexts["steps"][step["id"]] = {"outputs": result.outputs}
+            run.outputs[step["id"]] = result.outputs
         run.log += f"##[step] {name}\n{result.log}"
         if result.returncode != 0:
             run.returncode = result.returncode
@@ -224,6 +230,21 @@ def run_step(step: Mapping[str, Any], contexts: Dict[str, Any], env: Dict[str, s
     return StepResult(proc.returncode, proc.stdout, read_pairs(output))
 
 
+# gacts/github-slug's src/formatters.js (v1.3.5)
+GACTS_SLUG = ("const slugify = require('slugify');"
+              "const text = require('fs').readFileSync(0, 'utf8');"
+              "process.stdout.write(slugify(text.replace(/[._/()#+]/g, '-'),"
+              " {replacement: '-', lower: true, strict: true}));")
+
+
+def github_slug_action(text: str) -> str:
+    """What gacts/github-slug@v1 outputs as `slug` for `to-slug: text`."""
+    modules = subprocess.run(["npm", "root", "-g"], capture_output=True, text=True,
+                             check=True).stdout.strip()
+    return subprocess.run(["node", "-e", GACTS_SLUG], input=text, capture_output=True,
+                          text=True, check=True, env={**os.environ, "NODE_PATH": modules}).stdout
+
+
 def replaced_step(uses: str, with_: Mapping[str, str], event: Event,
                   workspace: Path) -> StepResult:
     action = uses.split("@", 1)[0]
@@ -243,4 +264,7 @@ def replaced_step(uses: str, with_: Mapping[str, str], event: Event,
         return StepResult(0, log)
     if action == "docker/setup-qemu-action":
         return StepResult(0, "(binfmt handlers of this machine)\n")
+    if action == "gacts/github-slug":
+        slug = github_slug_action(with_.get("to-slug", ""))
+        return StepResult(0, f"slug: {slug}\n", {"slug": slug})
     raise HarnessError(f"`uses: {uses}` is not reproduced by the harness")

@@ -13,8 +13,10 @@ from pathlib import Path
 import pytest
 import yaml
 
+from docker_ros.in_image.ci import github_slug
 from docker_ros.in_image.settings import FIELDS, SLIM_BUILD_ARGS_DEFAULT
 from tests.ci.cihelp import load
+from tests.ci.github_harness import github_slug_action
 
 REPO = Path(__file__).resolve().parents[2]
 ACTION = REPO / "action.yml"
@@ -262,6 +264,17 @@ def test_action_keeps_later_steps_python() -> None:
     steps = {step.get("id"): step for step in load(ACTION)["runs"]["steps"]}
     assert "GITHUB_PATH" not in steps["setup"]["run"]
     assert steps["docker-ros"]["run"] == '"$DOCKER_ROS_BIN/docker-ros" "$DOCKER_ROS_TASK"'
+
+
+def test_github_slug_is_the_slug_steps_for_names_without_other_letters() -> None:
+    """Outside the Action, github_slug stands in for its gacts/github-slug step: the same slug
+    (npm's slugify, as the harness runs it) for ASCII and accented names; ß and letters of other
+    scripts, which only the step transliterates, are what the README lists."""
+    names = [" Foo_bar--_--baz V1.2.3 %_#$ \t", "foo/bar_1.2.3(aaa_bbb)", "^*()_=+\\/?~`@;:'",
+             "Feature/GitHub--Test", "fix/Ä@b&c", "feat/naïve café", "x|y<z>w", "-a--b-"]
+    assert [github_slug(name) for name in names] == [github_slug_action(n) for n in names]
+    assert github_slug_action("fix/Straße") == "fix-strasse"
+    assert github_slug("fix/Straße") == "fix-strae"
 
 
 def test_readme_shows_the_example_files() -> None:

@@ -30,7 +30,10 @@ from tests.ci.github_harness import Event, run_action
 pytestmark = pytest.mark.docker
 
 IMAGE = "docker-ros-test/ci-github"
-FEATURE = "Feature/GitHub--Test"
+FEATURE = "Feature/GitHub--Test-Straße"
+# as gacts/github-slug@v1, the Action's slug step, spells it (ß transliterated; docker-ros's
+# action takes its tags from the same step)
+SLUG = "feature-github-test-strasse"
 
 
 @pytest.fixture(scope="module")
@@ -68,26 +71,29 @@ def test_action_runs_every_step(runs: dict) -> None:
         checkout = run.replaced[0]
         assert checkout == {"uses": "actions/checkout@v4",
                             "with": {"submodules": "recursive", "lfs": "true"}}
+        branch = FEATURE if key == "feature" else "main"
+        assert run.replaced[1] == {"uses": "gacts/github-slug@v1", "with": {"to-slug": branch}}
         assert "docker-ros setup: docker-ros " in run.log
 
 
 def test_feature_branch_gets_the_ci_postfix_and_main_also_latest(runs: dict) -> None:
-    """The branch slug as docker-ros's action makes it (gacts/github-slug: `--` collapses)."""
+    """The branch slug as docker-ros's action makes it (gacts/github-slug: `--` collapses, ß
+    becomes ss)."""
     auth = runs["registry"]
     assert registry_tags(auth.address, IMAGE, auth.auth) == [
-        "latest", "latest-build-state-amd64", "latest-dev", "latest-dev_feature-github-test_ci",
-        "latest-slim", "latest_feature-github-test_ci",
-        "latest_feature-github-test_ci-build-state-amd64",
+        "latest", "latest-build-state-amd64", "latest-dev", f"latest-dev_{SLUG}_ci",
+        "latest-slim", f"latest_{SLUG}_ci",
+        f"latest_{SLUG}_ci-build-state-amd64",
     ]
 
 
 def test_outputs_name_the_pushed_images(runs: dict) -> None:
     name = f"{runs['registry'].address}/{IMAGE}"
     assert runs["feature"].outputs["docker-ros"] == {
-        "images": f"{name}:latest-dev_feature-github-test_ci,{name}:latest_feature-github-test_ci",
-        "dev-image": f"{name}:latest-dev_feature-github-test_ci",
-        "image": f"{name}:latest_feature-github-test_ci",
-        "build-state-image": f"{name}:latest_feature-github-test_ci-build-state-amd64",
+        "images": f"{name}:latest-dev_{SLUG}_ci,{name}:latest_{SLUG}_ci",
+        "dev-image": f"{name}:latest-dev_{SLUG}_ci",
+        "image": f"{name}:latest_{SLUG}_ci",
+        "build-state-image": f"{name}:latest_{SLUG}_ci-build-state-amd64",
     }
     # IMAGE_TAG is latest already: ENABLE_PUSH_AS_LATEST adds no second push of it
     assert runs["main"].outputs["docker-ros"]["images"] == (
@@ -135,5 +141,5 @@ def test_pushed_dev_image_holds_no_token(runs: dict) -> None:
 
 
 def test_pushed_run_image_runs(runs: dict) -> None:
-    ref = f"{runs['registry'].address}/{IMAGE}:latest_feature-github-test_ci"
+    ref = f"{runs['registry'].address}/{IMAGE}:latest_{SLUG}_ci"
     assert_pulled_image_runs(ref, runs["registry"].auth)

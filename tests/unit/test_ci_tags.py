@@ -11,6 +11,7 @@ import pytest
 from docker_ros.host.config import read_settings
 from docker_ros.host.push import plan_outputs, plan_push, push_targets
 from docker_ros.in_image.ci import (
+    REF_SLUG,
     Pipeline,
     detect_pipeline,
     error_annotation,
@@ -87,6 +88,20 @@ def test_github_slug_is_the_one_of_docker_ros_s_action():
     assert github_slug("^*()_=+\\/?~`@;:'\"") == ""
     assert github_slug("Feature/GitHub--Test") == "feature-github-test"
     assert github_slug("fix/Ä@b&c") == "fix-abandc"  # accents lose their mark, @ is dropped
+
+
+@pytest.mark.parametrize("case", ["github-feature", "github-pr"])
+def test_the_actions_slug_step_names_the_github_ci_tags(case):
+    """In the Action, the slug of its gacts/github-slug step (docker-ros's) is the one used:
+    it transliterates what github_slug drops (ß, other scripts)."""
+    environ = {**CASES[case], "GITHUB_REF_NAME": "Fix/Straße", "GITHUB_HEAD_REF": "Fix/Straße"}
+    if case == "github-feature":
+        del environ["GITHUB_HEAD_REF"]
+    assert tag_postfix(detect_pipeline(environ)) == "_fix-strae_ci"
+    assert tag_postfix(detect_pipeline({**environ, REF_SLUG: "fix-strasse"})) == (
+        "_fix-strasse_ci")
+    gitlab = {**CASES["gitlab-feature"], REF_SLUG: "other"}
+    assert tag_postfix(detect_pipeline(gitlab)) == "_feature-my-thing_ci"  # GitHub's only
 
 
 @pytest.mark.parametrize("ci,environ", [

@@ -15,6 +15,8 @@ from typing import Collection, List, Mapping, Optional, Sequence, Tuple
 # IMAGE_POSTFIX value that switches the derived postfix off ("" would count as unset).
 NO_POSTFIX = "none"
 SLUG_MAX = 63  # GitLab's CI_COMMIT_REF_SLUG length
+# The GitHub Action's slug of the branch (gacts/github-slug@v1's output, as docker-ros's action)
+REF_SLUG = "DOCKER_ROS_REF_SLUG"
 
 
 @dataclass(frozen=True)
@@ -25,6 +27,7 @@ class Pipeline:
     kind: str  # "branch", "tag" or "merge_request" (GitHub: pull request)
     ref: str  # branch or tag name; the source branch of a merge/pull request
     default_branch: str  # "" when the CI does not tell
+    slug: str = ""  # the CI's own slug of ref (the GitHub Action's slug step); "" to make it
 
     @property
     def on_default_branch(self) -> bool:
@@ -45,9 +48,11 @@ SLUG_WORDS = {"$": "dollar", "%": "percent", "&": "and", "<": "less", ">": "grea
 
 
 def github_slug(name: str) -> str:
-    """The slug of gacts/github-slug@v1, which docker-ros's action puts in its CI tags:
-    `._/()#+-` and white space separate words, a few symbols become words, other characters
-    are dropped (accents first lose their mark), words joined by one `-`, lower case."""
+    """The slug of gacts/github-slug@v1, which docker-ros's action puts in its CI tags, for
+    `docker-ros ci` run outside the Action (which runs that action itself): `._/()#+-` and
+    white space separate words, a few symbols become words, other characters are dropped
+    (accents first lose their mark; letters of other scripts and ß, æ, ø... are dropped too,
+    where the action transliterates them), words joined by one `-`, lower case."""
     text = unicodedata.normalize("NFKD", name)
     text = "".join(SLUG_WORDS.get(ch, ch) for ch in text if not unicodedata.combining(ch))
     words = re.sub(r"[^A-Za-z0-9\s]", "", re.sub(r"[-._/()#+]", " ", text)).split()
@@ -55,7 +60,10 @@ def github_slug(name: str) -> str:
 
 
 def ref_slug(pipeline: Pipeline) -> str:
-    """The branch slug as docker-ros's pipeline of that CI spells it."""
+    """The branch slug as docker-ros's pipeline of that CI spells it: the one the Action's slug
+    step made (gacts/github-slug, as docker-ros's; it transliterates every script), else ours."""
+    if pipeline.slug:
+        return pipeline.slug
     return github_slug(pipeline.ref) if pipeline.ci == "github" else slugify(pipeline.ref)
 
 
@@ -68,10 +76,11 @@ def detect_pipeline(environ: Mapping[str, str]) -> Optional[Pipeline]:
     """The GitHub Actions or GitLab CI pipeline described by environ; None outside CI."""
     if environ.get("GITHUB_ACTIONS") == "true":
         default = environ.get("GITHUB_DEFAULT_BRANCH", "")
+        slug = environ.get(REF_SLUG, "")
         if environ.get("GITHUB_HEAD_REF"):  # pull_request events: the source branch
-            return Pipeline("github", "merge_request", environ["GITHUB_HEAD_REF"], default)
+            return Pipeline("github", "merge_request", environ["GITHUB_HEAD_REF"], default, slug)
         kind = "tag" if environ.get("GITHUB_REF_TYPE") == "tag" else "branch"
-        return Pipeline("github", kind, environ.get("GITHUB_REF_NAME", ""), default)
+        return Pipeline("github", kind, environ.get("GITHUB_REF_NAME", ""), default, slug)
     if environ.get("GITLAB_CI") == "true":
         default = environ.get("CI_DEFAULT_BRANCH", "")
         if environ.get("CI_COMMIT_TAG"):
