@@ -264,7 +264,8 @@ def replaced_step(uses: str, with_: Mapping[str, str], event: Event,
         return StepResult(0, log)
     if action == "docker/setup-qemu-action":
         return StepResult(0, "(binfmt handlers of this machine)\n")
-    if action == "gacts/github-slug":
-        slug = github_slug_action(with_.get("to-slug", ""))
-        return StepResult(0, f"slug: {slug}\n", {"slug": slug})
+    if action == "gacts/github-slug":  # no `slug` output for an empty `to-slug` (trimmed)
+        text = with_.get("to-slug", "").strip()
+        slug = github_slug_action(text) if text else ""
+        return StepResult(0, f"slug: {slug}\n", {"slug": slug} if text else {})
     raise HarnessError(f"`uses: {uses}` is not reproduced by the harness")
