@@ -276,8 +276,10 @@ def test_base_image_that_does_not_exist(tmp_path: Path) -> None:
         ("colcon", "colcon", ["package broken_pkg failed to build (exit code 2): "
                               "broken_pkg/src/main.cpp:1:", ": error: "]),
         ("debs", "debs", ["apt has no package no-such-deb-xyz (check the name"]),
-        ("command", "command", ["`rosrun no_such_pkg node`: package no_such_pkg is not in the "
-                                "run image", "`pkg_typo` is not a program on PATH"]),
+        # a typo of an installed package's name (the base's Debian ROS): that one is named
+        ("command", "command", ["`rosrun rostopik node`: package rostopik is not in the run "
+                                "image: neither built in the workspace nor installed; did you "
+                                "mean rostopic? (", "`pkg_typo` is not a program on PATH"]),
     ],
 )
 def test_failing_step_names_step_and_cause_and_tags_nothing(
@@ -305,7 +307,7 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
     elif case == "command":
         # the run image has pkg (a program on PATH) and rosrun, not the rest COMMAND names
         cmake_package(tmp_path, "pkg")
-        command = "pkg && rosrun no_such_pkg node; pkg_typo --now"
+        command = "pkg && rosrun rostopik node; pkg_typo --now"
     else:
         cmake_package(tmp_path, "broken_pkg", body="int main() { this is not C++; }\n")
     # colcon: the dev image (its stage ends before colcon) is built in the same BuildKit run

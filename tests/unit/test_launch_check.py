@@ -121,16 +121,27 @@ def test_ros1_packages_and_files(command, problem, ros1_env):
     assert (problem in problems[0]) if problem else problems == [], problems
 
 
-@pytest.mark.parametrize("command, hint", [
-    ("ros2 launch talk bth.launch.py", "; did you mean both.launch.py? (looked in"),
-    ("ros2 launch talk launch/both.lauch.py", "; did you mean both.launch.py? (looked in"),
-    ("ros2 run talk talkr", "; did you mean talker? (looked in"),
-    ("ros2 run talk note.txt", " (looked in"),  # not executable: not a candidate
-    ("ros2 launch talk zzz", " (looked in"),
+@pytest.mark.parametrize("command, text", [
+    ("ros2 launch talk bth.launch.py", "bth.launch.py; did you mean both.launch.py? (looked"),
+    ("ros2 launch talk launch/both.lauch.py", ".lauch.py; did you mean both.launch.py? (looked"),
+    ("ros2 run talk talkr", "talkr; did you mean talker? (looked in"),
+    ("ros2 run talk note.txt", "note.txt (looked in"),  # not executable: not a candidate
+    ("ros2 launch talk zzz", "zzz (looked in"),
+    ("ros2 run tlak talker", "installed; did you mean talk? (check the name"),
+    ("ros2 run zzz talker", "installed (check the name"),
 ])
-def test_a_name_close_to_an_installed_file_is_suggested(command, hint, ros2_env):
+def test_a_name_close_to_an_installed_one_is_suggested(command, text, ros2_env):
     problems = command_problems(command, ros2_env, FOUND)
-    assert len(problems) == 1 and f" {command.split()[-1]}{hint}" in problems[0], problems
+    assert len(problems) == 1 and text in problems[0], problems
+
+
+def test_a_ros1_package_close_to_an_installed_one_is_suggested(ros1_env, tmp_path):
+    make(tmp_path / "src/listener/package.xml")
+    env = {**ros1_env, "ROS_PACKAGE_PATH": f"{ros1_env['ROS_PACKAGE_PATH']}:{tmp_path / 'src'}"}
+    for command, close in (("roslaunch chta chat.launch", "chat"),
+                           ("rosrun listner listener", "listener")):
+        problems = command_problems(command, env, FOUND)
+        assert len(problems) == 1 and f"installed; did you mean {close}? (" in problems[0]
 
 
 def test_ros1_package_found_by_its_folder_in_ros_package_path(tmp_path):

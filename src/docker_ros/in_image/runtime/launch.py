@@ -141,6 +141,24 @@ def package_dirs(package: str, env: Mapping[str, str], ros2: bool) -> Optional[T
     return None
 
 
+def package_names(env: Mapping[str, str], ros2: bool) -> List[str]:
+    """The names of the packages package_dirs finds here (for a name close to a typo's)."""
+    if ros2:
+        return sorted({index.name for prefix in _paths(env, "AMENT_PREFIX_PATH") for index in
+                       (prefix / "share/ament_index/resource_index/packages").glob("*")})
+    manifests = [manifest for prefix in [*_paths(env, "CMAKE_PREFIX_PATH"), Path("/usr")]
+                 for manifest in (prefix / "share").glob("*/package.xml")]
+    for root in _paths(env, "ROS_PACKAGE_PATH"):
+        manifests += [root / "package.xml", *root.glob("*/package.xml")]
+    return sorted({manifest.parent.name for manifest in manifests if manifest.is_file()})
+
+
+def did_you_mean(name: str, names: Sequence[str]) -> str:
+    """`; did you mean <the closest of names>?`, or "" when none is close."""
+    close = difflib.get_close_matches(name, names, n=1)
+    return f"; did you mean {close[0]}?" if close else ""
+
+
 def _paths(env: Mapping[str, str], name: str) -> List[Path]:
     return [Path(p) for p in env.get(name, "").split(os.pathsep) if p]
 
@@ -167,11 +185,9 @@ def find_file(folders: Sequence[Path], name: str, *, executable: bool) -> bool:
     return any(path.name == name for path in files_below(folders, executable=executable))
 
 
-def closest_file(folders: Sequence[Path], name: str, *, executable: bool) -> str:
-    """The file below folders whose name is closest to name (a typo's), or ""."""
-    names = sorted({path.name for path in files_below(folders, executable=executable)})
-    close = difflib.get_close_matches(name.rsplit("/", 1)[-1], names, n=1)
-    return close[0] if close else ""
+def file_names(folders: Sequence[Path], *, executable: bool) -> List[str]:
+    """The names of the files below folders (executable ones if asked)."""
+    return sorted({path.name for path in files_below(folders, executable=executable)})
 
 
 def launcher_problem(name: str, positional: Sequence[str], env: Mapping[str, str]) -> str:
@@ -181,11 +197,13 @@ def launcher_problem(name: str, positional: Sequence[str], env: Mapping[str, str
             (".launch", ".xml", ".py", ".yaml")):
         return ""
     package, item = positional
-    found_dirs = package_dirs(package, env, ros2=name.startswith("ros2"))
+    ros2 = name.startswith("ros2")
+    found_dirs = package_dirs(package, env, ros2=ros2)
     if found_dirs is None:
         return (f"package {package} is not in the run image: neither built in the workspace "
-                "nor installed (check the name; a package of another repository needs an "
-                "<exec_depend> on it in a package.xml, or an entry in the .repos file)")
+                f"nor installed{did_you_mean(package, package_names(env, ros2))} (check the "
+                "name; a package of another repository needs an <exec_depend> on it in a "
+                "package.xml, or an entry in the .repos file)")
     share, lib = found_dirs
     # (a ROS 1 source folder is both share and lib: looked in once)
     where = list(dict.fromkeys({"ros2 run": [lib], "rosrun": [lib, share]}.get(name,
@@ -194,11 +212,10 @@ def launcher_problem(name: str, positional: Sequence[str], env: Mapping[str, str
     if find_file(where, item, executable=runs):
         return ""
     kind = "executable" if runs else "launch file"
-    close = closest_file(where, item, executable=runs)
-    return (f"package {package} has no {kind} {item}"
-            + (f"; did you mean {close}?" if close else "")
-            + f" (looked in {', '.join(str(w) for w in where)}; check the name, and that the "
-            "package installs it)")
+    close = did_you_mean(item.rsplit("/", 1)[-1], file_names(where, executable=runs))
+    return (f"package {package} has no {kind} {item}{close} (looked in "
+            f"{', '.join(str(w) for w in where)}; check the name, and that the package "
+            "installs it)")
 
 
 def package_executables(name: str, env: Mapping[str, str]) -> List[Tuple[str, Path, bool]]:
