@@ -30,6 +30,7 @@ first operand that is not empty; paths like `inputs.enable-checkout`,
 from __future__ import annotations
 
 import base64
+import functools
 import json
 import os
 import re
@@ -237,12 +238,18 @@ GACTS_SLUG = ("const slugify = require('slugify');"
               " {replacement: '-', lower: true, strict: true}));")
 
 
+@functools.lru_cache(maxsize=None)
+def npm_modules() -> str:
+    """The folder of npm's global packages (where scripts/setup.sh installs slugify)."""
+    return subprocess.run(["npm", "root", "-g"], capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
 def github_slug_action(text: str) -> str:
     """What gacts/github-slug@v1 outputs as `slug` for `to-slug: text`."""
-    modules = subprocess.run(["npm", "root", "-g"], capture_output=True, text=True,
-                             check=True).stdout.strip()
     return subprocess.run(["node", "-e", GACTS_SLUG], input=text, capture_output=True,
-                          text=True, check=True, env={**os.environ, "NODE_PATH": modules}).stdout
+                          text=True, check=True,
+                          env={**os.environ, "NODE_PATH": npm_modules()}).stdout
 
 
 def replaced_step(uses: str, with_: Mapping[str, str], event: Event,
