@@ -251,14 +251,21 @@ def test_missing_base_image_and_command_reported_together(tmp_path: Path) -> Non
     assert "Traceback" not in result.stdout
 
 
-def test_base_image_that_does_not_exist(tmp_path: Path) -> None:
+@pytest.mark.parametrize("typo", [False, True], ids=["unknown", "typo"])
+def test_base_image_that_does_not_exist(typo: bool, ros1_base_image: str, tmp_path: Path) -> None:
+    """Refused before the build; a typo of a local image's name (two letters swapped) names
+    that image."""
+    base = ros1_base_image[:-2] + ros1_base_image[:-3:-1] if typo else (
+        "docker-ros-test/no-such-image:1")
     cmake_package(tmp_path, "pkg")
-    write_env(tmp_path, BASE_IMAGE="docker-ros-test/no-such-image:1", COMMAND="pkg",
-              IMAGE="docker-ros-test/never:1")
+    write_env(tmp_path, BASE_IMAGE=base, COMMAND="pkg", IMAGE="docker-ros-test/never:1")
     result = docker_ros(tmp_path, "build")
     assert result.returncode != 0
-    assert ("BASE_IMAGE 'docker-ros-test/no-such-image:1' is neither a local image nor "
-            "pullable") in result.stdout, result.stdout[-3000:]
+    line = result.stdout.strip().splitlines()[-1]
+    assert f"BASE_IMAGE '{base}' is neither a local image nor pullable (" in line, \
+        result.stdout[-3000:]
+    hint = f": did you mean the local image {ros1_base_image}? Else check the name;"
+    assert (hint in line) if typo else ("did you mean" not in line and ": check the name;" in line)
     assert "[internal]" not in result.stdout  # refused before BuildKit starts
     assert not image_exists("docker-ros-test/never:1")
 

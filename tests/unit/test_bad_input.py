@@ -477,13 +477,16 @@ def test_a_base_image_the_registry_refuses_names_why_and_the_login_settings(
             raise APIError("500 Server Error", explanation=f"Head \"{repository}\": no basic "
                            "auth credentials")
 
-    monkeypatch.setattr(engine, "client", lambda: SimpleNamespace(images=Images()))
+    local = [{"RepoTags": ["127.0.0.1:5000/private/base:2"]}]  # no typo: another version
+    monkeypatch.setattr(engine, "client", lambda: SimpleNamespace(
+        images=Images(), api=SimpleNamespace(images=lambda: local)))
     settings = settings_for(tmp_path, BASE_IMAGE="127.0.0.1:5000/private/base:1")
     with pytest.raises(build.BuildError) as raised:
         build.platform_base(settings, "amd64")
     message = str(raised.value)
     assert "(Head \"127.0.0.1:5000/private/base\": no basic auth credentials)" in message
     assert "REGISTRY_USER and REGISTRY_PASSWORD" in message
+    assert "did you mean" not in message
 
 
 def test_dotenv_command_substitution_warns_that_it_is_not_run() -> None:

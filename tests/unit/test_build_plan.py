@@ -373,6 +373,23 @@ def test_a_local_base_of_another_architecture_is_never_used_for_a_platform():
     assert "inv bootstrap-base-image --platform arm64" in message and "b:1-arm64" in message
 
 
+def test_a_misspelt_base_image_names_the_local_image_it_misspells():
+    tags = ["ros:noetic", "ros:humble", "docker-ros/ros1:bookworm",
+            "docker-ros/ros1:bookworm-arm64", "docker-ros-tools:0123456789abcdef-amd64"]
+    assert build.closest_image("ros:notic", tags) == "ros:noetic"
+    assert build.closest_image("docker-ros/ros1:bookwrom", tags) == "docker-ros/ros1:bookworm"
+    # another image of the same repository, or of another name, is not a typo of it
+    assert build.closest_image("ros:jazzy", tags) == ""
+    assert build.closest_image("rwthika/ros2:jazzy", tags) == ""
+    # close, but in digits: another version or image, not a typo
+    assert build.closest_image("docker-ros/ros2:bookworm", tags) == ""
+    assert build.closest_image("ros:noetic-1", ["ros:noetic-2"]) == ""
+    # the closest that is no other version
+    assert build.closest_image("docker-ros/ros1:bookwrm-arm64", tags) == (
+        "docker-ros/ros1:bookworm-arm64")
+    assert build.closest_image("ros:noetic", []) == ""
+
+
 def test_a_base_is_in_a_registry_only_under_a_name_it_was_pulled_or_pushed_as():
     digests = ["127.0.0.1:5000/other@sha256:1", "ros@sha256:2"]
     assert build.from_registry("ros:noetic", digests)

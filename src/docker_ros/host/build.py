@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import difflib
 import fcntl
 import functools
 import hashlib
@@ -180,6 +181,18 @@ def from_registry(ref: str, repo_digests: Sequence[str]) -> bool:
     return any(digest.split("@")[0] == repository for digest in repo_digests)
 
 
+def closest_image(ref: str, tags: Sequence[str]) -> str:
+    """The local image tag that ref, a name no image answers to, most likely misspells, or "":
+    close, and not in digits (`ros:notic` is `ros:noetic`; `base:1` is not `base:2`, nor `ros2`
+    `ros1`: another version or image)."""
+    for close in difflib.get_close_matches(ref, [t for t in tags if t != ref], n=3, cutoff=0.85):
+        edits = difflib.SequenceMatcher(None, ref, close).get_opcodes()
+        if not any(ch.isdigit() for op, i1, i2, j1, j2 in edits if op != "equal"
+                   for ch in ref[i1:i2] + close[j1:j2]):
+            return close
+    return ""
+
+
 def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:
     """choose_base with what this engine holds; a BASE_IMAGE that is neither local (under
     either name) nor pullable is a BuildError."""
@@ -189,8 +202,10 @@ def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:
     if not any(local.values()):
         refused = engine.pull_error(base)
         if refused is not None:
+            close = closest_image(base, engine.local_tags())
+            check = f"did you mean the local image {close}? Else check" if close else "check"
             raise BuildError(
-                f"BASE_IMAGE '{base}' is neither a local image nor pullable ({refused}): check "
+                f"BASE_IMAGE '{base}' is neither a local image nor pullable ({refused}): {check} "
                 "the name; for a private registry set REGISTRY, REGISTRY_USER and "
                 "REGISTRY_PASSWORD (docker-ros logs in before the build) or `docker login`; "
                 "or make one with `inv bootstrap-base-image`")

@@ -139,6 +139,15 @@ def tags_labelled(labels: Mapping[str, str]) -> List[str]:
     return []
 
 
+def local_tags() -> List[str]:
+    """The tags of every local image (none if the engine cannot say: a hint, not a check). The
+    raw list: images.list() inspects each image and fails when one is removed meanwhile."""
+    with contextlib.suppress(DockerException):
+        return [tag for image in client().api.images() for tag in image.get("RepoTags") or []
+                if tag != "<none>:<none>"]
+    return []
+
+
 def remove_quietly(refs: Iterable[str]) -> None:
     """Remove tags this tool made, as housekeeping: whatever the engine says is not an error."""
     for ref in refs:
