@@ -186,11 +186,15 @@ def closest_image(ref: str, tags: Sequence[str]) -> str:
     close, and not in digits (`ros:notic` is `ros:noetic`; `base:1` is not `base:2`, nor `ros2`
     `ros1`: another version or image)."""
     for close in difflib.get_close_matches(ref, [t for t in tags if t != ref], n=3, cutoff=0.85):
-        edits = difflib.SequenceMatcher(None, ref, close).get_opcodes()
-        if not any(ch.isdigit() for op, i1, i2, j1, j2 in edits if op != "equal"
-                   for ch in ref[i1:i2] + close[j1:j2]):
+        if not any(ch.isdigit() for ch in edited(ref, close)):
             return close
     return ""
+
+
+def edited(a: str, b: str) -> str:
+    """The characters that differ between a and b (those removed from a and put in b)."""
+    edits = difflib.SequenceMatcher(None, a, b).get_opcodes()
+    return "".join(a[i1:i2] + b[j1:j2] for op, i1, i2, j1, j2 in edits if op != "equal")
 
 
 def platform_base(settings: Settings, platform: str) -> Tuple[str, str]:
