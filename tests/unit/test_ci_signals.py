@@ -35,19 +35,19 @@ def started(tmp_path: Path) -> subprocess.Popen:
 def test_a_task_the_signal_did_not_reach_is_terminated_and_cleans_up(tmp_path: Path) -> None:
     """SIGTERM to `docker-ros ci` alone: its running task gets SIGTERM after the grace time
     (subprocess.call killed it: no clean-up)."""
-    task = started(tmp_path)
-    began = time.monotonic()
-    let_end(task, grace=0.3)
-    assert task.returncode == 143
-    assert (tmp_path / "cleaned").read_text() == "cleaned"
-    assert time.monotonic() - began < 10
+    with started(tmp_path) as task:
+        began = time.monotonic()
+        let_end(task, grace=0.3)
+        assert task.returncode == 143
+        assert (tmp_path / "cleaned").read_text() == "cleaned"
+        assert time.monotonic() - began < 10
 
 
 def test_a_task_that_got_the_signal_too_is_left_to_end(tmp_path: Path) -> None:
-    task = started(tmp_path)
-    task.send_signal(signal.SIGTERM)  # (a runner signals every process of the job)
-    let_end(task, grace=30)
-    assert task.returncode == 143 and (tmp_path / "cleaned").exists()
+    with started(tmp_path) as task:
+        task.send_signal(signal.SIGTERM)  # (a runner signals every process of the job)
+        let_end(task, grace=30)
+        assert task.returncode == 143 and (tmp_path / "cleaned").exists()
 
 
 def test_a_second_sigterm_does_not_cut_the_clean_up_short() -> None:

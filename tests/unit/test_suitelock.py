@@ -41,6 +41,8 @@ def test_a_second_run_names_the_first_waits_for_it_and_gives_up_after_its_time(
     finally:
         holder.kill()
         holder.wait()
+        assert holder.stdout is not None
+        holder.stdout.close()
 
 
 def test_a_free_lock_is_taken_at_once_without_a_word(tmp_path: Path) -> None:

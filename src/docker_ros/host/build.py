@@ -1060,21 +1060,22 @@ def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *
     header = ", ".join(f"{t} -> {tag}" for t, tag in targets.items())
     out.write(f"==> docker-ros build ({platform}) {header}\n")
     began = time.monotonic()
-    proc = subprocess.Popen(list(argv), env=dict(env), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, bufsize=1)
-    assert proc.stdout is not None
     lines: List[str] = []
-    log = (_kept(lines, line) for line in iter(proc.stdout.readline, ""))
-    try:
-        errors = buildlog.stream_build(log, out, environ)
-        code = proc.wait()
-    except KeyboardInterrupt as exc:
-        # buildx got the same Ctrl-C: let it cancel the build and end (what it had named by
-        # then stays tagged: said in the message)
-        proc.terminate()
-        proc.wait()
-        raise noted(exc, [built_note(t, tag) for t, tag in targets.items()
-                          if buildlog.tagged_in_log(lines, tag)]) from None
+    # (with: the pipe is closed however the build ends)
+    with subprocess.Popen(list(argv), env=dict(env), stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, text=True, bufsize=1) as proc:
+        assert proc.stdout is not None
+        log = (_kept(lines, line) for line in iter(proc.stdout.readline, ""))
+        try:
+            errors = buildlog.stream_build(log, out, environ)
+            code = proc.wait()
+        except KeyboardInterrupt as exc:
+            # buildx got the same Ctrl-C: let it cancel the build and end (what it had named
+            # by then stays tagged: said in the message)
+            proc.terminate()
+            proc.wait()
+            raise noted(exc, [built_note(t, tag) for t, tag in targets.items()
+                              if buildlog.tagged_in_log(lines, tag)]) from None
     done = [t for t, tag in targets.items() if buildlog.tagged_in_log(lines, tag)]
     if code != 0 and buildlog.cancelled(lines) and not buildlog.engine_lost(lines):
         # as if we had seen the Ctrl-C that stopped buildx
