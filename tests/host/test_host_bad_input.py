@@ -395,6 +395,18 @@ def test_an_invoke_yaml_whose_top_level_is_a_list_is_one_line(repo: Path, args: 
                                     "docker_ros:)")
 
 
+@pytest.mark.parametrize("args", [["docker_ros", "config"], ["invoke", "config"]])
+def test_an_invoke_yaml_key_given_twice_in_two_cases_is_one_line(repo: Path, args: list) -> None:
+    """invoke's environment loader refused it with a traceback (two keys, one variable)."""
+    (repo / "tasks.py").write_text("from docker_ros.tasks import ns  # noqa: F401\n")
+    (repo / "invoke.yaml").write_text("docker_ros:\n  image_tag: a\n  IMAGE_TAG: b\n")
+    proc = run(args, repo)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert last_line(proc) == ("docker-ros: invoke.yaml: image_tag is given twice under "
+                               "docker_ros: (keys that differ in case only, as image_tag and "
+                               "IMAGE_TAG, are one setting): keep one")
+
+
 def test_bootstrap_base_image_names_a_bad_flavor_or_ca_bundle_before_debootstrap(
         tmp_path: Path) -> None:
     """Both stop at once (no debootstrap, no image): one line naming the option and what to

@@ -18,6 +18,7 @@ from docker_ros.host.config import (
     path_problems,
     read_settings,
     repository_env_file,
+    sourced_ros_overrides,
 )
 from docker_ros.host.pipeline import TaskError, check_slim_options, host_workspace
 from docker_ros.in_image.runtime.files import path_problem
@@ -142,6 +143,29 @@ def test_dotenv_look_alikes_warn_with_did_you_mean() -> None:
         "ENABLE_RECURSIVE_VCS_IMPORT?)",
         "unknown variable COMAND ignored (did you mean COMMAND?)",
     ]
+    # a shorter name: the one docker-ros name of the same first word, with one word more,
+    # that has its words in order; the user's own variables stay silent
+    warnings = dotenv_warnings({"ENABLE_RECURSIVE_PIP": "true", "GIT_PASSWORD": "s3cr3t",
+                                "GIT_SSH_KEY": "k", "VCS_IMPORT": "x.repos",
+                                "ROS_VERSION": "2", "ROS_DOMAIN_ID": "3", "DOCKER_HOST": "h",
+                                "ENABLE_RECURSIVE": "true", "GIT_TOKEN": "t"})
+    assert warnings == [
+        "unknown variable ENABLE_RECURSIVE_PIP ignored (did you mean "
+        "ENABLE_RECURSIVE_ADDITIONAL_PIP?)",
+        "unknown variable GIT_PASSWORD ignored (did you mean GIT_HTTPS_PASSWORD?)",
+        "unknown variable GIT_SSH_KEY ignored (did you mean GIT_SSH_PRIVATE_KEY?)",
+        "unknown variable VCS_IMPORT ignored (did you mean VCS_IMPORT_FILE?)",
+    ]
+
+
+def test_dotenv_ci_only_variables_are_said_to_have_no_effect() -> None:
+    """The Action's checkout inputs and the template's docker-ros ref are read before any
+    .env: there, they were shown by `inv config` as if they applied."""
+    assert dotenv_warnings({"ENABLE_CHECKOUT": "false", "DOCKER_ROS_GIT_REF": "v1.8.2",
+                            "ENABLE_SLIM": "false"}) == [
+        f"{key} has no effect in .env: it is read by the CI integrations only, as the GitHub "
+        "Action's input or the GitLab template's variable"
+        for key in ("ENABLE_CHECKOUT", "DOCKER_ROS_GIT_REF")]
 
 
 def test_lenient_load_keeps_bad_values_for_config() -> None:
@@ -587,3 +611,14 @@ def test_passwords_and_tokens_in_urls_are_hidden_wherever_they_are_in_a_text() -
     assert hide("ssh://git@host/x and https://host/x@y") == "ssh://git@host/x and https://host/x@y"
     assert hide("ssh://root@127.0.0.1:22/r.git") == "ssh://root@127.0.0.1:22/r.git"
     assert hide("git@github.com:o/r.git") == "git@github.com:o/r.git"
+
+
+def test_a_sourced_ros_distro_beating_dotenv_is_said() -> None:
+    """Environment > .env: a shell where ROS is sourced overrode .env's ROS_DISTRO unseen."""
+    dotenv = {"ROS_DISTRO": "jazzy", "RMW_IMPLEMENTATION": "rmw_zenoh_cpp", "IMAGE_TAG": "a"}
+    assert sourced_ros_overrides(dotenv, {"ROS_DISTRO": "humble", "IMAGE_TAG": "b",
+                                          "RMW_IMPLEMENTATION": "rmw_zenoh_cpp"}) == [
+        "ROS_DISTRO=jazzy is overridden by the environment's ROS_DISTRO=humble (a shell where "
+        "ROS is sourced exports it): `unset ROS_DISTRO` to build with .env's"]
+    assert sourced_ros_overrides(dotenv, {"ROS_DISTRO": "humble", "CI": "true"}) == []
+    assert sourced_ros_overrides({}, {"ROS_DISTRO": "humble"}) == []

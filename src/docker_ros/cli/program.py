@@ -10,6 +10,7 @@ from typing import Any, List, Optional
 
 from invoke import Exit, Program
 from invoke.config import yaml  # (the YAML module invoke reads its files with)
+from invoke.exceptions import AmbiguousEnvVar
 
 from docker_ros import __version__
 from docker_ros.cli.tasks import ns
@@ -60,6 +61,12 @@ def invoke_file_problem(exc: BaseException, name: str = "") -> Optional[str]:
             read_user_text(name, ValueError)
         except ValueError as problem:
             return f"docker-ros: {problem}"
+    if isinstance(exc, AmbiguousEnvVar):
+        # invoke's environment loader: two keys that are one name to it (image_tag, IMAGE_TAG)
+        var = str(exc).rpartition(" ")[2]
+        key = var.replace("DOCKER_ROS_", "", 1).lower() if var.startswith("DOCKER_ROS_") else var
+        return (f"docker-ros: {name}: {key} is given twice under docker_ros: (keys that differ "
+                "in case only, as image_tag and IMAGE_TAG, are one setting): keep one")
     if isinstance(exc, AttributeError) and any(f.f_code.co_name == "_merge_file" for f in frames):
         return f"docker-ros: {name}: the top level must be a mapping (key docker_ros:)"
     return None
@@ -84,6 +91,7 @@ def one_line_for_broken_invoke_yaml() -> None:
 
 def main(argv: Optional[List[str]] = None) -> None:
     ns.loaded_from = os.getcwd()
+    one_line_for_broken_invoke_yaml()  # (invoke reads the environment layer when it executes)
     program = DockerRosProgram(namespace=ns, name="docker-ros", binary="docker-ros",
                                version=__version__)
     try:

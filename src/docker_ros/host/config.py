@@ -79,7 +79,7 @@ def read_settings(
     if environ.get("GITHUB_ACTIONS") == "true" and not environ.get("GITHUB_DEFAULT_BRANCH"):
         # GitHub has no variable for it; the event payload names it (CI tag postfix rules).
         environ = {**environ, "GITHUB_DEFAULT_BRANCH": github_default_branch(environ)}
-    for warning in dotenv_warnings(dotenv):
+    for warning in dotenv_warnings(dotenv) + sourced_ros_overrides(dotenv, environ):
         LOG.warning("docker-ros: %s: %s", env_file, warning)
     return load_settings(
         invoke_config=invoke_config,
@@ -147,10 +147,52 @@ def dotenv_warnings(dotenv: Mapping[str, object]) -> List[str]:
             out.append(f"{key} ignored: docker-ros's earlier name, now "
                        f"{OLD_NAMES[key.upper()]}")
             continue
-        close = difflib.get_close_matches(key.upper(), ENV_NAMES, n=1, cutoff=0.85)
-        if close:
-            out.append(f"unknown variable {key} ignored (did you mean {close[0]}?)")
+        meant = look_alike(key)
+        if meant:
+            out.append(f"unknown variable {key} ignored (did you mean {meant}?)")
+    for key in dotenv:
+        if key in ENV_NAMES and FIELDS[key.lower()].metadata["group"] == "ci":
+            out.append(f"{key} has no effect in .env: it is read by the CI integrations only, "
+                       "as the GitHub Action's input or the GitLab template's variable")
     return out
+
+
+# What a shell where ROS is sourced exports: beating .env (environment > .env), unseen
+SOURCED_ROS = ("ROS_DISTRO", "RMW_IMPLEMENTATION")
+
+
+def sourced_ros_overrides(dotenv: Mapping[str, object], environ: Mapping[str, str]
+                          ) -> List[str]:
+    """The .env values of SOURCED_ROS that another value in the environment overrides (not
+    in CI, whose inputs and variables are meant to)."""
+    if environ.get("CI"):
+        return []
+    return [f"{key}={dotenv[key]} is overridden by the environment's {key}={environ[key]} (a "
+            f"shell where ROS is sourced exports it): `unset {key}` to build with .env's"
+            for key in SOURCED_ROS
+            if dotenv.get(key) and environ.get(key) and environ[key] != dotenv[key]]
+
+
+def look_alike(key: str) -> Optional[str]:
+    """The docker-ros variable key misspells, if any: a close name (ENABLE_SLIMM), or the one
+    name of the same first word and one word more that has the key's words at the start of
+    its own, in order (GIT_PASSWORD: GIT_HTTPS_PASSWORD; ENABLE_RECURSIVE_DEBS:
+    ..._ADDITIONAL_DEBS; not ROS_VERSION: ROS_APT_SOURCE_VERSION)."""
+    close = difflib.get_close_matches(key.upper(), ENV_NAMES, n=1, cutoff=0.85)
+    if close:
+        return close[0]
+    words = key.upper().split("_")
+    kin = [name for name in ENV_NAMES if len(words) > 1 and
+           len(name.split("_")) - len(words) <= 1 and words_within(words, name.split("_"))]
+    return kin[0] if len(kin) == 1 else None
+
+
+def words_within(words: Sequence[str], name: Sequence[str]) -> bool:
+    """Whether name starts with words[0] and each later word begins a later word of name."""
+    if not name or name[0] != words[0]:
+        return False
+    rest = iter(name[1:])
+    return all(any(part.startswith(word) for part in rest) for word in words[1:])
 
 
 def path_problems(settings: Settings) -> Dict[str, str]:
