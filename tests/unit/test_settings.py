@@ -255,12 +255,20 @@ def test_a_later_source_s_valid_value_clears_an_earlier_invalid_one():
         load(invoke_config={"target": "dev"}, dotenv={"TARGET": "bar"})
 
 
+def test_an_invoke_yaml_key_given_twice_is_refused():
+    """image-tag and image_tag are one setting: the last one won without a word."""
+    with pytest.raises(SettingsError, match=r"invoke.yaml: docker_ros.image_tag and "
+                       r"docker_ros.image-tag are one setting: keep one"):
+        load(invoke_config={"image-tag": "a", "image_tag": "b"})
+
+
 def test_a_secret_in_invoke_yaml_is_refused_without_showing_it():
     """invoke.yaml is a committed file of the repository (and copied into the dev image)."""
     with pytest.raises(SettingsError) as err:
         load_settings(invoke_config={"git_https_password": "s3cr3t-yaml"}, environ={})
-    assert ("invoke.yaml: docker_ros.git_https_password: a secret is never kept in a committed "
-            "file; set it in the environment or .env") in str(err.value)
+    assert ("invoke.yaml: docker_ros.git_https_password: a secret is never read from invoke's "
+            "configuration (a committed or shared file); set it in the environment or .env"
+            ) in str(err.value)
     assert "s3cr3t-yaml" not in str(err.value)
     shown = load_settings(invoke_config={"REGISTRY_PASSWORD": "s3cr3t-yaml"}, environ={},
                           lenient=True)

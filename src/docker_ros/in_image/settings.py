@@ -35,6 +35,7 @@ SLIMMING_COMMANDS = ("push", "ci", "manifest")
 PLATFORMS = ("amd64", "arm64")
 # The default of a setting the CI integrations set (as docker-ros's action and template do).
 CI_DEFAULT = "GitHub Action: {}; GitLab template: {}; else none"
+RECURSIVE_HELP = "Enable recursive discovery of files named as the {}, anywhere in the workspace"
 
 Value = Union[str, bool, Tuple[str, ...], None]
 
@@ -188,19 +189,19 @@ class Settings:
         build="none", flags=("image", "push")
     )
     enable_recursive_additional_debs: bool = setting(
-        False, "Enable recursive discovery of files named `additional-debs-file`"
+        False, RECURSIVE_HELP.format("additional debs file")
     )
     enable_recursive_additional_pip: bool = setting(
-        False, "Enable recursive discovery of files named `additional-pip-file`"
+        False, RECURSIVE_HELP.format("additional pip file")
     )
     enable_recursive_after_dependency_installation_script: bool = setting(
-        False, "Enable recursive discovery of files named `after-dependency-installation-script`"
+        False, RECURSIVE_HELP.format("after-dependency-installation script")
     )
     enable_recursive_before_dependency_installation_script: bool = setting(
-        False, "Enable recursive discovery of files named `before-dependency-installation-script`"
+        False, RECURSIVE_HELP.format("before-dependency-installation script")
     )
     enable_recursive_blacklisted_packages: bool = setting(
-        False, "Enable recursive discovery of files named `blacklisted-packages-file`"
+        False, RECURSIVE_HELP.format("blacklisted packages file")
     )
     enable_recursive_vcs_import: bool = setting(
         True, "Enable recursive discovery of files named `*.repos`"
@@ -225,7 +226,8 @@ class Settings:
         default_doc=CI_DEFAULT.format("`${{ github.actor }}`", "`gitlab-ci-token`"),
     )
     git_ssh_known_host_keys: Optional[str] = setting(
-        None, "Known SSH host keys for cloning private Git repositories via SSH"
+        None, "Known SSH host keys for cloning private Git repositories via SSH (may be "
+        "obtained using `ssh-keyscan`)"
     )
     git_ssh_private_key: Optional[str] = setting(
         None, "SSH private key for cloning private Git repositories via SSH", secret=True,
@@ -239,7 +241,7 @@ class Settings:
         None,
         "Image name of run image",
         default_doc="GitHub Action: `ghcr.io/<owner>/<repository>`; GitLab template: "
-        "`$CI_REGISTRY_IMAGE`; else the repository folder name",
+        "`$CI_REGISTRY_IMAGE`; else the current folder's name",
         build="tool",
     )
     image_tag: str = setting("latest", "Image tag of run image", build="tool", flags=("image",))
@@ -264,9 +266,10 @@ class Settings:
         default_doc=CI_DEFAULT.format("`${{ github.actor }}`", "`$CI_REGISTRY_USER`"),
     )
     rmw_implementation: str = setting(
-        "rmw_fastrtps_cpp", "ROS 2 middleware implementation (unset: the base image's, if any)")
+        "rmw_fastrtps_cpp", "ROS 2 middleware implementation",
+        default_doc="the base image's `RMW_IMPLEMENTATION`, else `rmw_fastrtps_cpp`")
     ros_distro: Optional[str] = setting(
-        None, "ROS Distro", default_doc="*required if ROS is not installed in `base-image`*",
+        None, "ROS Distro", default_doc="*required if ROS is not installed in `BASE_IMAGE`*",
         flags=("image",)
     )
     slim_build_args: str = setting(
@@ -304,7 +307,7 @@ class Settings:
     workspace: Optional[str] = setting(
         None,
         "Host workspace of the step tasks and `--host` composites (repository at src/target)",
-        default_doc="`${XDG_CACHE_HOME:-~/.cache}/docker-ros/ws/<repository folder name>` "
+        default_doc="`${XDG_CACHE_HOME:-~/.cache}/docker-ros/ws/<current folder's name>` "
         "(`<name>-<hash of its path>` when that one is the workspace of another repository of "
         "the same name)",
         group="ours", build="none", flags=("host",),
@@ -584,16 +587,24 @@ def load_settings(
     errors: List[str] = []
     problems: Dict[str, Tuple[str, str]] = {}
     yaml_values: Dict[str, object] = {}
+    keys: Dict[str, str] = {}  # name -> the key that gave it
     for key, value in (invoke_config or {}).items():
         name = str(key).lower().replace("-", "_")
+        if name in keys:  # (image-tag and image_tag: one setting, which would be the last)
+            errors.append(f"invoke.yaml: docker_ros.{key} and docker_ros.{keys[name]} are one "
+                          "setting: keep one")
+            problems[f"invoke.yaml:{key}"] = ("", errors[-1])
+            continue
+        keys[name] = str(key)
         if name not in FIELDS:
             hint = _did_you_mean(str(key), upper=str(key).isupper())
             errors.append(f"invoke.yaml: unknown key docker_ros.{key}{hint}")
             problems[f"invoke.yaml:{key}"] = (str(value), errors[-1])
         elif is_secret(name):
             # a file of the repository, committed and copied along: never a secret's place
-            errors.append(f"invoke.yaml: docker_ros.{key}: a secret is never kept in a "
-                          "committed file; set it in the environment or .env")
+            errors.append(f"invoke.yaml: docker_ros.{key}: a secret is never read from invoke's "
+                          "configuration (a committed or shared file); set it in the environment "
+                          "or .env")
             problems[f"invoke.yaml:{key}"] = (MASKED, errors[-1])
         elif isinstance(value, float) and kind_of(name) == "str":
             # YAML reads `image_tag: 1.10` as the number 1.1: the tag would be 1.1
@@ -980,7 +991,7 @@ def markdown_table(flag_tasks: Optional[Mapping[str, Iterable[str]]] = None) -> 
         if f.metadata["choices"]:
             extras.append("values: " + ", ".join(f"`{c}`" for c in f.metadata["choices"]))
         if f.metadata["secret"]:
-            extras.append("secret (masked, never passed as build argument)")
+            extras.append("secret: masked, never passed as build argument")
         if extras:
             help_text += " (" + "; ".join(extras) + ")"
         cells = [f"`{env_name(name)}`", flag, default_doc(name), help_text]
