@@ -571,6 +571,16 @@ def test_rmw_implementation_is_passed_when_chosen():
                            dotenv={"RMW_IMPLEMENTATION": "rmw_fastrtps_cpp"},
                            project_dir=Path("/tmp/My_Robot"))
     assert passed(chosen) == ["RMW_IMPLEMENTATION=rmw_fastrtps_cpp"]
+    # `inv config` says which: an unchosen value is not what the image gets on every base
+    from docker_ros.host.config import config_table
+
+    def shown(s):
+        return next(line for line in config_table(s).splitlines()
+                    if line.startswith("RMW_IMPLEMENTATION"))
+
+    assert shown(settings()).endswith(
+        "default (not chosen: a base image's own RMW_IMPLEMENTATION stays)")
+    assert shown(chosen).endswith(".env")
 
 
 def test_a_platform_failing_after_another_names_what_that_one_built(monkeypatch, tmp_path):

@@ -156,7 +156,8 @@ def bootstrap(
         reason = stale_reason(image_label(tag, RECIPE_LABEL), image_architecture(tag),
                               recipe=recipe(spec), platform=platform)
         if not reason:
-            LOG.info("%s: %s exists, not rebuilding it (force=True does)", STEP, tag)
+            LOG.info("%s: %s exists, not rebuilding it (`inv bootstrap-base-image --force` "
+                     "does)", STEP, tag)
             return tag
         LOG.info("%s: %s %s, rebuilding it", STEP, tag, reason)
     with step_log(f"{STEP} {tag}"), tempfile.TemporaryDirectory(prefix="docker-ros-base-") as tmp:

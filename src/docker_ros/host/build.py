@@ -23,6 +23,7 @@ from typing import IO, Any, Dict, Iterable, List, Mapping, Optional, Sequence, T
 import docker_ros
 from docker_ros.host import builder, buildlog, buildstate, engine
 from docker_ros.host.baseimage import arch_ref
+from docker_ros.host.config import rmw_chosen
 from docker_ros.host.engine import image_exists, image_size
 from docker_ros.host.lock import lock_labels, locked_build_args, prepare_pin_secrets, tag_local_base
 from docker_ros.in_image.runtime.files import walk
@@ -35,7 +36,6 @@ from docker_ros.in_image.settings import (
     as_env,
     build_secrets,
     env_name,
-    explicitly_set,
 )
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
@@ -280,8 +280,7 @@ def arg_values(settings: Settings) -> Dict[str, str]:
     written in .env, invoke.yaml or a flag (the CI integrations pass the default on in the
     environment, so there the value alone tells)."""
     values = as_env(settings)
-    source = settings.source_of("rmw_implementation")
-    if not explicitly_set(settings, "rmw_implementation") and source in ("default", "environment"):
+    if not rmw_chosen(settings):
         values.pop("RMW_IMPLEMENTATION", None)
     return values
 

@@ -371,6 +371,14 @@ def origin_of(settings: Settings, name: str, source: str = "") -> str:
     return env_name(name)
 
 
+def rmw_chosen(settings: Settings) -> bool:
+    """Whether somebody chose RMW_IMPLEMENTATION: a value other than the default, or the default
+    written in .env, invoke.yaml or a flag (the CI integrations pass the default on in the
+    environment). Unchosen, a base image's own stays (see build.arg_values)."""
+    return (explicitly_set(settings, "rmw_implementation")
+            or settings.source_of("rmw_implementation") not in ("default", "environment"))
+
+
 def config_table(settings: Settings, problems: Optional[Mapping[str, str]] = None,
                  missing: Sequence[str] = ()) -> str:
     """Every setting with its effective value and where it came from; secrets masked; invalid
@@ -388,6 +396,8 @@ def config_table(settings: Settings, problems: Optional[Mapping[str, str]] = Non
             # where `inv test` writes when nothing names a folder (pipeline.results_root)
             value = str(Path(settings.workspace).expanduser() / "test-results")
             source = "derived from WORKSPACE (the tests' results stay out of the repository)"
+        elif n == "rmw_implementation" and not rmw_chosen(settings):
+            source += " (not chosen: a base image's own RMW_IMPLEMENTATION stays)"
         rows.append((env_name(n), value, source + mark))
     width = max(len(r[0]) for r in rows)
     value_width = min(60, max(len(r[1]) for r in rows))
