@@ -165,7 +165,8 @@ def test_bad_volume_and_slim_args_are_refused_before_any_build(repo: Path) -> No
     assert last_line(proc) == (
         "docker-ros dev-shell: --volume 'bad:::': 3 ':' (one or two belong); use "
         "HOST:CONTAINER[:MODE], e.g. ./data:/data:ro or a volume name, ccache:/ccache")
-    unknown = {"ADDITIONAL_SLIM_BUILD_ARGS": "--unknown"}
+    # (a name push can push: one without a namespace is refused before, see below)
+    unknown = {"ADDITIONAL_SLIM_BUILD_ARGS": "--unknown", "IMAGE": "me/repo:1"}
     for args in (["build", "--enable-slim"], ["build", "--target", "slim"], ["push"], ["slim"],
                  ["ci"]):
         proc = run(["docker_ros", *args], repo, env=unknown)
@@ -405,6 +406,17 @@ def test_an_invoke_yaml_key_given_twice_in_two_cases_is_one_line(repo: Path, arg
     assert last_line(proc) == ("docker-ros: invoke.yaml: image_tag is given twice under "
                                "docker_ros: (keys that differ in case only, as image_tag and "
                                "IMAGE_TAG, are one setting): keep one")
+
+
+def test_push_of_a_name_docker_hub_refuses_stops_before_the_build(repo: Path) -> None:
+    with (repo / ".env").open("a") as env:
+        env.write("IMAGE=my-image:latest\n")
+    proc = run(["docker_ros", "push"], repo)
+    assert proc.returncode == 1
+    assert last_line(proc).startswith("docker-ros push: IMAGE_NAME 'my-image' names no registry "
+                                      "and no namespace: docker would push it to "
+                                      "docker.io/library/my-image")
+    assert "==> docker-ros build" not in proc.stdout  # (nothing built)
 
 
 def test_bootstrap_base_image_names_a_bad_flavor_or_ca_bundle_before_debootstrap(

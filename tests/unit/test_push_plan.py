@@ -9,6 +9,7 @@ from docker_ros.host.build import BuildError
 from docker_ros.host.push import (
     also_ref,
     execute,
+    official_only_names,
     plan_manifest,
     plan_outputs,
     plan_push,
@@ -184,3 +185,19 @@ def test_a_registry_the_images_do_not_go_to_is_a_warning():
     assert "ghcr.io/team/app:v1 goes to ghcr.io" in registry_warning(other, ["run"])
     assert ref_registry("localhost/app") == "localhost"
     assert ref_registry("docker.io/team/app") == "docker.io"
+
+
+def test_a_name_without_registry_or_namespace_is_refused_before_the_build():
+    """`docker push my-image` goes to docker.io/library/my-image, which takes Docker's official
+    images only: `inv push` failed so after the build and the slimming."""
+    said = official_only_names(settings(IMAGE="my-image:v1", ENABLE_SLIM="true"),
+                               ["dev", "run", "slim"])
+    assert said == ["IMAGE_NAME 'my-image' names no registry and no namespace: docker would "
+                    "push it to docker.io/library/my-image, which takes Docker's official "
+                    "images only; name your registry (IMAGE=registry.example.com/my-image:tag) "
+                    "or Docker Hub user (IMAGE=<user>/my-image:tag)"]
+    assert [line.split(" names")[0] for line in official_only_names(
+        settings(IMAGE="me/img:v1", DEV_IMAGE_NAME="dev-img"), ["dev", "run"])] == [
+        "DEV_IMAGE_NAME 'dev-img'"]
+    for pushable in ("user/img:1", "reg.example/img:1", "localhost:5000/img:1"):
+        assert official_only_names(settings(IMAGE=pushable), ["dev", "run"]) == [], pushable

@@ -43,7 +43,7 @@ from docker_ros.host.pipeline import (
     slim_one,
     slimmed_here,
 )
-from docker_ros.host.push import manifest, push, push_targets
+from docker_ros.host.push import manifest, official_only_names, push, push_targets
 from docker_ros.in_image.ci import error_annotation, plan_ci_job, slim_skipped
 from docker_ros.in_image.runtime.lock import LockError
 from docker_ros.in_image.runtime.workspace import StepError, setup_logging
@@ -461,6 +461,9 @@ def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
+    unpushable = official_only_names(settings, push_targets(settings))
+    if unpushable:
+        raise TaskError("; ".join(unpushable))
     build_targets(settings, settings.target, dry_run=dry_run, slim=settings.enable_slim)
     push_and_report(settings, push_targets(settings), push, dry_run=dry_run)
 

@@ -41,6 +41,25 @@ def push_targets(settings: Settings) -> List[str]:
     return targets
 
 
+# The variable each pushed target's name comes from
+NAME_SETTING = {"dev": "DEV_IMAGE_NAME", "slim": "SLIM_IMAGE_NAME"}
+
+
+def official_only_names(settings: Settings, targets: Sequence[str]) -> List[str]:
+    """Pushed names with neither registry nor namespace (`my-image`): docker pushes them to
+    Docker Hub's `library/`, where only Docker's official images go. One line each, said
+    before anything is built (the push failed after the build and the slimming)."""
+    names: Dict[str, str] = {}  # name -> its variable (IMAGE_NAME's first: dev's comes from it)
+    for target in sorted(targets, key=lambda t: t != "run"):
+        names.setdefault(image_ref(settings, target).rsplit(":", 1)[0],
+                         NAME_SETTING.get(target, "IMAGE_NAME"))
+    return [f"{variable} {name!r} names no registry and no namespace: docker would push it to "
+            f"docker.io/library/{name}, which takes Docker's official images only; name your "
+            f"registry (IMAGE=registry.example.com/{name}:tag) or Docker Hub user "
+            f"(IMAGE=<user>/{name}:tag)"
+            for name, variable in names.items() if "/" not in name]
+
+
 def pushed_names(settings: Settings, target: str) -> List[str]:
     """The configured name of a target and its extra tags (Settings.push_also_as)."""
     ref = image_ref(settings, target)
