@@ -59,17 +59,19 @@ def test_a_local_build_slims_only_when_asked(project: Path) -> None:
 def test_ci_and_push_keep_docker_ros_default(project: Path) -> None:
     assert slims(cli(project, "build", "--dry-run", env={"GITHUB_ACTIONS": "true"}))
     assert slims(cli(project, "build", "--dry-run", env={"GITLAB_CI": "true"}))
-    pushed = cli(project, "push", "--dry-run")
+    # (a name push can push: one without registry or namespace is refused, test_host_bad_input)
+    image = "me/slim-default:latest"
+    pushed = cli(project, "push", "--dry-run", env={"IMAGE": image})
     assert slims(pushed)
     names = re.findall(r"\[dry-run\] push: docker push (\S+)", pushed.stdout)
-    image = f"{project.name}:latest"  # (IMAGE's default: the folder's name)
     assert sorted(names) == [image, f"{image}-slim"], pushed.stdout
-    ci = cli(project, "ci", "--dry-run")
+    ci = cli(project, "ci", "--dry-run", env={"IMAGE": image})
     assert ci.returncode == 0, ci.stderr
     assert "docker-ros ci: docker-ros slim --dry-run" in ci.stdout
     # each task's own dry run: the job's image names as push would push them
     assert re.findall(r"\[dry-run\] push: docker push (\S+)", ci.stdout) == names, ci.stdout
-    assert not slims(cli(project, "push", "--dry-run", env={"ENABLE_SLIM": "false"}))
+    assert not slims(cli(project, "push", "--dry-run", env={"ENABLE_SLIM": "false",
+                                                           "IMAGE": image}))
 
 
 def test_config_says_which_applies_and_why(project: Path) -> None:

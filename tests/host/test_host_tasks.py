@@ -125,6 +125,10 @@ def test_test_needs_no_command_and_takes_it_as_a_flag(project: Path) -> None:
 def test_push_dry_run_logs_in_first_password_on_standard_input(project: Path) -> None:
     env = {"REGISTRY": "reg.invalid:5000", "REGISTRY_USER": "me", "REGISTRY_PASSWORD": "hunter2",
            "BASE_IMAGE": "docker-ros-test/ros1:bookworm"}
+    # REGISTRY is where to log in; the name says where to push (docker-ros's rule too)
+    refused = cli(project, "push", "--dry-run", env=env)
+    assert refused.returncode == 1 and "(IMAGE=reg.invalid:5000/my_repo:tag)" in refused.stderr
+    env["IMAGE"] = "reg.invalid:5000/my_repo:latest"
     result = cli(project, "push", "--dry-run", env=env)
     assert result.returncode == 0, result.stderr
     first = result.stdout.splitlines()[0]

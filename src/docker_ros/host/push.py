@@ -55,8 +55,8 @@ def official_only_names(settings: Settings, targets: Sequence[str]) -> List[str]
                          NAME_SETTING.get(target, "IMAGE_NAME"))
     return [f"{variable} {name!r} names no registry and no namespace: docker would push it to "
             f"docker.io/library/{name}, which takes Docker's official images only; name your "
-            f"registry (IMAGE=registry.example.com/{name}:tag) or Docker Hub user "
-            f"(IMAGE=<user>/{name}:tag)"
+            f"registry (IMAGE={settings.registry or 'registry.example.com'}/{name}:tag) or Docker "
+            f"Hub user (IMAGE=<user>/{name}:tag)"
             for name, variable in names.items() if "/" not in name]
 
 
