@@ -461,11 +461,12 @@ def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 
-    unpushable = official_only_names(settings, push_targets(settings))
+    targets = push_targets(settings)
+    unpushable = official_only_names(settings, targets)
     if unpushable:
         raise TaskError("; ".join(unpushable))
     build_targets(settings, settings.target, dry_run=dry_run, slim=settings.enable_slim)
-    push_and_report(settings, push_targets(settings), push, dry_run=dry_run)
+    push_and_report(settings, targets, push, dry_run=dry_run)
 
 
 @settings_task(

@@ -130,9 +130,10 @@ COMMAND_SUBSTITUTION = re.compile(r"\$\(|`")
 
 def dotenv_warnings(dotenv: Mapping[str, object]) -> List[str]:
     """Variables of a .env file that look like a misspelt docker-ros variable (other variables
-    are the user's business and stay silent), and docker-ros variables whose value holds a
+    are the user's business and stay silent), docker-ros variables whose value holds a
     command substitution, which docker-ros's build.sh ran (it sourced .env with bash) and which
-    stays text here (COMMAND's is run by the container's shell, as a command line's)."""
+    stays text here (COMMAND's is run by the container's shell, as a command line's), and
+    those only the CI integrations read."""
     out = []
     for key, value in dotenv.items():
         if key in ENV_NAMES:
@@ -142,6 +143,9 @@ def dotenv_warnings(dotenv: Mapping[str, object]) -> List[str]:
                            "is read as NAME=VALUE lines (${VAR} expands), not by bash as "
                            f"docker-ros's build.sh did; set {key} in the environment instead "
                            f'({key}="$(...)" inv build)')
+            if FIELDS[key.lower()].metadata["group"] == "ci":
+                out.append(f"{key} has no effect in .env: it is read by the CI integrations "
+                           "only, as the GitHub Action's input or the GitLab template's variable")
             continue
         if key.upper() in OLD_NAMES:
             out.append(f"{key} ignored: docker-ros's earlier name, now "
@@ -150,10 +154,6 @@ def dotenv_warnings(dotenv: Mapping[str, object]) -> List[str]:
         meant = look_alike(key)
         if meant:
             out.append(f"unknown variable {key} ignored (did you mean {meant}?)")
-    for key in dotenv:
-        if key in ENV_NAMES and FIELDS[key.lower()].metadata["group"] == "ci":
-            out.append(f"{key} has no effect in .env: it is read by the CI integrations only, "
-                       "as the GitHub Action's input or the GitLab template's variable")
     return out
 
 
@@ -182,8 +182,10 @@ def look_alike(key: str) -> Optional[str]:
     if close:
         return close[0]
     words = key.upper().split("_")
-    kin = [name for name in ENV_NAMES if len(words) > 1 and
-           len(name.split("_")) - len(words) <= 1 and words_within(words, name.split("_"))]
+    if len(words) < 2:
+        return None
+    kin = [name for name in ENV_NAMES
+           if len(name.split("_")) - len(words) <= 1 and words_within(words, name.split("_"))]
     return kin[0] if len(kin) == 1 else None
 
 
