@@ -79,10 +79,11 @@ def test_dry_run_without_database_resolves_with_the_repository_rules(
     init = "rosdep init" if os.geteuid() == 0 else "sudo rosdep init"
     said = plain.stdout + plain.stderr
     shown = [line for line in said.splitlines() if line.startswith("[dry-run]")]
-    assert shown[1:4] == [f"[dry-run] rosdep: {init}", "[dry-run] rosdep: rosdep update",
-                         "[dry-run] rosdep: resolve 1 keys in the database those commands make"
-                         ], said
+    assert shown[1:5] == [f"[dry-run] rosdep: {init}", "[dry-run] rosdep: rosdep update",
+                         "[dry-run] rosdep: resolve 1 key in the database those commands make",
+                         "[dry-run] rosdep: install the resolved 'all' dependencies"], said
     assert "my_tool ->" not in said
+    assert "no apt packages to install" not in said  # nothing was resolved: unknown, not none
     assert not Path(no_rosdep_database["ROS_HOME"]).exists()
     assert not any(Path(no_rosdep_database["ROSDEP_SOURCE_PATH"]).iterdir())
 

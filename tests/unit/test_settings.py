@@ -247,6 +247,24 @@ def test_readme_configuration_table_rows_have_four_cells():
         assert len(cells) == 4, row
 
 
+def test_the_flag_column_names_the_tasks_in_the_fewest_words():
+    every, steps = ["a", "b", "c", "d", "e", "s1", "s2", "s3"], ["s1", "s2", "s3"]
+    assert readme.tasks_phrase(every, every, steps) == "every task"
+    assert readme.tasks_phrase(["a", "b"], every, steps) == "a, b"
+    assert readme.tasks_phrase(["a", "b", "c", "d", "e", "s1"], every, steps) == (
+        "every task but s2, s3")
+    assert readme.tasks_phrase(["a", "s1", "s2", "s3"], every, steps) == "the step tasks, a"
+    assert readme.tasks_phrase(["a", "b", "c", "d"], every, steps) == "a, b, c, d"  # a tie
+
+
+def test_the_flag_column_s_tasks_are_those_whose_help_has_the_flag():
+    """WORKSPACE's flag is every step task's, dev's, run's and test's, not build's (the
+    column said only `--workspace` while 13 of the 23 tasks had it)."""
+    row = next(r for r in readme.table().splitlines() if r.startswith("| `WORKSPACE` |"))
+    assert "| `--workspace` (the step tasks, dev, run, test) |" in row
+    assert "workspace" not in readme.ns["build"].help and "workspace" in readme.ns["dev"].help
+
+
 def test_a_later_source_s_valid_value_clears_an_earlier_invalid_one():
     settings = load(invoke_config={"target": "foo"}, dotenv={"TARGET": "dev"}, lenient=True)
     assert settings.target == ("dev",) and settings.source_of("target") == ".env"

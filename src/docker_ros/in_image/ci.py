@@ -27,7 +27,9 @@ class Pipeline:
     kind: str  # "branch", "tag" or "merge_request" (GitHub: pull request)
     ref: str  # branch or tag name; the source branch of a merge/pull request
     default_branch: str  # "" when the CI does not tell
-    slug: str = ""  # the CI's own slug of ref (the GitHub Action's slug step); "" to make it
+    # the CI's own slug of ref (the GitHub Action's slug step, GitLab's CI_COMMIT_REF_SLUG);
+    # "" to make it
+    slug: str = ""
 
     @property
     def on_default_branch(self) -> bool:
@@ -60,8 +62,9 @@ def github_slug(name: str) -> str:
 
 
 def ref_slug(pipeline: Pipeline) -> str:
-    """The branch slug as docker-ros's pipeline of that CI spells it: the one the Action's slug
-    step made (gacts/github-slug, as docker-ros's; it transliterates every script), else ours."""
+    """The branch slug as docker-ros's pipeline of that CI spells it: the CI's own (the Action's
+    slug step, gacts/github-slug as docker-ros's, which transliterates every script; GitLab's
+    CI_COMMIT_REF_SLUG, which docker-ros's template uses), else ours."""
     if pipeline.slug:
         return pipeline.slug
     return github_slug(pipeline.ref) if pipeline.ci == "github" else slugify(pipeline.ref)
@@ -83,13 +86,14 @@ def detect_pipeline(environ: Mapping[str, str]) -> Optional[Pipeline]:
         return Pipeline("github", kind, environ.get("GITHUB_REF_NAME", ""), default, slug)
     if environ.get("GITLAB_CI") == "true":
         default = environ.get("CI_DEFAULT_BRANCH", "")
+        slug = environ.get("CI_COMMIT_REF_SLUG", "")  # of the source branch in merge requests
         if environ.get("CI_COMMIT_TAG"):
             return Pipeline("gitlab", "tag", environ["CI_COMMIT_TAG"], default)
         if environ.get("CI_MERGE_REQUEST_SOURCE_BRANCH_NAME"):
             source = environ["CI_MERGE_REQUEST_SOURCE_BRANCH_NAME"]
-            return Pipeline("gitlab", "merge_request", source, default)
+            return Pipeline("gitlab", "merge_request", source, default, slug)
         branch = environ.get("CI_COMMIT_BRANCH") or environ.get("CI_COMMIT_REF_NAME", "")
-        return Pipeline("gitlab", "branch", branch, default)
+        return Pipeline("gitlab", "branch", branch, default, slug)
     return None
 
 

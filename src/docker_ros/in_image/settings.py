@@ -967,12 +967,9 @@ def default_doc(name: str) -> str:
     return f"`{default}`"
 
 
-FEW_TASKS = 4  # a flag of at most this many tasks is listed with their names
-
-
-def markdown_table(flag_tasks: Optional[Mapping[str, Iterable[str]]] = None) -> str:
+def markdown_table(flag_tasks: Optional[Mapping[str, str]] = None) -> str:
     """The README configuration table, derived from the declarations; flag_tasks says which
-    tasks have a setting as a flag (others are reached with --set NAME=VALUE)."""
+    tasks have a setting as a flag, in words (others are reached with --set NAME=VALUE)."""
     flag_tasks = flag_tasks or {}
     rows = ["| variable | flag | default | description |", "|---|---|---|---|"]
     for name, f in FIELDS.items():
@@ -981,9 +978,7 @@ def markdown_table(flag_tasks: Optional[Mapping[str, Iterable[str]]] = None) -> 
         elif f.metadata["group"] == "ci":
             flag = "none: read by the CI integrations only"
         elif flag_tasks.get(name):
-            tasks = list(flag_tasks[name])
-            flag = f"`{flag_name(name)}`" + (
-                f" ({', '.join(tasks)})" if len(tasks) <= FEW_TASKS else "")
+            flag = f"`{flag_name(name)}` ({flag_tasks[name]})"
         else:
             flag = f"`--set {env_name(name)}=...`"
         help_text = str(f.metadata["help"])

@@ -163,15 +163,18 @@ def _paths(env: Mapping[str, str], name: str) -> List[Path]:
     return [Path(p) for p in env.get(name, "").split(os.pathsep) if p]
 
 
+def usable(path: Path, *, executable: bool) -> bool:
+    """Whether path is a file (an executable one if asked)."""
+    return path.is_file() and (not executable or os.access(path, os.X_OK))
+
+
 def files_below(folders: Sequence[Path], *, executable: bool) -> Iterator[Path]:
     """The files below folders (executable ones if asked), hidden folders left out."""
     for folder in folders:
         for dirpath, dirnames, filenames in os.walk(folder, followlinks=True):
             dirnames[:] = [d for d in dirnames if not d.startswith(".")]
-            for name in filenames:
-                path = Path(dirpath, name)
-                if not executable or os.access(path, os.X_OK):
-                    yield path
+            yield from (path for path in (Path(dirpath, name) for name in filenames)
+                        if usable(path, executable=executable))
 
 
 def find_file(folders: Sequence[Path], name: str, *, executable: bool) -> bool:
@@ -179,9 +182,7 @@ def find_file(folders: Sequence[Path], name: str, *, executable: bool) -> bool:
     `ros2 run` looks in lib/<package> and `ros2 launch`/`roslaunch`/`rosrun` in its share; a
     name with a folder in it (`launch/x.launch.py`) is looked for there only."""
     if "/" in name:
-        return any((folder / name).is_file() and (not executable or os.access(folder / name,
-                                                                               os.X_OK))
-                   for folder in folders)
+        return any(usable(folder / name, executable=executable) for folder in folders)
     return any(path.name == name for path in files_below(folders, executable=executable))
 
 

@@ -393,19 +393,18 @@ def collect(
     # No keys, no rosdep: a workspace without dependencies needs no rosdep database.
     resolved: Resolution = {}
     failed: Dict[str, str] = {}
-    shown_keys = sorted(all_keys)
     if all_keys:
         with rosdep_database(ws, rules, distro, dry_run=dry_run) as env:
-            if env is UNRESOLVED:
-                dry(STEP, f"resolve {len(all_keys)} keys in the database those commands make")
-                shown_keys = []
-            else:
-                if rules and env:
-                    report_overrides(rules, settings.rosdep_rules_file, env)
-                resolved, failed = resolve(sorted(all_keys), distro, env=env)
+            if env is UNRESOLVED:  # nothing resolved: what apply would install is unknown
+                dry(STEP, f"resolve {len(all_keys)} key{'s' if len(all_keys) > 1 else ''} in the"
+                    " database those commands make")
+                return None
+            if rules and env:
+                report_overrides(rules, settings.rosdep_rules_file, env)
+            resolved, failed = resolve(sorted(all_keys), distro, env=env)
     if failed:
         raise StepError(STEP, format_failures(failed, all_keys))
-    for key in shown_keys:
+    for key in sorted(all_keys):
         shown = "; ".join(f"{i}: {' '.join(p)}" for i, p in sorted(resolved.get(key, {}).items()))
         LOG.info("%s: %s -> %s", STEP, key, shown or "(nothing to install)")
     plan = plan_rosdep(selected, resolved)
