@@ -104,17 +104,6 @@ def test_the_actions_slug_step_names_the_github_ci_tags(case):
     assert tag_postfix(detect_pipeline(gitlab)) == "_feature-my-thing_ci"  # GitHub's only
 
 
-@pytest.mark.parametrize("case", ["gitlab-feature", "gitlab-mr"])
-def test_gitlabs_own_ref_slug_names_the_gitlab_ci_tags(case):
-    """On GitLab, CI_COMMIT_REF_SLUG (what docker-ros's template puts in its tags) is used as
-    GitLab made it; ours (slugify) only where GitLab did not set it (`docker-ros ci` by hand)."""
-    environ = {**CASES[case], "CI_COMMIT_REF_SLUG": "made-by-gitlab"}
-    assert tag_postfix(detect_pipeline(environ)) == "_made-by-gitlab_ci"
-    assert tag_postfix(detect_pipeline(CASES[case])) == "_feature-my-thing_ci"
-    tagged = {**CASES["gitlab-tag"], "CI_COMMIT_REF_SLUG": "v1-2-0"}
-    assert tag_postfix(detect_pipeline(tagged)) == "-v1.2.0"  # a git tag is kept as written
-
-
 @pytest.mark.parametrize("ci,environ", [
     ("gitlab", {**GITLAB, "CI_COMMIT_BRANCH": "feat--x", "CI_COMMIT_REF_NAME": "feat--x"}),
     ("github", {**GITHUB, "GITHUB_REF_TYPE": "branch", "GITHUB_REF_NAME": "feat--x"}),

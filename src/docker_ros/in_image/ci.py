@@ -27,9 +27,7 @@ class Pipeline:
     kind: str  # "branch", "tag" or "merge_request" (GitHub: pull request)
     ref: str  # branch or tag name; the source branch of a merge/pull request
     default_branch: str  # "" when the CI does not tell
-    # the CI's own slug of ref (the GitHub Action's slug step, GitLab's CI_COMMIT_REF_SLUG);
-    # "" to make it
-    slug: str = ""
+    slug: str = ""  # the CI's own slug of ref (the GitHub Action's slug step); "" to make it
 
     @property
     def on_default_branch(self) -> bool:
@@ -40,7 +38,8 @@ class Pipeline:
 
 def slugify(name: str) -> str:
     """GitLab's CI_COMMIT_REF_SLUG: lower case, 63 bytes, all but [0-9a-z] as `-` (a run of
-    them stays a run), no `-` at the ends."""
+    them stays a run), no `-` at the ends. Made here, not read: the same on GitLab, and
+    gitlab-ci-local, which sets its own (runs made one `-`), then names tags as GitLab does."""
     slug = re.sub(r"[^0-9a-z]", "-", name.lower())[:SLUG_MAX]
     return slug.strip("-")
 
@@ -62,9 +61,8 @@ def github_slug(name: str) -> str:
 
 
 def ref_slug(pipeline: Pipeline) -> str:
-    """The branch slug as docker-ros's pipeline of that CI spells it: the CI's own (the Action's
-    slug step, gacts/github-slug as docker-ros's, which transliterates every script; GitLab's
-    CI_COMMIT_REF_SLUG, which docker-ros's template uses), else ours."""
+    """The branch slug as docker-ros's pipeline of that CI spells it: the one the Action's slug
+    step made (gacts/github-slug, as docker-ros's; it transliterates every script), else ours."""
     if pipeline.slug:
         return pipeline.slug
     return github_slug(pipeline.ref) if pipeline.ci == "github" else slugify(pipeline.ref)
@@ -86,14 +84,13 @@ def detect_pipeline(environ: Mapping[str, str]) -> Optional[Pipeline]:
         return Pipeline("github", kind, environ.get("GITHUB_REF_NAME", ""), default, slug)
     if environ.get("GITLAB_CI") == "true":
         default = environ.get("CI_DEFAULT_BRANCH", "")
-        slug = environ.get("CI_COMMIT_REF_SLUG", "")  # of the source branch in merge requests
         if environ.get("CI_COMMIT_TAG"):
             return Pipeline("gitlab", "tag", environ["CI_COMMIT_TAG"], default)
         if environ.get("CI_MERGE_REQUEST_SOURCE_BRANCH_NAME"):
             source = environ["CI_MERGE_REQUEST_SOURCE_BRANCH_NAME"]
-            return Pipeline("gitlab", "merge_request", source, default, slug)
+            return Pipeline("gitlab", "merge_request", source, default)
         branch = environ.get("CI_COMMIT_BRANCH") or environ.get("CI_COMMIT_REF_NAME", "")
-        return Pipeline("gitlab", "branch", branch, default, slug)
+        return Pipeline("gitlab", "branch", branch, default)
     return None
 
 
