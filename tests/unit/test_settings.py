@@ -254,7 +254,9 @@ def test_the_flag_column_names_the_tasks_in_the_fewest_words():
     assert readme.tasks_phrase(["a", "b", "c", "d", "e", "s1"], every, steps) == (
         "every task but s2, s3")
     assert readme.tasks_phrase(["a", "s1", "s2", "s3"], every, steps) == "the step tasks, a"
-    assert readme.tasks_phrase(["a", "b", "c", "d"], every, steps) == "a, b, c, d"  # a tie
+    assert readme.tasks_phrase(["a", "b", "c", "d"], every, steps) == "a, b, c, d"
+    tie = ["a", "b", "c", "d", "e", "f", "s1"]  # 4 names, or "every task but" 3 names
+    assert readme.tasks_phrase(["a", "b", "c", "d"], tie, ["s1"]) == "a, b, c, d"
 
 
 def test_the_flag_column_s_tasks_are_those_whose_help_has_the_flag():
