@@ -81,6 +81,28 @@ def test_explicit_list_files_must_exist_defaults_stay_silent(repo: Path, tmp_pat
         assert "VCS_IMPORT_FILE 'deps.repos' not found in the repository" in last_line(proc)
 
 
+@pytest.mark.parametrize("args", [["build", "--dry-run"], ["run", "--host", "--dry-run"],
+                                  ["run", "--in-container", "--dry-run"]])
+def test_missing_values_and_bad_paths_are_told_at_once(repo: Path, tmp_path: Path,
+                                                       args: list) -> None:
+    """A missing COMMAND and a wrong file name: one message names both (it took two runs)."""
+    dotenv = f"WORKSPACE={tmp_path / 'ws'}\nBASE_IMAGE=none:1\n"
+    (repo / ".env").write_text(dotenv + "ADDITIONAL_DEBS_FILE=debs.txt\n")
+    proc = run(["docker_ros", *args], repo)
+    assert proc.returncode == 1, proc.stderr
+    said = proc.stderr.strip().splitlines()[-3:]
+    assert said == [
+        f"docker-ros {args[0]}: invalid configuration:",
+        "  missing required configuration: COMMAND (set them in .env, the environment, "
+        "invoke.yaml under docker_ros: or as flags)",
+        "  ADDITIONAL_DEBS_FILE 'debs.txt' not found in the repository, but set explicitly: "
+        "fix the path or unset it"], proc.stderr
+    (repo / ".env").write_text(dotenv)
+    alone = run(["docker_ros", *args], repo)
+    assert last_line(alone).startswith(f"docker-ros {args[0]}: missing required configuration: "
+                                       "COMMAND (set them in"), alone.stderr
+
+
 def test_duplicate_package_names_fail_before_anything_runs_naming_both(repo: Path,
                                                                        tmp_path: Path) -> None:
     make_package(repo / "copy" / "pkg_a", "pkg_a")

@@ -592,7 +592,7 @@ def test_a_platform_failing_after_another_names_what_that_one_built(monkeypatch,
     (tmp_path / "pkg" / "package.xml").write_text("<package/>")
     s = load_settings(environ={"BASE_IMAGE": "base:1", "COMMAND": "run me", "IMAGE": "img:t",
                                "PLATFORM": "amd64,arm64"}, project_dir=tmp_path)
-    monkeypatch.setattr(pipeline, "check_inputs", lambda settings, targets: None)
+    monkeypatch.setattr(pipeline, "check_inputs", lambda settings, targets, required: None)
     monkeypatch.setattr(build, "check_engine", lambda settings: None)
     monkeypatch.setattr(build, "platform_base", lambda settings, platform: ("base:1", ""))
     monkeypatch.setattr(build, "summary_table", lambda built: "")

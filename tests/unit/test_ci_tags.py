@@ -24,6 +24,7 @@ from docker_ros.in_image.ci import (
     tag_postfix,
 )
 from docker_ros.in_image.settings import load_settings
+from tests.rosfixtures import make_package
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 
@@ -275,6 +276,7 @@ def test_a_failed_task_is_a_github_error_annotation(tmp_path) -> None:
     assert task.stdout.startswith("::error title=docker-ros build::invalid configuration:%0A  "
                                   "TARGET='' is empty"), task.stdout
     # `docker-ros ci`: one annotation, its failed task's (not also `build failed` from ci)
+    make_package(tmp_path / "pkg", "pkg")  # (COMMAND is all that is missing)
     job = subprocess.run([sys.executable, "-m", "docker_ros", "ci", "--set", "BASE_IMAGE=b:1",
                           "--set", "IMAGE=docker-ros-test/none:1"],
                          cwd=tmp_path, env=env, capture_output=True, text=True)

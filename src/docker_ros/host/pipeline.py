@@ -145,9 +145,18 @@ def host_options(step: str, ws: Workspace) -> Dict[str, str]:
     return {"destination": str(ws.root / "additional-files")} if step == "files" else {}
 
 
-def check_inputs(settings: Settings, targets: Sequence[str] = ()) -> None:
-    """Bad paths and image names, all at once, before anything runs."""
-    stop_on(input_problems(settings, targets, images=bool(targets)))
+def check_inputs(settings: Settings, targets: Sequence[str] = (),
+                 required: Sequence[str] = ()) -> None:
+    """Missing required values, bad paths and image names, all at once, before anything
+    runs (a missing value alone keeps its own one-line message)."""
+    problems = input_problems(settings, targets, images=bool(targets))
+    try:
+        require(settings, required)
+    except SettingsError as exc:
+        if not problems:
+            raise
+        problems = {"required": str(exc), **problems}
+    stop_on(problems)
 
 
 def stop_on(problems: Mapping[str, str]) -> None:
@@ -156,9 +165,10 @@ def stop_on(problems: Mapping[str, str]) -> None:
         raise SettingsError("invalid configuration:\n  " + "\n  ".join(problems.values()))
 
 
-def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool) -> None:
+def run_host_steps(settings: Settings, steps: Sequence[str], *, dry_run: bool,
+                   required: Sequence[str] = ()) -> None:
 
-    check_inputs(settings)
+    check_inputs(settings, required=required)
     with host_workspace(settings, dry_run=dry_run) as ws:
         for step in steps:
             run_step(step, ws, settings, phase="all", dry_run=dry_run, **host_options(step, ws))
@@ -169,8 +179,8 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
     """Build the plan's start stage, run its commands in one container, tag the result."""
 
     runs_command = plan.start == "run" or ("command",) in plan.commands
-    require(settings, ["base_image"] + (["command"] if runs_command else []))
-    check_inputs(settings, ("run",) if runs_command else ("dev",))
+    check_inputs(settings, ("run",) if runs_command else ("dev",),
+                 ["base_image"] + (["command"] if runs_command else []))
     repository = f"{Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
     mount = f" -v {repository}" if plan.sources else ""
     if dry_run:
@@ -198,8 +208,6 @@ def composite_flow(settings: Settings, name: str, *, host: bool, dry_run: bool, 
                shell_on_failure: bool) -> None:
     if host and in_container:
         raise TaskError("--host and --in-container: choose one")
-    if name == "run" and (host or in_container) and not settings.command:
-        raise SettingsError("missing required configuration: COMMAND")
     if in_container:
 
         run_in_container(settings, container.plan_composite(settings, name), dry_run=dry_run,
@@ -207,7 +215,8 @@ def composite_flow(settings: Settings, name: str, *, host: bool, dry_run: bool, 
     elif host:
         if shell_on_failure:
             raise TaskError("--shell-on-failure needs --in-container or an image build")
-        run_host_steps(settings, DEV_STEPS if name == "dev" else STEPS, dry_run=dry_run)
+        run_host_steps(settings, DEV_STEPS if name == "dev" else STEPS, dry_run=dry_run,
+                       required=["command"] if name == "run" else [])
     else:
         build_targets(settings, (name,), dry_run=dry_run, shell_on_failure=shell_on_failure)
 
@@ -226,8 +235,7 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
     """Build the targets for every platform (and with slim, the slim image after run); print
     the summary table."""
     settings = dataclasses.replace(settings, target=tuple(targets))
-    require(settings, required_for_build(settings))
-    check_inputs(settings, targets)
+    check_inputs(settings, targets, required_for_build(settings))
     if slim and "run" in targets:
         check_slim_options(settings)
     assert settings.base_image
