@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from docker_ros.host import build, buildlog
+from docker_ros.host.config import config_table
 from docker_ros.in_image.settings import FIELDS, load_settings
 
 
@@ -572,8 +573,6 @@ def test_rmw_implementation_is_passed_when_chosen():
                            project_dir=Path("/tmp/My_Robot"))
     assert passed(chosen) == ["RMW_IMPLEMENTATION=rmw_fastrtps_cpp"]
     # `inv config` says which: an unchosen value is not what the image gets on every base
-    from docker_ros.host.config import config_table
-
     def shown(s):
         return next(line for line in config_table(s).splitlines()
                     if line.startswith("RMW_IMPLEMENTATION"))

@@ -199,5 +199,9 @@ def test_a_name_without_registry_or_namespace_is_refused_before_the_build():
     assert [line.split(" names")[0] for line in official_only_names(
         settings(IMAGE="me/img:v1", DEV_IMAGE_NAME="dev-img"), ["dev", "run"])] == [
         "DEV_IMAGE_NAME 'dev-img'"]
+    # the build state is pushed under IMAGE_NAME; a slim image by its own name
+    assert [line.split(" names")[0] for line in official_only_names(
+        settings(IMAGE="img:v1", SLIM_IMAGE_NAME="me/slim"), ["run", "build-state", "slim"])] == [
+        "IMAGE_NAME 'img'"]
     for pushable in ("user/img:1", "reg.example/img:1", "localhost:5000/img:1"):
         assert official_only_names(settings(IMAGE=pushable), ["dev", "run"]) == [], pushable

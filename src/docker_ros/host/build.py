@@ -274,11 +274,9 @@ def build_args(settings: Settings, declared: Sequence[str]) -> Dict[str, str]:
 
 
 def arg_values(settings: Settings) -> Dict[str, str]:
-    """The settings as build arguments (as_env), without an RMW_IMPLEMENTATION nobody chose:
-    then a base image's own stays (the Dockerfile's ENV falls back to it, then to the default),
-    as with docker-ros's build.sh. Chosen: a value other than the default, or the default
-    written in .env, invoke.yaml or a flag (the CI integrations pass the default on in the
-    environment, so there the value alone tells)."""
+    """The settings as build arguments (as_env), without an RMW_IMPLEMENTATION nobody chose
+    (config.rmw_chosen): then a base image's own stays (the Dockerfile's ENV falls back to it,
+    then to the default), as with docker-ros's build.sh."""
     values = as_env(settings)
     if not rmw_chosen(settings):
         values.pop("RMW_IMPLEMENTATION", None)

@@ -13,6 +13,7 @@ from docker_ros.host.slim import LABEL_SOURCE
 from docker_ros.in_image.runtime.workspace import format_argv
 from docker_ros.in_image.settings import (
     Settings,
+    env_name,
     host_platform,
     made_images,
     ref_host,
@@ -41,23 +42,26 @@ def push_targets(settings: Settings) -> List[str]:
     return targets
 
 
-# The variable each pushed target's name comes from
-NAME_SETTING = {"dev": "DEV_IMAGE_NAME", "slim": "SLIM_IMAGE_NAME"}
-
-
 def official_only_names(settings: Settings, targets: Sequence[str]) -> List[str]:
     """Pushed names with neither registry nor namespace (`my-image`): docker pushes them to
     Docker Hub's `library/`, where only Docker's official images go. One line each, said
     before anything is built (the push failed after the build and the slimming)."""
-    names: Dict[str, str] = {}  # name -> its variable (IMAGE_NAME's first: dev's comes from it)
+    names: Dict[str, str] = {}  # name -> its setting (IMAGE_NAME's first: dev's comes from it)
     for target in sorted(targets, key=lambda t: t != "run"):
-        names.setdefault(image_ref(settings, target).rsplit(":", 1)[0],
-                         NAME_SETTING.get(target, "IMAGE_NAME"))
-    return [f"{variable} {name!r} names no registry and no namespace: docker would push it to "
-            f"docker.io/library/{name}, which takes Docker's official images only; name your "
-            f"registry (IMAGE={settings.registry or 'registry.example.com'}/{name}:tag) or Docker "
-            f"Hub user (IMAGE=<user>/{name}:tag)"
-            for name, variable in names.items() if "/" not in name]
+        field = f"{target}_image_name" if target in ("dev", "slim") else "image_name"
+        names.setdefault(str(getattr(settings, field)), env_name(field))
+    registry = settings.registry or "registry.example.com"
+    out = []
+    for name, variable in names.items():
+        if "/" in name:
+            continue
+        # IMAGE sets IMAGE_NAME (and the others' defaults); DEV/SLIM_IMAGE_NAME are their own
+        set_as, tag = ("IMAGE", ":tag") if variable == "IMAGE_NAME" else (variable, "")
+        out.append(f"{variable} {name!r} names no registry and no namespace: docker would push "
+                   f"it to docker.io/library/{name}, which takes Docker's official images only; "
+                   f"name your registry ({set_as}={registry}/{name}{tag}) or Docker Hub user "
+                   f"({set_as}=<user>/{name}{tag})")
+    return out
 
 
 def pushed_names(settings: Settings, target: str) -> List[str]:
