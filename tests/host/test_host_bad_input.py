@@ -93,14 +93,14 @@ def test_missing_values_and_bad_paths_are_told_at_once(repo: Path, tmp_path: Pat
     said = proc.stderr.strip().splitlines()[-3:]
     assert said == [
         f"docker-ros {args[0]}: invalid configuration:",
-        "  missing required configuration: COMMAND (set them in .env, the environment, "
+        "  missing required configuration: COMMAND (set it in .env, the environment, "
         "invoke.yaml under docker_ros: or as flags)",
         "  ADDITIONAL_DEBS_FILE 'debs.txt' not found in the repository, but set explicitly: "
         "fix the path or unset it"], proc.stderr
     (repo / ".env").write_text(dotenv)
     alone = run(["docker_ros", *args], repo)
     assert last_line(alone).startswith(f"docker-ros {args[0]}: missing required configuration: "
-                                       "COMMAND (set them in"), alone.stderr
+                                       "COMMAND (set it in"), alone.stderr
 
 
 def test_duplicate_package_names_fail_before_anything_runs_naming_both(repo: Path,

@@ -282,5 +282,5 @@ def test_a_failed_task_is_a_github_error_annotation(tmp_path) -> None:
                          cwd=tmp_path, env=env, capture_output=True, text=True)
     assert job.returncode == 1
     assert [line for line in job.stdout.splitlines() if line.startswith("::error")] == [
-        "::error title=docker-ros build::missing required configuration: COMMAND (set them in "
+        "::error title=docker-ros build::missing required configuration: COMMAND (set it in "
         ".env, the environment, invoke.yaml under docker_ros: or as flags)"], job.stdout

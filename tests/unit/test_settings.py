@@ -13,6 +13,7 @@ from docker_ros.in_image.settings import (
     as_env,
     display_value,
     load_settings,
+    missing_required,
     parse_set,
     require,
     required_for_build,
@@ -324,5 +325,16 @@ def test_a_required_value_emptied_by_a_higher_source_says_where_from():
                             project_dir=Path("/tmp/p"))
     with pytest.raises(SettingsError, match=r"BASE_IMAGE \(empty, from flag\)"):
         require(emptied, ["base_image"])
-    with pytest.raises(SettingsError, match=r"configuration: BASE_IMAGE \(set them"):
+    with pytest.raises(SettingsError, match=r"configuration: BASE_IMAGE \(set it"):
         require(load_settings(project_dir=Path("/tmp/p")), ["base_image"])
+
+
+def test_missing_required_names_every_missing_value_in_one_line():
+    """Nothing missing is '' (no message); one value is "set it", two are "set them"."""
+    settings = load_settings(dotenv={"BASE_IMAGE": "ros:noetic"}, project_dir=Path("/tmp/p"))
+    assert missing_required(settings, ["base_image"]) == ""
+    assert missing_required(settings, ["base_image", "command"]).startswith(
+        "missing required configuration: COMMAND (set it in .env")
+    none = load_settings(project_dir=Path("/tmp/p"))
+    assert missing_required(none, ["base_image", "command"]).startswith(
+        "missing required configuration: BASE_IMAGE, COMMAND (set them in .env")

@@ -42,6 +42,7 @@ from docker_ros.in_image.settings import (
     display_value,
     env_name,
     host_platform,
+    missing_required,
     require,
     required_for_build,
 )
@@ -149,14 +150,11 @@ def check_inputs(settings: Settings, targets: Sequence[str] = (),
                  required: Sequence[str] = ()) -> None:
     """Missing required values, bad paths and image names, all at once, before anything
     runs (a missing value alone keeps its own one-line message)."""
+    missing = missing_required(settings, required)
     problems = input_problems(settings, targets, images=bool(targets))
-    try:
-        require(settings, required)
-    except SettingsError as exc:
-        if not problems:
-            raise
-        problems = {"required": str(exc), **problems}
-    stop_on(problems)
+    if missing and not problems:
+        raise SettingsError(missing)
+    stop_on({"required": missing, **problems} if missing else problems)
 
 
 def stop_on(problems: Mapping[str, str]) -> None:

@@ -876,17 +876,23 @@ def host_platform() -> str:
     return {"x86_64": "amd64", "aarch64": "arm64"}.get(machine, machine)
 
 
-def require(settings: Settings, names: Iterable[str]) -> None:
-    """Fail with one message listing every required value that is missing."""
+def missing_required(settings: Settings, names: Iterable[str]) -> str:
+    """One line naming every required value that is missing ('' when none is)."""
     missing = [env_name(n) + ("" if settings.source_of(n) == "default"
                               else f" (empty, from {settings.source_of(n)})")
                for n in names if not getattr(settings, n)]
-    if missing:
-        raise SettingsError(
-            "missing required configuration: "
-            + ", ".join(missing)
-            + " (set them in .env, the environment, invoke.yaml under docker_ros: or as flags)"
-        )
+    if not missing:
+        return ""
+    pronoun = "it" if len(missing) == 1 else "them"
+    return (f"missing required configuration: {', '.join(missing)} (set {pronoun} in .env, the "
+            "environment, invoke.yaml under docker_ros: or as flags)")
+
+
+def require(settings: Settings, names: Iterable[str]) -> None:
+    """Fail with one message listing every required value that is missing."""
+    message = missing_required(settings, names)
+    if message:
+        raise SettingsError(message)
 
 
 def made_images(settings: Settings) -> List[str]:
