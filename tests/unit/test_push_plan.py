@@ -8,6 +8,7 @@ from docker_ros.host import engine
 from docker_ros.host.build import BuildError
 from docker_ros.host.push import (
     also_ref,
+    auth_config,
     execute,
     official_only_names,
     plan_manifest,
@@ -15,6 +16,7 @@ from docker_ros.host.push import (
     plan_push,
     ref_registry,
     registry_warning,
+    run_commands,
     slimmed_from,
     write_outputs,
 )
@@ -156,7 +158,7 @@ def test_a_push_the_registry_refuses_for_want_of_a_login_names_the_login_setting
 
     monkeypatch.setattr(engine, "push", refused)
     with pytest.raises(BuildError) as raised:
-        execute(["docker", "push", "reg:5000/x:1"], None)
+        execute(["docker", "push", "reg:5000/x:1"], settings())
     assert str(raised.value) == (
         "docker push reg:5000/x:1 failed: no basic auth credentials; the registry wants a "
         "login: check REGISTRY, REGISTRY_USER and REGISTRY_PASSWORD (and that the user may "
@@ -167,7 +169,7 @@ def test_a_push_the_registry_refuses_for_want_of_a_login_names_the_login_setting
 
     monkeypatch.setattr(engine, "push", unreachable)
     with pytest.raises(BuildError) as raised:
-        execute(["docker", "push", "reg:5000/x:1"], None)
+        execute(["docker", "push", "reg:5000/x:1"], settings())
     assert str(raised.value) == "docker push reg:5000/x:1 failed: connection refused"
 
 
@@ -183,6 +185,14 @@ def test_a_registry_the_images_do_not_go_to_is_a_warning():
     assert registry_warning(settings(IMAGE="team/app:v1"), ["run"]) == ""
     other = settings(IMAGE="ghcr.io/team/app:v1", REGISTRY="reg.example")
     assert "ghcr.io/team/app:v1 goes to ghcr.io" in registry_warning(other, ["run"])
+    # with credentials, the warning says that they do not go there; REGISTRY unset is Docker Hub
+    unset = settings(IMAGE="ghcr.io/team/app:v1", REGISTRY_USER="u", REGISTRY_PASSWORD="p")
+    assert registry_warning(unset, ["run"]) == (
+        "warning: REGISTRY is unset (the login goes to Docker Hub), but ghcr.io/team/app:v1 goes "
+        "to ghcr.io, without REGISTRY_USER/REGISTRY_PASSWORD (only your docker configuration's "
+        "own login there counts): set REGISTRY=ghcr.io to log in there")
+    assert registry_warning(settings(IMAGE="team/app:v1", REGISTRY_USER="u",
+                                     REGISTRY_PASSWORD="p"), ["run"]) == ""
     assert ref_registry("localhost/app") == "localhost"
     assert ref_registry("docker.io/team/app") == "docker.io"
 
@@ -205,3 +215,25 @@ def test_a_name_without_registry_or_namespace_is_refused_before_the_build():
         "IMAGE_NAME 'img'"]
     for pushable in ("user/img:1", "reg.example/img:1", "localhost:5000/img:1"):
         assert official_only_names(settings(IMAGE=pushable), ["dev", "run"]) == [], pushable
+
+
+def test_the_registry_password_goes_only_to_pushes_to_registry(monkeypatch):
+    """The engine offers a push's credentials to whatever registry the name goes to: a dev
+    image on another registry than REGISTRY (or a Docker Hub name) must get none of them."""
+    s = settings(IMAGE="reg.example:5000/team/app:v1", DEV_IMAGE_NAME="other.example/team/dev",
+                 TARGET="dev,run", REGISTRY="https://reg.example:5000", REGISTRY_USER="u",
+                 REGISTRY_PASSWORD="secret")
+    login = {"username": "u", "password": "secret", "serveraddress": "https://reg.example:5000"}
+    assert auth_config(s, "reg.example:5000/team/app:v1") == login
+    assert auth_config(s, "other.example/team/dev:v1-dev") is None
+    assert auth_config(s, "team/app:v1") is None
+    hub = settings(IMAGE="team/app:v1", REGISTRY_USER="u", REGISTRY_PASSWORD="secret")
+    assert auth_config(hub, "team/app:v1") == {"username": "u", "password": "secret"}
+    assert auth_config(hub, "docker.io/team/app:v1") is not None
+    assert auth_config(hub, "ghcr.io/team/app:v1") is None
+    assert auth_config(settings(REGISTRY="reg.example:5000"), "reg.example:5000/a:1") is None
+    sent = []
+    monkeypatch.setattr(engine, "push", lambda ref, auth: sent.append((ref, auth)))
+    run_commands(s, plan_push(s, s.target), dry_run=False, label="push")
+    assert sent == [("other.example/team/dev:v1-dev", None),
+                    ("reg.example:5000/team/app:v1", login)]

@@ -90,20 +90,27 @@ def ref_registry(ref: str) -> str:
 
 
 def registry_warning(settings: Settings, targets: Sequence[str]) -> str:
-    """A warning when REGISTRY (the login) is not where the images go: a name without a
-    registry host is pushed to Docker Hub ('' when they match, or REGISTRY is unset)."""
-    if not settings.registry:
+    """A warning when the login (REGISTRY, Docker Hub when it is unset and REGISTRY_USER and
+    REGISTRY_PASSWORD are set) is not where the images go: those pushes get no such credentials
+    ('' when they match, or there is no login)."""
+    credentials = bool(settings.registry_user and settings.registry_password)
+    if not (settings.registry or credentials):
         return ""
-    wanted = registry_of(server_host(settings.registry))
+    wanted = registry_of(server_host(settings.registry or ""))
     names = [image_ref(settings, t) for t in targets if t != "build-state"]
     elsewhere = [name for name in dict.fromkeys(names) if ref_registry(name) != wanted]
     if not elsewhere:
         return ""
     where = ref_registry(elsewhere[0])
-    return (f"warning: REGISTRY is {wanted} (the login), but {', '.join(elsewhere)} "
+    login = (f"REGISTRY is {wanted} (the login)" if settings.registry
+             else "REGISTRY is unset (the login goes to Docker Hub)")
+    unsent = (", without REGISTRY_USER/REGISTRY_PASSWORD (only your docker configuration's "
+              "own login there counts)" if credentials else "")
+    fix = (f"put {wanted}/ in front of IMAGE/IMAGE_NAME to push there" if settings.registry
+           else f"set REGISTRY={where} to log in there")
+    return (f"warning: {login}, but {', '.join(elsewhere)} "
             f"{'goes' if len(elsewhere) == 1 else 'go'} to "
-            f"{'Docker Hub' if where == 'docker.io' else where}: put {wanted}/ in front of "
-            "IMAGE/IMAGE_NAME to push there")
+            f"{'Docker Hub' if where == 'docker.io' else where}{unsent}: {fix}")
 
 
 def plan_push(settings: Settings, targets: Sequence[str], *, host: str = "") -> List[List[str]]:
@@ -237,9 +244,14 @@ def write_outputs(outputs: Mapping[str, str], environ: Mapping[str, str]) -> Non
             out.write(f"{key}={value}\n")
 
 
-def auth_config(settings: Settings) -> Optional[Dict[str, str]]:
-    """REGISTRY_USER/REGISTRY_PASSWORD for the Engine API (in memory, per request)."""
+def auth_config(settings: Settings, ref: str) -> Optional[Dict[str, str]]:
+    """REGISTRY_USER/REGISTRY_PASSWORD for pushing ref through the Engine API (in memory, per
+    request), only when ref goes to REGISTRY (Docker Hub when it is unset), the registry
+    `docker login` files them for: the engine would offer them to any registry. A push
+    elsewhere gets None, so the docker configuration's own login for that registry counts."""
     if not (settings.registry_user and settings.registry_password):
+        return None
+    if ref_registry(ref) != registry_of(server_host(settings.registry or "")):
         return None
     auth = {"username": settings.registry_user, "password": settings.registry_password}
     return {**auth, "serveraddress": settings.registry} if settings.registry else auth
@@ -259,15 +271,15 @@ def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> Li
     return run_commands(settings, commands, dry_run=dry_run, label="manifest")
 
 
-def execute(argv: List[str], auth: Optional[Dict[str, str]]) -> None:
-    """One planned command: tag and push through the Engine API (credentials in the request),
-    manifest lists through buildx (the API has none)."""
+def execute(argv: List[str], settings: Settings) -> None:
+    """One planned command: tag and push through the Engine API (REGISTRY's credentials in the
+    request, auth_config), manifest lists through buildx (the API has none)."""
     try:
         if argv[:2] == ["docker", "tag"]:
             engine.tag(argv[2], argv[3])
             return
         if argv[:2] == ["docker", "push"]:
-            engine.push(argv[2], auth)
+            engine.push(argv[2], auth_config(settings, argv[2]))
             return
     except engine.EngineError as exc:
         raise BuildError(str(exc) + auth_hint(str(exc))) from None
@@ -304,11 +316,10 @@ def run_commands(
         for argv in commands:
             print(f"[dry-run] {label}:", format_argv(argv))
         return []
-    auth = auth_config(settings)
     pushed = []
     for argv in commands:
         print(f"{label}:", format_argv(argv), flush=True)
-        execute(argv, auth)
+        execute(argv, settings)
         if argv[1] == "push":
             pushed.append(argv[-1])
         elif is_manifest(argv):
