@@ -88,3 +88,25 @@ def test_config_says_which_applies_and_why(project: Path) -> None:
     github = row(env={"GITHUB_ACTIONS": "true"}).split(None, 2)
     assert github[1:] == ["true", "derived from the CI pipeline (github): docker-ros's default"]
     assert row(env={"ENABLE_SLIM": "true"}).split()[1:] == ["true", "environment"]
+
+
+def test_ci_passes_its_flags_on_as_given_and_its_plan_wins(project: Path) -> None:
+    """`ci --image-tag v1` on a branch pipeline pushes v1 with the branch's postfix (the tasks
+    got the postfixed tag as a flag and dropped it); a flag of the user's never undoes the plan's
+    own --set: ENABLE_INDUSTRIAL_CI=true tests once, in the test task, not in the build too."""
+    branch = {"GITLAB_CI": "true", "CI_COMMIT_BRANCH": "feature", "CI_DEFAULT_BRANCH": "main",
+              "CI_REGISTRY_IMAGE": "reg.example/group/project"}
+    ci = cli(project, "ci", "--image-tag", "v1", "--dry-run", env=branch)
+    assert ci.returncode == 0, ci.stdout + ci.stderr
+    assert re.findall(r"\[dry-run\] push: docker push (\S+)", ci.stdout) == [
+        "reg.example/group/project:v1_feature_ci",
+        "reg.example/group/project:v1_feature_ci-build-state-amd64",
+        "reg.example/group/project:v1-slim_feature_ci"], ci.stdout
+    assert "docker-ros ci: docker-ros build --set IMAGE_TAG=v1 --set ENABLE_SLIM=false" in (
+        ci.stdout)
+    tested = cli(project, "ci", "--set", "ENABLE_INDUSTRIAL_CI=true", "--dry-run",
+                 env={"IMAGE": "me/ci-flags:latest"})
+    assert tested.returncode == 0, tested.stdout + tested.stderr
+    assert tested.stdout.count("[dry-run] test: would copy the results") == 1, tested.stdout
+    assert ("docker-ros ci: docker-ros build --set ENABLE_INDUSTRIAL_CI=true --set "
+            "ENABLE_SLIM=false --set ENABLE_INDUSTRIAL_CI=false --dry-run") in tested.stdout

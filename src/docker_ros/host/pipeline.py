@@ -36,10 +36,8 @@ from docker_ros.in_image import testing
 from docker_ros.in_image.ci import missing_tasks
 from docker_ros.in_image.runtime.workspace import STATE_DIR_NAME, Workspace, format_argv
 from docker_ros.in_image.settings import (
-    FIELDS,
     Settings,
     SettingsError,
-    display_value,
     env_name,
     host_platform,
     missing_required,
@@ -485,22 +483,24 @@ def require_tasks(plan: Sequence[Sequence[str]], task_names: Collection[str]) ->
 
 def run_ci_plan(settings: Settings, plan: Sequence[Sequence[str]], *, dry_run: bool) -> None:
     """A CI job's tasks, each a `docker-ros` process, in order; the first failure stops it. The
-    tasks re-read .env, invoke.yaml and the environment; flags given to `ci` go along (a dry
-    run: each task's dry run, which prints its commands and image names)."""
-    given = [arg for n in FIELDS if settings.source_of(n) == "flag"
-             for arg in ("--set", f"{env_name(n)}={display_value(settings, n)}")]
-    given += ["--dry-run"] if dry_run else []
-    for argv in plan:
-        command = [sys.executable, "-m", "docker_ros", *argv, *given]
-        print(f"docker-ros ci: docker-ros {format_argv([*argv, *given])}", flush=True)
-        task = subprocess.Popen(command)
+    tasks re-read .env, invoke.yaml and the environment; flags given to `ci` go along, as given
+    (a tag without IMAGE_POSTFIX) and before the plan's own (its --set wins: a build that
+    leaves testing to `test`), and so does a dry run (each task's, which prints its commands
+    and image names)."""
+    given = [arg for n, text in settings.flags.items()
+             for arg in ("--set", f"{env_name(n)}={text}")]
+    for task, *args in plan:
+        argv = [task, *given, *args, *(["--dry-run"] if dry_run else [])]
+        command = [sys.executable, "-m", "docker_ros", *argv]
+        print(f"docker-ros ci: docker-ros {format_argv(argv)}", flush=True)
+        process = subprocess.Popen(command)
         try:
-            code = task.wait()
+            code = process.wait()
         except KeyboardInterrupt:
-            let_end(task)
+            let_end(process)
             raise
         if code != 0:
-            raise TaskFailed(f"`docker-ros {argv[0]}` failed with exit code {code}; "
+            raise TaskFailed(f"`docker-ros {task}` failed with exit code {code}; "
                              "nothing after it ran")
 
 

@@ -405,6 +405,9 @@ class Settings:
     problems: Mapping[str, Tuple[str, str]] = field(
         default_factory=dict, compare=False, repr=False
     )
+    # The flags (and --set values) as given, as text: what `ci` passes on to its tasks (the
+    # values in force may differ: IMAGE_POSTFIX is added to a tag given as a flag).
+    flags: Mapping[str, str] = field(default_factory=dict, compare=False, repr=False)
 
     def source_of(self, name: str) -> str:
         return self.sources.get(name, "default")
@@ -651,7 +654,9 @@ def load_settings(
         values[name] = value
         if origin:
             sources[name] = origin
-    return Settings(**values, sources=sources, problems=problems)  # type: ignore[arg-type]
+    given = {n: text_of(v) for n, v in layers[-1][1].items()}
+    return Settings(**values, sources=sources, problems=problems,  # type: ignore[arg-type]
+                    flags=given)
 
 
 class Derived(Tuple[object, str]):
@@ -928,17 +933,22 @@ def server_host(address: str) -> str:
     return re.sub(r"^[a-z]+://", "", address).split("/")[0]
 
 
-def display_value(settings: Settings, name: str) -> str:
-    value = getattr(settings, name)
-    if value is None or value == "":
+def text_of(value: object) -> str:
+    """A value as a variable would give it: true/false, a list joined with commas."""
+    if value is None:
         return ""
-    if is_secret(name):
-        return MASKED
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, tuple):
         return ",".join(value)
     return str(value)
+
+
+def display_value(settings: Settings, name: str) -> str:
+    value = getattr(settings, name)
+    if is_secret(name) and value:
+        return MASKED
+    return text_of(value)
 
 
 def as_env(settings: Settings, *, include_secrets: bool = False) -> Dict[str, str]:
@@ -950,12 +960,7 @@ def as_env(settings: Settings, *, include_secrets: bool = False) -> Dict[str, st
         value = getattr(settings, name)
         if value is None or value == () or value == "":
             continue
-        if isinstance(value, bool):
-            out[env_name(name)] = "true" if value else "false"
-        elif isinstance(value, tuple):
-            out[env_name(name)] = ",".join(value)
-        else:
-            out[env_name(name)] = str(value)
+        out[env_name(name)] = text_of(value)
     return out
 
 
