@@ -309,6 +309,21 @@ def test_a_yaml_number_for_a_text_setting_and_a_list_item_twice_are_refused():
         load(invoke_config=yaml.safe_load("image_tag: 1.10\nbase_image: b:1"))
     assert load(invoke_config=yaml.safe_load("image_tag: '1.10'")).image_tag == "1.10"
     assert load(invoke_config={"image_tag": 2}).image_tag == "2"  # (no digit lost)
+    # a list, a mapping or a YAML boolean (`yes`) became Python's text of it: '[-DA=1, ...]'
+    refused = "cmake_args: [-DA=1, -DB=2]\nimage_tag: yes\nimage_name: {a: 1}\nbase_image: b:1"
+    with pytest.raises(SettingsError) as raised:
+        load(invoke_config=yaml.safe_load(refused))
+    assert str(raised.value).splitlines()[1:] == [
+        "  invoke.yaml: docker_ros.cmake_args: YAML reads it as a list, but CMAKE_ARGS is one "
+        "text value: write it as text, quoted, e.g. cmake_args: '...'",
+        "  invoke.yaml: docker_ros.image_tag: YAML reads it as the boolean true (yes/no/on/off "
+        "are booleans to YAML), but IMAGE_TAG is one text value: write it as text, quoted, e.g. "
+        "image_tag: '...'",
+        "  invoke.yaml: docker_ros.image_name: YAML reads it as a mapping, but IMAGE_NAME is one "
+        "text value: write it as text, quoted, e.g. image_name: '...'"]
+    # (a YAML list for a list setting and a boolean for a boolean one are what they mean)
+    assert load(invoke_config={"target": ["dev", "run"], "enable_slim": True}).target == (
+        "dev", "run")
     # PLATFORM=amd64,amd64 built amd64 twice, tagged -amd64 as for two platforms
     with pytest.raises(SettingsError, match=r"PLATFORM='amd64,amd64': amd64 given twice"):
         load(environ={"PLATFORM": "amd64,amd64"})
@@ -338,3 +353,15 @@ def test_missing_required_names_every_missing_value_in_one_line():
     none = load_settings(project_dir=Path("/tmp/p"))
     assert missing_required(none, ["base_image", "command"]).startswith(
         "missing required configuration: BASE_IMAGE, COMMAND (set them in .env")
+
+
+def test_a_host_path_from_a_file_starting_with_a_tilde_is_in_the_home_folder(monkeypatch):
+    """`BUILD_CONTEXT=~/repo` in .env (no shell expands it) was used as the folder `~`."""
+    monkeypatch.setenv("HOME", "/home/robot")
+    settings = load(dotenv={"BUILD_CONTEXT": "~/repo", "WORKSPACE": "~/ws",
+                            "EXTRA_CA_CERTS": "~/ca.pem", "TEST_RESULTS_DIR": "~/results",
+                            "ADDITIONAL_DEBS_FILE": "~/debs.txt"})
+    assert (settings.build_context, settings.workspace, settings.extra_ca_certs,
+            settings.test_results_dir) == ("/home/robot/repo", "/home/robot/ws",
+                                           "/home/robot/ca.pem", "/home/robot/results")
+    assert settings.additional_debs_file == "~/debs.txt"  # (in the repository: refused later)

@@ -499,6 +499,10 @@ def parse_list(name: str, raw: str) -> Tuple[str, ...]:
     return items
 
 
+# Paths on the machine that runs the tool: `~/...` is the user's home, as in a shell.
+HOST_PATHS = ("build_context", "workspace", "test_results_dir", "extra_ca_certs")
+
+
 def parse_value(name: str, raw: object) -> Value:
     """Turn a raw value (string from env/.env/flag, or a YAML scalar) into the field's type."""
     kind = kind_of(name)
@@ -511,6 +515,8 @@ def parse_value(name: str, raw: object) -> Value:
             raw = ",".join(str(item) for item in raw)
         return parse_list(name, str(raw))
     text = str(raw)
+    if name in HOST_PATHS and text.startswith("~"):
+        text = os.path.expanduser(text)  # (.env and invoke.yaml values get no shell's expansion)
     choices = FIELDS[name].metadata["choices"]
     if choices and text and text not in choices:  # (empty: unset)
         raise SettingsError(
@@ -609,11 +615,8 @@ def load_settings(
                           "configuration (a committed or shared file); set it in the environment "
                           "or .env")
             problems[f"invoke.yaml:{key}"] = (MASKED, errors[-1])
-        elif isinstance(value, float) and kind_of(name) == "str":
-            # YAML reads `image_tag: 1.10` as the number 1.1: the tag would be 1.1
-            errors.append(f"invoke.yaml: docker_ros.{key}: YAML reads it as the number "
-                          f"{value!r} (1.10 is 1.1 to YAML): quote the value as you wrote it, "
-                          f"e.g. {key}: '1.10'")
+        elif yaml_text_problem(str(key), value):
+            errors.append(f"invoke.yaml: docker_ros.{key}: {yaml_text_problem(str(key), value)}")
             problems[f"invoke.yaml:{key}"] = (str(value), errors[-1])
         elif value is not None and value != "":  # (`key:` alone, like an empty variable: unset)
             yaml_values[name] = value
@@ -657,6 +660,23 @@ def load_settings(
     given = {n: text_of(v) for n, v in layers[-1][1].items()}
     return Settings(**values, sources=sources, problems=problems,  # type: ignore[arg-type]
                     flags=given)
+
+
+def yaml_text_problem(key: str, value: object) -> str:
+    """What is wrong with an invoke.yaml value (key: a setting's) for a text setting that YAML
+    did not read as text ('' when it is text, or a whole number: as written unless it starts
+    with 0)."""
+    name = key.lower().replace("-", "_")
+    if kind_of(name) != "str" or isinstance(value, (str, int)) and not isinstance(value, bool):
+        return ""
+    if isinstance(value, float):
+        # YAML reads `image_tag: 1.10` as the number 1.1: the tag would be 1.1
+        return (f"YAML reads it as the number {value!r} (1.10 is 1.1 to YAML): quote the value "
+                f"as you wrote it, e.g. {key}: '1.10'")
+    what = ({bool: f"the boolean {str(value).lower()} (yes/no/on/off are booleans to YAML)",
+             list: "a list", dict: "a mapping"}.get(type(value), type(value).__name__))
+    return (f"YAML reads it as {what}, but {env_name(name)} is one text value: write it as "
+            f"text, quoted, e.g. {key}: '...'")
 
 
 class Derived(Tuple[object, str]):
