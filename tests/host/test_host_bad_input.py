@@ -216,6 +216,16 @@ def test_unreadable_dotenv_line_stops_naming_the_file_and_line(repo: Path) -> No
         assert "s3cr3t-env" not in proc.stdout + proc.stderr
 
 
+def test_a_flag_value_of_the_wrong_type_is_one_line(repo: Path) -> None:
+    """invoke's parser turns `--seconds abc` into a ValueError traceback; ours is one line."""
+    (repo / "tasks.py").write_text("from docker_ros.tasks import ns  # noqa: F401\n")
+    for program in ("docker_ros", "invoke"):
+        proc = run([program, "example", "--seconds", "abc"], repo)
+        assert proc.returncode == 2, proc.stderr
+        assert proc.stderr.strip() == (
+            "docker-ros example: --seconds takes a whole number, not 'abc'"), program
+
+
 def test_invoke_yaml_that_is_no_yaml_or_no_mapping_is_one_line(repo: Path) -> None:
     (repo / "invoke.yaml").write_text("docker_ros: [1, 2\n")
     proc = run(["docker_ros", "config"], repo)

@@ -72,14 +72,32 @@ def invoke_file_problem(exc: BaseException, name: str = "") -> Optional[str]:
     return None
 
 
-def one_line_for_broken_invoke_yaml() -> None:
-    """For `inv`, which reads invoke.yaml after importing tasks.py, outside any code of ours: an
-    invoke configuration file invoke cannot load (invoke_file_problem) ends as one line (exit
-    code 2) instead of a traceback; every other exception keeps the hook it had."""
+def flag_value_problem(exc: BaseException) -> Optional[str]:
+    """One line for a flag value invoke's parser could not turn into the flag's type
+    (`--seconds abc`: a ValueError from its Argument.set_value); None for any other exception."""
+    task = ""
+    for frame, _ in traceback.walk_tb(exc.__traceback__):
+        where = Path(frame.f_code.co_filename).parts[-2:]
+        if where == ("parser", "parser.py"):  # (the parse machine: the task being parsed)
+            task = getattr(getattr(frame.f_locals.get("self"), "context", None), "name", task)
+        if where == ("parser", "argument.py") and frame.f_code.co_name == "set_value":
+            argument = frame.f_locals["self"]
+            kind = {int: "a whole number"}.get(argument.kind, argument.kind.__name__)
+            flag = "--" + str(argument.name).replace("_", "-")
+            label = f"docker-ros {task}" if task else "docker-ros"
+            return f"{label}: {flag} takes {kind}, not {frame.f_locals.get('value')!r}"
+    return None
+
+
+def one_line_for_invoke_errors() -> None:
+    """For `inv`, which parses the flags and reads invoke.yaml after importing tasks.py, outside
+    any code of ours (and for `docker-ros`): an invoke configuration file invoke cannot load
+    (invoke_file_problem) or a flag value of the wrong type (flag_value_problem) ends as one line
+    (exit code 2) instead of a traceback; every other exception keeps the hook it had."""
     previous = sys.excepthook
 
     def hook(kind: type, exc: BaseException, trace: Any) -> None:
-        problem = invoke_file_problem(exc)
+        problem = invoke_file_problem(exc) or flag_value_problem(exc)
         if problem is not None:
             print(problem, file=sys.stderr, flush=True)
             sys.stdout.flush()
@@ -91,7 +109,7 @@ def one_line_for_broken_invoke_yaml() -> None:
 
 def main(argv: Optional[List[str]] = None) -> None:
     ns.loaded_from = os.getcwd()
-    one_line_for_broken_invoke_yaml()  # (invoke reads the environment layer when it executes)
+    one_line_for_invoke_errors()  # (invoke reads the environment layer when it executes)
     program = DockerRosProgram(namespace=ns, name="docker-ros", binary="docker-ros",
                                version=__version__)
     try:
