@@ -156,7 +156,7 @@ def test_template_installs_at_docker_ros_git_ref_and_runs_the_tasks() -> None:
     assert 'cd "$BUILD_CONTEXT" && export BUILD_CONTEXT=.' in setup
     assert template[".build"]["script"] == [[".docker-ros-qemu", "script"],
                                             'PLATFORM="$_PLATFORM" docker-ros ci']
-    assert template[".push"]["script"] == ["docker-ros manifest"]
+    assert template[".push"]["script"][-1] == "docker-ros manifest"  # (after the IMG_* check)
     assert template["Push"] == {"extends": ".push"}
     assert template["default"]["image"] == "docker:27.5.1-git"  # pinned, as docker-ros
     assert template["default"]["services"] == ["docker:27.5.1-dind"]
@@ -211,11 +211,16 @@ def test_template_keeps_docker_ros_stages_and_job_names() -> None:
         assert stage_of(template, job) == expected, job
     for job in recorded["jobs"]:
         if job.startswith(("Test", "Slim", "Push ")):  # moved: never run, fail if made to
-            assert template[job]["extends"] in (".test", ".slim", [".push", ".docker-ros-moved"])
+            assert template[job]["extends"] in ([".test", ".docker-ros-never"],
+                                                [".slim", ".docker-ros-never"],
+                                                [".push", ".docker-ros-moved", ".docker-ros-never"])
             assert template[job]["variables"]["DOCKER_ROS_MOVED_TO"]
+    # a job of the user's that extends .test or .slim runs (no rules), and fails saying why
     for hidden in (".test", ".slim"):
         assert template[hidden]["extends"] == ".docker-ros-moved"
-    assert template[".docker-ros-moved"]["rules"] == [{"when": "never"}]
+        assert "rules" not in template[hidden] and template[hidden]["variables"]
+    assert "rules" not in template[".docker-ros-moved"]
+    assert template[".docker-ros-never"]["rules"] == [{"when": "never"}]
 
 
 # A binfmt_misc handler's status file: enabled or disabled, its flags.

@@ -205,6 +205,31 @@ def test_a_moved_job_made_to_run_says_where_its_work_is(pipelines: dict) -> None
     finally:
         ci.write_text(original)
     assert result.returncode != 0
-    assert ('docker-ros: job "Slim run-amd64" no longer exists (its work runs in build-amd64 '
-            '(ENABLE_SLIM)); move your override of "Slim run-amd64" to build-amd64 (ENABLE_SLIM)'
-            in result.stdout), result.stdout[-3000:]
+    assert ('docker-ros: job "Slim run-amd64" is (or extends) a docker-ros job that no longer '
+            'exists: its work runs in build-amd64 (ENABLE_SLIM); move your settings of "Slim '
+            'run-amd64" there, or remove the job' in result.stdout), result.stdout[-3000:]
+
+
+def test_own_jobs_on_docker_ros_hidden_jobs_fail_saying_why(pipelines: dict) -> None:
+    """A job of the user's that extends docker-ros's .test (which ran industrial_ci on its
+    DOCKER_IMAGE) never ran without a word; one that extends .push with IMG_RUN (pushed there
+    in docker-ros) pushed docker-ros's names only. Both fail now, saying what to do."""
+    repo = pipelines["repo"]
+    ci = repo / ".gitlab-ci.yml"
+    original = ci.read_text()
+    own = ("My tests:\n  extends: .test\n  variables:\n    DOCKER_IMAGE: my/image:1\n"
+           "My push:\n  extends: .push\n  needs: []\n  variables:\n    IMG_RUN: my/image:stable\n")
+    try:
+        ci.write_text(original + own)
+        result = gitlab_ci_local(repo, pipelines["variables"], "My tests", "My push",
+                                 secrets=pipelines["secrets"], env=pipelines["env"])
+    finally:
+        ci.write_text(original)
+    assert result.returncode != 0
+    assert ('docker-ros: job "My tests" is (or extends) a docker-ros job that no longer exists: '
+            'its work runs in build-<arch> (ENABLE_INDUSTRIAL_CI); move your settings of "My '
+            'tests" there, or remove the job' in result.stdout), result.stdout[-3000:]
+    assert ('docker-ros: job "My push" sets IMG_RUN, which docker-ros\'s .push pushed to; here '
+            '`docker-ros manifest` pushes docker-ros\'s names and reads no IMG_*' in
+            result.stdout), result.stdout[-3000:]
+    assert "pushed " not in result.stdout
