@@ -324,3 +324,78 @@ def test_a_build_without_network_on_engine26_names_build_network_host(
             "an engine without outbound NAT") in last, last
     assert "; it stopped at line 1: `python3 -c " in last, last  # the hook's line
     assert last.endswith("set BUILD_NETWORK=host"), last
+
+
+# docker/buildkit-syft-scanner, the SBOM generator BuildKit runs by default, is on Docker Hub,
+# which this machine cannot reach: a stand-in of the same name (BuildKit's scanner protocol:
+# read BUILDKIT_SCAN_SOURCE, write in-toto statements to BUILDKIT_SCAN_DESTINATION).
+SCANNER = "docker/buildkit-syft-scanner:stable-1"
+SCAN = """#!/bin/sh
+set -e
+files=$(find "$BUILDKIT_SCAN_SOURCE" -type f | wc -l)
+printf '{"_type": "https://in-toto.io/Statement/v0.1", "predicateType": "https://spdx.dev/Document",\
+ "subject": [], "predicate": {"spdxVersion": "SPDX-2.3", "name": "stand-in: %s files"}}' "$files" \
+ > "$BUILDKIT_SCAN_DESTINATION/sbom.spdx.json"
+"""
+
+
+@pytest.fixture
+def sbom_scanner(engine26: str, ros1_base_image: str, tmp_path: Path) -> Iterator[str]:
+    """The stand-in scanner under the default scanner's name on Engine 26, removed afterwards
+    (unless that name was there before: then it is left as it was)."""
+    env = engines.env_for(engine26)
+    if engines.has_image(engine26, SCANNER):
+        yield SCANNER
+        return
+    (tmp_path / "scanner").mkdir()
+    (tmp_path / "scanner" / "scan").write_text(SCAN)
+    (tmp_path / "scanner" / "scan").chmod(0o755)
+    (tmp_path / "scanner" / "Dockerfile").write_text(
+        f'FROM {ros1_base_image}\nCOPY scan /scan\nENTRYPOINT ["/scan"]\n')
+    subprocess.run(["docker", "build", "-q", "-t", SCANNER, str(tmp_path / "scanner")], env=env,
+                   check=True, capture_output=True)
+    try:
+        yield SCANNER
+    finally:
+        subprocess.run(["docker", "rmi", SCANNER], env=env, capture_output=True)
+
+
+def test_attestations_reach_the_registry_from_engine26_and_are_refused_on_the_classic_store(
+    engine26: str, sbom_scanner: str, ros1_base_image: str, local_registry: str, tmp_path: Path
+) -> None:
+    """BUILDX_ATTESTATIONS=true (docker-ros's --provenance and --sbom): the run image pushed
+    from Engine 26 (containerd image store) has an attestation manifest with its SLSA
+    provenance and its SPDX SBOM. The shared Engine 20.10 (classic store, which keeps no
+    attestations) refuses before building, saying what to do: it once built and pushed the
+    images without either, silently."""
+    project = tmp_path / "example"
+    shutil.copytree(REPO / "example", project)
+    name = f"docker-ros-test/attested-{uuid.uuid4().hex[:8]}"
+    write_env(project, BASE_IMAGE=ros1_base_image, IMAGE=f"{local_registry}/{name}:1",
+              TARGET="run", COMMAND="roslaunch docker_ros_example talker_listener.launch",
+              BUILDX_ATTESTATIONS="true", ENABLE_SLIM="false", BUILD_NETWORK="host")
+    refused = docker_ros(project, "push")
+    assert refused.returncode != 0
+    assert refused.stdout.strip().splitlines()[-1] == (
+        f"docker-ros push: BUILDX_ATTESTATIONS=true: the images are loaded into the engine at "
+        f"{engine.cli_host(os.environ)} and pushed from there, and its classic image store "
+        "keeps no attestations (SBOM, provenance): turn on its containerd image store "
+        '(daemon.json: "features": {"containerd-snapshotter": true}) or set '
+        "BUILDX_ATTESTATIONS=false"), refused.stdout[-3000:]
+    assert "==> docker-ros build" not in refused.stdout
+    try:
+        result = docker_ros(project, "push", env={"DOCKER_HOST": engine26})
+    finally:
+        subprocess.run(["docker", "rmi", f"{local_registry}/{name}:1"], capture_output=True,
+                       env=engines.env_for(engine26))
+    assert result.returncode == 0, result.stdout[-6000:]
+    index = registry_get(local_registry, f"{name}/manifests/1",
+                         accept="application/vnd.oci.image.index.v1+json")
+    attestation, = (m for m in index["manifests"]
+                    if m.get("annotations", {}).get("vnd.docker.reference.type")
+                    == "attestation-manifest")
+    manifest = registry_get(local_registry, f"{name}/manifests/{attestation['digest']}",
+                            accept="application/vnd.oci.image.manifest.v1+json")
+    assert sorted(layer["annotations"]["in-toto.io/predicate-type"]
+                  for layer in manifest["layers"]) == [
+        "https://slsa.dev/provenance/v0.2", "https://spdx.dev/Document"]

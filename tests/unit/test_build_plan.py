@@ -72,8 +72,37 @@ def test_cache_from_and_attestations():
     # one kind only: every target imports it
     assert build.cache_sources(["r/x:latest"], "dev") == ["r/x:latest"]
     argv = plan(settings(CACHE_FROM="127.0.0.1:5000/x:latest"))
-    assert "--provenance=false" in argv
-    assert "--provenance=false" not in plan(settings(BUILDX_ATTESTATIONS="true"))
+    assert "--provenance=false" in argv and "--sbom=true" not in argv
+    # BUILDX_ATTESTATIONS=true: provenance and SBOM of the dev and run images (as docker-ros's
+    # --provenance=true --sbom=true), none of the results a local output writes (tests, lock)
+    attested = settings(BUILDX_ATTESTATIONS="true")
+    for target in ("dev", "run"):
+        argv = plan(attested, target=target)
+        assert "--provenance=mode=min" in argv and "--sbom=true" in argv, target
+        assert "--provenance=false" not in argv, target
+    for target in ("test-results", "build-state"):
+        argv = plan(attested, target=target)
+        assert "--provenance=false" in argv and "--sbom=true" not in argv, target
+
+
+def test_attestations_need_an_engine_that_keeps_them(monkeypatch):
+    """The images are loaded into an engine and pushed from it: the classic image store drops
+    attestations (its docker driver refuses them), the containerd image store keeps them."""
+    from docker_ros.host import builder as builders
+
+    classic = builders.Builder("default", "docker", "default", "unix:///a.sock", False)
+    containerd = builders.Builder("e26", "docker", "e26", "unix:///b.sock", True)
+    assert builders.attestations_dropped(containerd, {}) == ""
+    assert builders.attestations_dropped(classic, {}).startswith(
+        "the images are loaded into the engine at unix:///a.sock and pushed from there, and its "
+        "classic image store keeps no attestations (SBOM, provenance): turn on its containerd "
+        "image store")
+    # a BuildKit of its own loads them into the CLI's engine: that one's store decides
+    own = builders.Builder("ci", "docker-container", "unix:///c.sock", "", False)
+    monkeypatch.setattr(builders, "containerd_store", lambda host, environ: host == "unix:///b.sock")
+    assert builders.attestations_dropped(own, {"DOCKER_HOST": "unix:///b.sock"}) == ""
+    assert "engine at unix:///a.sock" in builders.attestations_dropped(
+        own, {"DOCKER_HOST": "unix:///a.sock"})
 
 
 def test_image_refs_follow_docker_ros():

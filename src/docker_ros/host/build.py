@@ -283,6 +283,13 @@ def arg_values(settings: Settings) -> Dict[str, str]:
     return values
 
 
+# BUILDX_ATTESTATIONS (docker-ros's `--provenance` and `--sbom`) for the dev and run images;
+# none for the rest (the build state, tests' and lock's results: a local output would get a
+# provenance file among the results).
+ATTESTATIONS = ("type=provenance,mode=min", "type=sbom")
+NO_ATTESTATIONS = ("type=provenance,disabled=true",)
+
+
 def definition(
     settings: Settings,
     *,
@@ -335,8 +342,8 @@ def definition(
         target_def["labels"] = labels
     if settings.build_network:
         target_def["network"] = settings.build_network
-    if not settings.buildx_attestations:
-        target_def["attest"] = ["type=provenance,disabled=true"]
+    target_def["attest"] = list(ATTESTATIONS if settings.buildx_attestations
+                                and target in ("dev", "run") else NO_ATTESTATIONS)
     if settings.no_cache:
         target_def["no-cache"] = True
     if settings.cache_from:
@@ -431,8 +438,8 @@ def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX) -> List[
         argv += ["--secret", secret]
     if "network" in spec:
         argv += ["--network", spec["network"]]
-    if "attest" in spec:
-        argv += ["--provenance=false"]
+    argv += (["--provenance=false"] if list(spec["attest"]) == list(NO_ATTESTATIONS)
+             else ["--provenance=mode=min", "--sbom=true"])
     if spec.get("no-cache"):
         argv += ["--no-cache"]
     for ref in spec.get("cache-from", []):
@@ -900,7 +907,8 @@ def selected_builder(settings: Settings) -> builder.Builder:
     (buildx exports a registry cache with the CLI's credentials: the task's login, see
     cli.tasks.settings_task.)"""
     try:
-        return builder.selected(settings.builder or "", bool(settings.cache_to))
+        return builder.selected(settings.builder or "", bool(settings.cache_to),
+                                settings.buildx_attestations)
     except builder.BuilderError as exc:
         raise BuildError(str(exc)) from None
 
@@ -946,6 +954,9 @@ def build_images_locked(
     """build_images' builds; (the images, the imports image they used)."""
     environ = os.environ if environ is None else environ
     chosen = selected_builder(settings)
+    dropped = settings.buildx_attestations and builder.attestations_dropped(chosen, environ)
+    if dropped:
+        raise BuildError(f"BUILDX_ATTESTATIONS=true: {dropped}")
     export = builder.cache_export(chosen)
     buildx = builder.buildx_command(chosen, settings.builder or "")
     child_env = dict(environ)

@@ -142,12 +142,28 @@ def chosen_elsewhere(environ: Mapping[str, str]) -> bool:
     return bool(isinstance(current, dict) and current.get("Name"))
 
 
+def attestations_dropped(builder: Builder, environ: Mapping[str, str]) -> str:
+    """Why the images would lose their attestations (SBOM, provenance) before the push, or ''.
+    They are loaded into an engine and pushed from there, and only an engine on the containerd
+    image store keeps them (the classic store's docker driver refuses them outright)."""
+    host = builder.host if builder.driver == "docker" else engine.cli_host(environ)
+    store = builder.containerd_store if builder.driver == "docker" else bool(host) and (
+        containerd_store(host, environ))
+    if store:
+        return ""
+    return (f"the images are loaded into the engine at {host} and pushed from there, and its "
+            "classic image store keeps no attestations (SBOM, provenance): turn on its "
+            'containerd image store (daemon.json: "features": {"containerd-snapshotter": '
+            "true}) or set BUILDX_ATTESTATIONS=false")
+
+
 @functools.lru_cache(maxsize=None)
-def selected(name: str, cache_to: bool) -> Builder:
+def selected(name: str, cache_to: bool, attestations: bool = False) -> Builder:
     """The builder of this run, inspected once: the SDK client follows the engine holding the
     images, and one line says which builder, what --load means there and the cache choice.
-    A plain local build (no builder chosen anywhere, no CACHE_TO) costs no inspection."""
-    if not name and not cache_to and not chosen_elsewhere(os.environ):
+    A plain local build (no builder chosen anywhere, no CACHE_TO, no attestations: whose image
+    store matters) costs no inspection."""
+    if not name and not (cache_to or attestations) and not chosen_elsewhere(os.environ):
         return Builder("default", "docker", "default", engine.cli_host(os.environ), False)
     builder = inspect(name, os.environ)
     cli_host = engine.cli_host(os.environ)

@@ -667,8 +667,9 @@ def yaml_text_problem(key: str, value: object) -> str:
     did not read as text ('' when it is text, or a whole number: as written unless it starts
     with 0)."""
     name = key.lower().replace("-", "_")
-    if kind_of(name) != "str" or isinstance(value, (str, int)) and not isinstance(value, bool):
-        return ""
+    if kind_of(name) != "str" or value is None or (
+            isinstance(value, (str, int)) and not isinstance(value, bool)):
+        return ""  # (None: `key:` without a value, unset)
     if isinstance(value, float):
         # YAML reads `image_tag: 1.10` as the number 1.1: the tag would be 1.1
         return (f"YAML reads it as the number {value!r} (1.10 is 1.1 to YAML): quote the value "
