@@ -101,7 +101,7 @@ def test_lock_host_writes_checks_and_then_holds_the_locked_build(project, tmp_pa
     import json
 
     from docker_ros.host.lock import lock
-    from docker_ros.in_image.runtime.lock import LOCK_FILE
+    from docker_ros.in_image.runtime.lock import LOCK_FILE, LockError
     from docker_ros.in_image.runtime.workspace import StepError
     from docker_ros.in_image.steps import clone, debs
     from tests.rosfixtures import make_git_repo, write_repos
@@ -111,6 +111,12 @@ def test_lock_host_writes_checks_and_then_holds_the_locked_build(project, tmp_pa
     (project.repo / "debs.txt").write_text("cmatrix\n")
     env = {"build_context": str(project.repo), "additional_debs_file": "debs.txt"}
     settings = project.settings(**env)
+
+    # --check without a lock says so at once (it cloned and ran rosdep, or built the lock
+    # stages, to compare with nothing); the image lock would need an engine: none is asked
+    for host in (True, False):
+        with pytest.raises(LockError, match=r"docker-ros.lock does not exist: `inv lock` "):
+            lock(settings, check=True, host=host, out=None)
 
     assert lock(settings, check=False, host=True, out=None)  # a first lock: everything is new
     entry = next(iter(json.loads((project.repo / LOCK_FILE).read_text())["targets"].values()))

@@ -228,6 +228,9 @@ def lock(settings: Settings, *, check: bool, host: bool, out: Any) -> List[str]:
     PLATFORM (images), or with `host` this machine's host entry; the differences from the
     file's entries, one line each."""
     path = lock_path(settings)
+    if check and not path.is_file():  # (nothing to compare: resolve nothing)
+        raise LockError(f"{path} does not exist: `inv lock` writes it (--check compares a "
+                        "build's resolution with it)")
     current: Dict[str, Any] = (
         load_lock(path) if path.is_file() else {"format": FORMAT, "targets": {}}
     )
