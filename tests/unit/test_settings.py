@@ -365,3 +365,17 @@ def test_a_host_path_from_a_file_starting_with_a_tilde_is_in_the_home_folder(mon
             settings.test_results_dir) == ("/home/robot/repo", "/home/robot/ws",
                                            "/home/robot/ca.pem", "/home/robot/results")
     assert settings.additional_debs_file == "~/debs.txt"  # (in the repository: refused later)
+
+
+def test_none_turns_the_ci_caches_and_the_build_state_off():
+    """They are pushed next to the images, as public as they are, and hold sources: a public
+    image of private sources needs a way out of the CI defaults."""
+    ci = {"GITLAB_CI": "true", "CI_REGISTRY_IMAGE": "reg.example/g/p", "CI_COMMIT_BRANCH": "main",
+          "CI_DEFAULT_BRANCH": "main"}
+    default = load(environ=ci)
+    assert default.cache_to and default.build_state_from and default.cache_from
+    off = load(environ={**ci, "CACHE_TO": "none", "BUILD_STATE_FROM": "none",
+                        "CACHE_FROM": "none"})
+    assert (off.cache_to, off.build_state_from, off.cache_from) == (None, (), ())
+    assert off.source_of("cache_to") == "environment: none, turned off"
+    assert load(dotenv={"CACHE_TO": "none"}).cache_to is None  # (outside CI too)

@@ -337,7 +337,7 @@ class Settings:
         "Registry images to reuse as build cache (comma-separated; each a `--cache-from`;"
         " give the dev and the run image so that every stage finds its layers)",
         default_doc="in CI: the dev and run images the pipeline pushes (and the default"
-        " branch's); else none",
+        " branch's); else none; `none` turns it off",
         group="ours", build="tool", flags=("image",),
     )
     cache_to: Optional[str] = setting(
@@ -347,7 +347,8 @@ class Settings:
         " type=registry,mode=max`) where the builder can export it (an engine on the containerd"
         " image store, docker-container or remote builders); where it cannot (the classic"
         " store's docker driver, e.g. Engine 20.10) inline cache in the images instead",
-        default_doc="in CI: `<IMAGE_NAME>:<IMAGE_TAG>-cache`; else none",
+        default_doc="in CI: `<IMAGE_NAME>:<IMAGE_TAG>-cache`; else none; `none` turns it off"
+        " (every stage's layers, the sources' too, are pushed: as public as the images)",
         group="ours", build="tool",
     )
     no_cache: bool = setting(
@@ -371,7 +372,8 @@ class Settings:
         " changed packages compile on an empty CI runner; set, the build also makes the run"
         " image's build state, which `push` pushes",
         default_doc="in CI: the build state the pipeline pushes (and the default branch's);"
-        " else none",
+        " else none; `none` turns it off (the colcon build folder is pushed: as public as the"
+        " images)",
         group="ours", build="tool",
     )
     build_network: Optional[str] = setting(
@@ -759,7 +761,17 @@ def derived_defaults(
             and merged.get("image_name")):
         out["build_state_from"] = (ci_build_state_refs(merged),
                                    "derived from the CI pipeline (the build state it pushes)")
+    for name in TURNED_OFF:  # `none`: no CI default either
+        if values.get(name) in (OFF, (OFF,)):
+            out[name] = (None if name == "cache_to" else (), f"{sources[name]}: {OFF}, turned off")
     return out
+
+
+# Settings whose CI default `none` turns off: the registry cache (mode=max: every stage's
+# layers, the sources' too) and the build state (the colcon build folder) are pushed next to the
+# images, as public as they are.
+TURNED_OFF = ("cache_from", "cache_to", "build_state_from")
+OFF = "none"
 
 
 def default_workspace(folder: Path, name: str, repository: Path) -> Tuple[str, str]:
