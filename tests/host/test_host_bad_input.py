@@ -103,6 +103,15 @@ def test_missing_values_and_bad_paths_are_told_at_once(repo: Path, tmp_path: Pat
                                        "COMMAND (set it in"), alone.stderr
 
 
+def test_a_missing_extra_ca_certs_stops_the_dry_run_too(repo: Path) -> None:
+    """EXTRA_CA_CERTS is a path on this machine: the build stopped on it, the dry run not."""
+    proc = run(["docker_ros", "build", "--dry-run", "--extra-ca-certs", "/nonexistent/ca"], repo,
+               env={"COMMAND": "true"})
+    assert proc.returncode == 1, proc.stderr
+    assert last_line(proc) == ("  EXTRA_CA_CERTS '/nonexistent/ca' not found: give a PEM file or "
+                               "a folder of them"), proc.stderr
+
+
 def test_duplicate_package_names_fail_before_anything_runs_naming_both(repo: Path,
                                                                        tmp_path: Path) -> None:
     make_package(repo / "copy" / "pkg_a", "pkg_a")

@@ -199,12 +199,17 @@ def words_within(words: Sequence[str], name: Sequence[str]) -> bool:
 
 def path_problems(settings: Settings) -> Dict[str, str]:
     """Setting name -> what is wrong with it: BUILD_CONTEXT that is no folder, path settings
-    leaving the repository, explicitly set files or folders that do not exist."""
+    leaving the repository, explicitly set files or folders that do not exist (EXTRA_CA_CERTS
+    too, which is no path in the repository)."""
     repository = Path(settings.build_context).expanduser()
     if not repository.is_dir():
         return {"build_context": f"BUILD_CONTEXT '{settings.build_context}' is not a folder: "
                                  "set it to the ROS repository to build"}
     problems: Dict[str, str] = {}
+    if settings.extra_ca_certs and not Path(settings.extra_ca_certs).exists():
+        # (a path on this machine, not in the repository: the build would stop on it later)
+        problems["extra_ca_certs"] = (f"EXTRA_CA_CERTS '{settings.extra_ca_certs}' not found: "
+                                      "give a PEM file or a folder of them")
     for name in path_settings():
         value = str(getattr(settings, name))
         problem = path_problem(repository, value)
