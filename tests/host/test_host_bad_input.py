@@ -103,6 +103,16 @@ def test_missing_values_and_bad_paths_are_told_at_once(repo: Path, tmp_path: Pat
                                        "COMMAND (set it in"), alone.stderr
 
 
+def test_a_dev_shell_without_docker_is_one_line(repo: Path, tmp_path: Path) -> None:
+    """No docker on PATH: the GPU runtime lookup ended in a FileNotFoundError traceback."""
+    (tmp_path / "bin").mkdir()
+    proc = run(["docker_ros", "dev-shell", "--dry-run"], repo,
+               env={"PATH": str(tmp_path / "bin")})
+    assert proc.returncode == 1
+    assert last_line(proc) == ("docker-ros dev-shell: no `docker` command: install Docker "
+                               "(scripts/setup.sh)")
+
+
 def test_a_missing_extra_ca_certs_stops_the_dry_run_too(repo: Path) -> None:
     """EXTRA_CA_CERTS is a path on this machine: the build stopped on it, the dry run not."""
     proc = run(["docker_ros", "build", "--dry-run", "--extra-ca-certs", "/nonexistent/ca"], repo,

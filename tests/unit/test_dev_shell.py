@@ -273,3 +273,36 @@ def test_a_colcon_defaults_file_of_the_users_keeps_the_blacklist(tmp_path):
     assert warning == "" and shell.colcon_defaults == str(tmp_path / "ours.yaml")
     assert json.loads((tmp_path / "ours.yaml").read_text())["graph"] == {
         "packages-ignore": ["bad_a", "bad_b"]}
+
+
+def test_a_build_for_the_shell_or_slim_makes_only_the_platforms_they_use(tmp_path, monkeypatch):
+    """PLATFORM=amd64,arm64: a dev shell needs this machine's dev image, slim slims this
+    machine's run image; building the other platform too cost a QEMU build (or failed without
+    QEMU). The one built keeps its tag among every platform (`-amd64`)."""
+    from docker_ros.host import build, pipeline
+    from docker_ros.host.build import BuiltImage
+
+    here = pipeline.host_platform()
+    other = "arm64" if here == "amd64" else "amd64"
+    built = []
+
+    def build_images(settings, *, targets, platform):
+        built.append((platform, dict(targets)))
+        return [BuiltImage(t, ref, platform, 0.0) for t, ref in targets.items()]
+
+    monkeypatch.setattr(build, "check_engine", lambda settings=None: None)
+    monkeypatch.setattr(build, "platform_base", lambda settings, platform: ("b:1", ""))
+    monkeypatch.setattr(build, "build_images", build_images)
+    monkeypatch.setattr(build, "summary_table", lambda images: "")
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "package.xml").write_text(
+        "<package format='3'><name>pkg</name><version>0.0.0</version><description>d"
+        "</description><maintainer email='a@b.c'>m</maintainer><license>MIT</license></package>")
+    s = load_settings(environ={"BASE_IMAGE": "b:1", "BUILD_CONTEXT": str(tmp_path),
+                               "PLATFORM": f"{here},{other}", "IMAGE": "reg.example/r:1",
+                               "WORKSPACE": str(tmp_path / "ws")}, project_dir=tmp_path)
+    pipeline.build_targets(s, ("dev",), dry_run=False, only=[here])
+    assert built == [(here, {"dev": f"reg.example/r:1-dev-{here}"})]
+    built.clear()
+    pipeline.build_targets(s, ("dev",), dry_run=False)
+    assert [platform for platform, _ in built] == [here, other]

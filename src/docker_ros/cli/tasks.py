@@ -417,18 +417,20 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failur
 def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     settings = dataclasses.replace(settings, target=("run",))
     check_slim_options(settings)
-    refs = [build.target_ref(settings, "run", p) for p in settings.platform]
+    here = [p for p in settings.platform if slimmed_here(settings, p)]
     if not dry_run:
         try:  # (the builder first: a docker context's engine holds the run image)
             build.check_engine(settings)
         except build.BuildError as exc:
             raise TaskError(str(exc)) from None
-    if not dry_run and not all(engine.local_or_pulled(ref) for ref in refs):
-        print(f"slim: run image {', '.join(refs)} neither local nor pullable: building it")
-        build_targets(settings, ("run",), dry_run=dry_run, slim=True)
+    missing = [] if dry_run else [ref for ref in (build.target_ref(settings, "run", p)
+                                                  for p in here)
+                                  if not engine.local_or_pulled(ref)]
+    if missing:  # (the platforms slimmed here only: another one may build under QEMU)
+        print(f"slim: run image {', '.join(missing)} neither local nor pullable: building it")
+        build_targets(settings, ("run",), dry_run=dry_run, slim=True, only=here)
         return
-    slimmed = [slim_one(settings, p, dry_run=dry_run) for p in settings.platform
-               if slimmed_here(settings, p)]
+    slimmed = [slim_one(settings, p, dry_run=dry_run) for p in here]
     if not dry_run:
         print(build.summary_table(slimmed))
 

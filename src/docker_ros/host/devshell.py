@@ -87,8 +87,11 @@ def select_gpus(mode: str, runtimes: Sequence[str]) -> str:
 
 
 def docker_runtimes() -> List[str]:
-    proc = subprocess.run(["docker", "info", "--format", "{{json .Runtimes}}"],
-                          capture_output=True, text=True)
+    try:
+        proc = subprocess.run(["docker", "info", "--format", "{{json .Runtimes}}"],
+                              capture_output=True, text=True)
+    except FileNotFoundError:
+        raise DevShellError("no `docker` command: install Docker (scripts/setup.sh)") from None
     try:
         return sorted(json.loads(proc.stdout or "{}"))
     except ValueError:

@@ -227,10 +227,13 @@ def shown_builder(settings: Settings) -> builder.Builder:
 
 
 def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
-           shell_on_failure: bool = False, slim: bool = False) -> List[BuiltImage]:
-    """Build the targets for every platform (and with slim, the slim image after run); print
-    the summary table."""
+                  shell_on_failure: bool = False, slim: bool = False,
+                  only: Sequence[str] = ()) -> List[BuiltImage]:
+    """Build the targets for every platform, or only those of `only` (a dev shell's, slim's:
+    tagged as among every platform), and with slim the slim image after run; print the summary
+    table."""
     settings = dataclasses.replace(settings, target=tuple(targets))
+    platforms = [p for p in settings.platform if not only or p in only]
     check_inputs(settings, targets, required_for_build(settings))
     if slim and "run" in targets:
         check_slim_options(settings)
@@ -241,13 +244,13 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
         except build.BuildError as exc:
             raise TaskError(str(exc)) from None
     try:  # every platform's base before the first build (build_images says which)
-        for platform in settings.platform:
+        for platform in platforms:
             (build.shown_base if dry_run else build.platform_base)(settings, platform)
     except build.BuildError as exc:
         raise TaskError(str(exc)) from None
     chosen = shown_builder(settings) if dry_run else None
     built: List[BuiltImage] = []
-    for platform in settings.platform:
+    for platform in platforms:
         # BUILD_STATE_FROM: the run image's build state too, for the next job's `push`
         kinds = ("dev", "run") + (("build-state",) if settings.build_state_from else ())
         tags = {t: build.target_ref(settings, t, platform)
@@ -523,8 +526,8 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
     a local DISPLAY whose socket exists). Returns the container's exit code (0 on a dry run,
     which prints the docker run command)."""
     here = host_platform()
-    ref = build.target_ref(settings, "dev", here if here in settings.platform
-                           else settings.platform[0])
+    shell_platform = here if here in settings.platform else settings.platform[0]
+    ref = build.target_ref(settings, "dev", shell_platform)
     try:
         devshell.check_shell_options(options.volumes, options.env)
         blacklisted = devshell.blacklisted_names(settings)
@@ -550,8 +553,8 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
             return 0
         check_shell_engine(settings)
         image = None if rebuild else engine.inspect_image(ref)
-        if image is None:
-            build_targets(settings, ("dev",), dry_run=False)
+        if image is None:  # (the shell's platform only: another one may build under QEMU)
+            build_targets(settings, ("dev",), dry_run=False, only=[shell_platform])
         else:
             repository = Path(settings.build_context)
             current = build.imports_digest(repository, build.imports_folders(settings, repository))
