@@ -154,3 +154,23 @@ def test_a_terminated_hook_leaves_nothing_it_started_running(tmp_path):
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, out + err
     assert not left_after(f"sleep {seconds}"), "the hook's command outlived the task"
+
+
+def test_a_relative_workspace_is_the_callers(tmp_path):
+    """WORKSPACE=../ws from the repository: vcs import and the hooks run in other folders, where
+    the relative paths named nothing (`can't open '../ws/src/target/.repos'`)."""
+    from tests.rosfixtures import make_git_repo, write_repos
+
+    repo = tmp_path / "repo"
+    make_package(repo / "pkg_a", "pkg_a")
+    url = make_git_repo(tmp_path / "remotes" / "lib_a", {"README": "a\n"})
+    write_repos(repo / ".repos", {"lib_a": {"url": url, "version": "main"}})
+    write(repo / "docker" / "custom.sh", "echo custom ran in $(pwd)\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
+    env.update(PYTHONPATH=str(SRC), WORKSPACE="../ws")
+    for step in ("clone", "custom"):
+        proc = subprocess.run([sys.executable, "-m", "docker_ros", step], cwd=repo, env=env,
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert (tmp_path / "ws" / "src" / "upstream" / "lib_a" / "README").is_file()
+    assert "custom ran in /" in proc.stdout + proc.stderr

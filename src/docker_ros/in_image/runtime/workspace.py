@@ -58,7 +58,8 @@ class Workspace:
     """A colcon workspace: <root>/src/target is the repository, <root>/src/upstream the imports."""
 
     def __init__(self, root: "os.PathLike[str] | str") -> None:
-        self.root = Path(root)
+        # absolute: vcs and the hooks run in other folders (WORKSPACE=../ws)
+        self.root = Path(root).absolute()
 
     @property
     def src(self) -> Path:
