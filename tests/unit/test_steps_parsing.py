@@ -25,12 +25,14 @@ from docker_ros.in_image.steps import clone, colcon, debs, pip, rosdep
 
 
 def test_read_list_file_comments_blanks_and_spaces(tmp_path):
+    """A comment starts at any '#' (docker-ros's awk): `bad_pkg# old` blacklisted 'bad_pkg#'
+    and 'old', and left bad_pkg in the build."""
     path = tmp_path / "list.txt"
     path.write_text(
         "# heading\n\n  pkg-a  \npkg-b # trailing comment\n\t\n"
-        "git+https://host/x.git#egg=x\n   # indented comment\n"
+        "pkg-c# no space before it\n   # indented comment\n"
     )
-    assert read_list_file(path, "debs") == ["pkg-a", "pkg-b", "git+https://host/x.git#egg=x"]
+    assert read_list_file(path, "debs") == ["pkg-a", "pkg-b", "pkg-c"]
 
 
 def test_debs_plan_splits_words_sorts_and_dedupes():

@@ -5,7 +5,6 @@ import fnmatch
 import functools
 import hashlib
 import os
-import re
 import shutil
 from pathlib import Path
 from typing import Callable, Iterator, List, Optional, Sequence, Tuple
@@ -106,11 +105,12 @@ def find_special_files(
 
 
 def read_list_file(path: Path, step: str) -> List[str]:
-    """Lines of a list file without comments (# ...), blank lines and surrounding spaces."""
+    """Lines of a list file (package names: the blacklist, apt packages) without comments,
+    blank lines and surrounding spaces. A comment starts at any '#', as docker-ros's awk
+    (`gsub(/#.*/, "")`) had it: `bad_pkg# old` is bad_pkg (pip files have their own rules)."""
     items = []
     for line in read_user_text(path, functools.partial(StepError, step)).splitlines():
-        # As pip: a comment starts at a '#' at line start or after white space (not in URLs).
-        line = re.sub(r"(^|\s)#.*$", "", line).strip()
+        line = line.split("#", 1)[0].strip()
         if line:
             items.append(line)
     return items
