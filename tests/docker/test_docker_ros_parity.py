@@ -51,6 +51,9 @@ def built(ros1_base_image: str,
     (docker / "custom.sh").write_text(CUSTOM)
     (docker / "additional-files" / "maps").mkdir(parents=True)
     (docker / "additional-files" / "maps" / "map.yaml").write_text("image: map.pgm\n")
+    # folders named as colcon's or git's (left out of the dependency inputs elsewhere)
+    (docker / "additional-files" / "install" / "log").mkdir(parents=True)
+    (docker / "additional-files" / "install" / "log" / "keep.txt").write_text("kept\n")
     write_env(repo, BASE_IMAGE=BASE, IMAGE=IMAGE, TARGET="dev,run",
               COMMAND="python -c 'import sys; print(\"python\", sys.version_info[0])'")
     try:
@@ -92,6 +95,8 @@ def test_dev_image_sources_without_additional_files_as_in_docker_ros(built: Buil
     assert listed.stdout.split() == ["image:", "map.pgm", "before_dependency_installation.sh",
                                      "custom.sh", "CMakeLists.txt", "main.cpp", "package.xml"]
     assert sh(IMAGE, "cat /docker-ros/additional-files/maps/map.yaml").stdout == "image: map.pgm\n"
+    # all of the folder, as docker-ros's ADD: `install/log/` too
+    assert sh(IMAGE, "cat /docker-ros/additional-files/install/log/keep.txt").stdout == "kept\n"
 
 
 def test_hooks_get_the_base_images_pythonpath_as_in_docker_ros(built: Built) -> None:

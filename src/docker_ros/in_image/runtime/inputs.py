@@ -40,9 +40,9 @@ def resolve_inputs(ws: Workspace, settings: Settings) -> List[Path]:
         nested = read_requirement_file(path, step="resolve", missing_ok=True).files[1:]
         found += [p for p in nested if ws.root in p.parents]
     files_dir = repository_path(ws, settings, "additional_files_dir", step="resolve")
-    if files_dir.is_dir():
-        found += [d / n for d in walk(files_dir) for n in sorted(os.listdir(str(d)))
-                  if (d / n).is_file()]
+    if files_dir.is_dir():  # (all of it, as docker-ros's ADD: `install/`, `log/` too)
+        found += [d / n for d in walk(files_dir, skip=lambda name: False)
+                  for n in sorted(os.listdir(str(d))) if (d / n).is_file()]
     found += [ws.state / n for n in STATE_FILES if (ws.state / n).is_file()]
     if is_locked(settings) and (ws.target / LOCK_FILE).is_file():
         found.append(ws.target / LOCK_FILE)  # (a locked resolve stage checks against it)
