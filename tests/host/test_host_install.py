@@ -193,6 +193,28 @@ def test_debs_recursive_and_missing(project, caplog):
     assert project.ws.read_state("debs.json") == {"packages": ["cmatrix"]}
 
 
+def test_recursive_discovery_leaves_the_blacklisted_packages_files_out(project):
+    """docker-ros removed the blacklisted packages before it looked for more list files and
+    hooks: an imported package's additional-debs.txt and custom.sh went with it."""
+    from docker_ros.in_image.steps import blacklist, custom
+    from tests.rosfixtures import make_package
+
+    for name in ("bad_pkg", "good_pkg"):
+        make_package(project.ws.src / "upstream" / name, name)
+        (project.ws.src / "upstream" / name / "additional-debs.txt").write_text(f"lib{name}\n")
+        (project.ws.src / "upstream" / name / "custom.sh").write_text(f"echo {name}\n")
+    (project.repo / "docker").mkdir()
+    (project.repo / "docker" / "blacklisted-packages.txt").write_text("bad_pkg\n")
+    settings = project.settings(enable_recursive_additional_debs="true",
+                                enable_recursive_after_dependency_installation_script="true")
+    blacklist.main(project.ws, settings)
+    debs.main(project.ws, settings, phase="collect")
+    custom.main(project.ws, settings, phase="collect")
+    assert project.ws.read_state("debs.json") == {"packages": ["libgood_pkg"]}
+    hooks = project.ws.read_state("custom.json")["hooks"]
+    assert [hook["source"] for hook in hooks] == ["src/upstream/good_pkg/custom.sh"]
+
+
 def test_pip_requirements_are_arguments_not_shell(
     project, venv_python, environ, monkeypatch, tmp_path
 ):

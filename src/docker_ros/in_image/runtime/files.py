@@ -67,6 +67,20 @@ def repository_path(ws: Workspace, settings: Settings, name: str, *, step: str) 
     return ws.target / relative
 
 
+# The path settings docker-ros looked for after removing the blacklisted packages: their files
+# there are not used (the .repos files and the blacklist files themselves came before).
+AFTER_BLACKLIST = ("before_dependency_installation_script", "after_dependency_installation_script",
+                   "additional_debs_file", "additional_pip_file")
+
+
+def blacklisted_folders(ws: Workspace) -> List[Path]:
+    """The folders of the blacklisted packages (the blacklist step's blacklist.json; none before
+    it ran)."""
+    data = ws.read_state("blacklist.json")
+    packages = data.get("packages") or {} if isinstance(data, dict) else {}
+    return [ws.root / path for paths in packages.values() for path in paths]
+
+
 def find_special_files(
     ws: Workspace,
     settings: Settings,
@@ -91,7 +105,10 @@ def find_special_files(
         found.append(top)
     if recursive:
         file_name = Path(relative_path).name
+        left_out = blacklisted_folders(ws) if name in AFTER_BLACKLIST else []
         for directory in walk(ws.src):
+            if any(folder == directory or folder in directory.parents for folder in left_out):
+                continue
             for entry in sorted(directory.iterdir()):
                 matches = (fnmatch.fnmatch(entry.name, pattern) if pattern
                            else entry.name == file_name)
