@@ -39,9 +39,10 @@ _dros_map_user() {
         groupadd --gid "$gid" "$group" >/dev/null 2>&1 \
             || _dros_warn "could not create group $group ($gid); running with GID $gid unnamed"
     fi
-    # docker-ros's groups: sudo, and video for cameras and GPUs (/dev/video*, /dev/dri)
+    # docker-ros's groups: sudo, and video for cameras and GPUs (/dev/video*, /dev/dri); and
+    # dialout for serial devices (`--device /dev/ttyUSB0` keeps the host's group, dialout)
     local extra=() group_name
-    for group_name in sudo video; do
+    for group_name in sudo video dialout; do
         getent group "$group_name" >/dev/null && extra+=("$group_name")
     done
     local groups=()
@@ -70,6 +71,11 @@ _dros_map_user() {
         # exports, `source` lines) reaches the mapped user's interactive shells too
         local home
         home="$(getent passwd "$uid" | cut -d: -f6)"
+        # a home docker made for a mount below it (`-v ~/.ssh:/home/me/.ssh`) is root's, and
+        # useradd leaves an existing one as it is: the new user's, as useradd would have made it
+        if [[ -n "$home" && -d "$home" && "$(stat -c %u "$home")" == 0 && "$uid" != 0 ]]; then
+            chown "$uid:$gid" "$home" 2>/dev/null || true
+        fi
         if [[ -f /root/.bashrc && -n "$home" && -d "$home" ]]; then
             cp /root/.bashrc "$home/.bashrc" 2>/dev/null \
                 && chown "$uid:$gid" "$home/.bashrc" 2>/dev/null || true
@@ -129,7 +135,13 @@ if [[ -n "${DOCKER_UID:-}" && "$(id -u)" == "0" ]]; then
         home=/tmp
         groups=(--clear-groups)  # --init-groups needs a passwd entry for the UID
     fi
-    [[ -d "$home" && -w "$home" ]] || home=/tmp
+    # writable for the user (root's -w says yes to anything): ROS writes its logs to ~/.ros
+    if ! setpriv --reuid="$DOCKER_UID" --regid="$gid" "${groups[@]}" -- test -w "$home" \
+            2>/dev/null; then
+        [[ "$home" == /tmp ]] \
+            || _dros_warn "HOME ($home) is not writable for UID $DOCKER_UID; using HOME=/tmp (ROS writes its logs to ~/.ros)"
+        home=/tmp
+    fi
     export HOME="$home" USER="$DOCKER_ROS_RUN_AS"
     # setpriv ships with util-linux in every Debian/Ubuntu image; no su/sudo/gosu needed.
     exec setpriv --reuid="$DOCKER_UID" --regid="$gid" "${groups[@]}" -- "$@"

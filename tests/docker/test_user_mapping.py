@@ -98,16 +98,31 @@ def test_renamed_user_owns_the_files_it_writes_in_a_mount(
     assert (made.st_uid, made.st_gid) == (1241, 1241)
 
 
-def test_mapped_user_is_in_the_sudo_and_video_groups(ros1_base_image: str) -> None:
+def test_mapped_user_is_in_the_sudo_video_and_dialout_groups(ros1_base_image: str) -> None:
     """As docker-ros's `useradd --groups sudo,video`: cameras and GPUs (/dev/video*, /dev/dri,
-    group video) work for the mapped user."""
+    group video) work for the mapped user; and serial devices (`--device /dev/ttyUSB0` keeps
+    the host's group dialout, which the README's dev shell example passes)."""
     result = mapped(ros1_base_image, "robot", 1242, 1242, script="id -nG")
     assert result.returncode == 0, result.stderr
-    assert set(result.stdout.split()) == {"robot", "sudo", "video"}, result.stdout
+    assert set(result.stdout.split()) == {"robot", "sudo", "video", "dialout"}, result.stdout
     # a UID the image has already (daemon, 1): that user joins them (ubuntu, 1000, in Noble)
     existing = mapped(ros1_base_image, "robot", 1, 1, script="id -nG")
     assert existing.returncode == 0, existing.stderr
-    assert {"sudo", "video"} <= set(existing.stdout.split()), existing.stdout
+    assert {"sudo", "video", "dialout"} <= set(existing.stdout.split()), existing.stdout
+
+
+def test_a_home_docker_made_for_a_mount_below_it_is_the_users(ros1_base_image: str,
+                                                             tmp_path: Path) -> None:
+    """`inv dev-shell --volume ~/.ssh:/home/robot/.ssh:ro`: docker makes /home/robot (root's)
+    for the mount, useradd keeps it, and ROS could not write ~/.ros (root's `-w` said yes)."""
+    (tmp_path / "ssh").mkdir()
+    (tmp_path / "ssh" / "config").write_text("Host *\n")
+    result = mapped(ros1_base_image, "robot", 1245, 1245,
+                    "-v", f"{tmp_path / 'ssh'}:/home/robot/.ssh:ro",
+                    script='mkdir -p ~/.ros && echo "$HOME $(stat -c %u ~) $(ls ~/.ssh)"')
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["/home/robot", "1245", "config"], result.stdout
+    assert "not writable" not in result.stderr, result.stderr
 
 
 def test_mapped_user_gets_roots_bashrc(ros1_base_image: str, tmp_path: Path) -> None:
