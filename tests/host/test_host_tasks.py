@@ -164,6 +164,18 @@ def test_singlearch_push_names_every_local_image_by_its_architecture(project: Pa
     assert f" reg.invalid/team/app:v1-dev-{arch} bash" in shell.stdout, shell.stdout
 
 
+def test_the_dev_shells_dry_run_names_no_file_that_is_gone(project: Path) -> None:
+    """With a blacklist the shell gets a colcon defaults file in a temporary folder, removed
+    when the dry run ends: its path in the printed `docker run` named nothing."""
+    (project / "docker").mkdir(exist_ok=True)
+    (project / "docker" / "blacklisted-packages.txt").write_text("other_pkg\n")
+    shell = cli(project, "dev-shell", "--dry-run",
+                env={"BASE_IMAGE": "docker-ros-test/ros1:bookworm", "DISPLAY": ""})
+    assert shell.returncode == 0, shell.stderr
+    assert ("-v '<temporary>/colcon-defaults.yaml:/tmp/.docker-ros.colcon-defaults.yaml:ro'"
+            in shell.stdout), shell.stdout
+
+
 def test_slim_asked_for_a_dev_only_build_says_there_is_none(project: Path) -> None:
     """ENABLE_SLIM applies to the run image: asked for with TARGET dev, the build says it
     makes no slim image; left at its default, it says nothing."""

@@ -548,8 +548,8 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
             print(note, file=sys.stderr, flush=True)
         argv = devshell.dev_shell_argv(settings, ref, dataclasses.replace(
             shell, gpus=gpus, x11_display=display, xauthority=cookie), user)
-        if dry_run:
-            print(format_argv(argv))
+        if dry_run:  # (the X cookie and colcon defaults files are gone when it ends)
+            print(format_argv([arg.replace(tmp, "<temporary>") for arg in argv]))
             return 0
         check_shell_engine(settings)
         image = None if rebuild else engine.inspect_image(ref)
