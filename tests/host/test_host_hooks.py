@@ -25,7 +25,9 @@ def write(path, text):
     return path
 
 
-def test_scripts_run_in_order_from_their_directory(project, tmp_path, environ):
+def test_scripts_run_in_order_from_the_workspace_root(project, tmp_path, environ):
+    """docker-ros's WORKDIR, as in images: a hook's relative writes stay out of the repository
+    (they ran in the script's folder on the host)."""
     log = tmp_path / "log.txt"
     environ({"HOOK_LOG": str(log)})
     write(
@@ -41,7 +43,7 @@ def test_scripts_run_in_order_from_their_directory(project, tmp_path, environ):
 
     scripts.main(project.ws, settings)
 
-    assert log.read_text() == "top docker\nnested pkg\n"
+    assert log.read_text() == f"top {project.ws.root.name}\nnested {project.ws.root.name}\n"
     assert project.ws.read_state("scripts.json") == {
         "hooks": [
             {

@@ -9,7 +9,7 @@ from typing import Any, Dict, List
 
 from docker_ros.in_image.runtime.apt import apt_env, apt_get, apt_lists_present
 from docker_ros.in_image.runtime.files import find_special_files, remove_tree
-from docker_ros.in_image.runtime.process import is_root, run, run_script
+from docker_ros.in_image.runtime.process import hook_context, is_root, run, run_script
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, dry, phases, step_log
 from docker_ros.in_image.settings import Settings
 
@@ -52,21 +52,24 @@ def collect(ws: Workspace, step: str, settings: Settings, name: str, *, dry_run:
 
 
 def apply(ws: Workspace, step: str, plan: Dict[str, Any], *, dry_run: bool) -> None:
-    """Run each hook with `bash -e` (docker-ros ran them under `set -e`), in the directory the
-    script came from when that still exists (host), else in the workspace root (image install
-    stages, which have no sources): docker-ros's WORKDIR, so that what a hook writes relative
-    to it stays in the image (the state directory is not part of the run image)."""
+    """Run each hook with `bash -e` (docker-ros ran them under `set -e`) in the workspace root,
+    docker-ros's WORKDIR, on the host as in images: what a hook writes relative to it stays
+    out of the repository (and in the image; the state directory is not part of the run
+    image)."""
     hooks = plan.get("hooks") or []
     if not hooks:
         LOG.info("%s: no scripts to run", step)
         return
-    # docker-ros ran the hooks right after `apt-get update`; scripts rely on it.
-    if is_root() and shutil.which("apt-get") and not apt_lists_present():
+    # docker-ros ran the hooks right after `apt-get update`; scripts rely on it. In an image
+    # build always: its lists are in an apt cache mount, maybe weeks old (a hook's apt-get
+    # install would miss a replaced version); on the host when it has none.
+    if is_root() and shutil.which("apt-get") and (
+            hook_context() == "image" or not apt_lists_present()):
         run(apt_get(["update"]), step=step, dry_run=dry_run, env=apt_env())
     for hook in hooks:
         script = ws.state / hook["file"]
         source = ws.root / hook["source"]
-        cwd = source.parent if source.parent.is_dir() else ws.root
+        cwd = ws.root
         if not dry_run and not script.is_file():
             raise StepError(step, f"{script} missing: run `{step}` with phase collect first")
         run_script(["bash", "-e", str(script)], script, step=step, dry_run=dry_run, cwd=cwd,
