@@ -562,7 +562,12 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
                                           current, ref)
             if stale:
                 print(stale, file=sys.stderr, flush=True)
-        return subprocess.call(argv)
+        container = subprocess.Popen(argv)
+        try:
+            return container.wait()
+        except KeyboardInterrupt:  # (SIGTERM too: the docker CLI stops the container; killed,
+            let_end(container)     # as subprocess.call did, it left the container running)
+            raise
 
 
 def check_shell_engine(settings: Settings) -> None:
