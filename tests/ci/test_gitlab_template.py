@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import os
 import shutil
+import subprocess
 import uuid
 from pathlib import Path
+from typing import Callable
 
 import pytest
 
@@ -191,19 +193,25 @@ def test_pushed_slim_image_runs(pipelines: dict) -> None:
                              pipelines["registry"].auth)
 
 
+def jobs_of(pipelines: dict, edit: Callable[[str], str], *jobs: str
+            ) -> subprocess.CompletedProcess:
+    """The jobs, run by gitlab-ci-local with the pipelines' .gitlab-ci.yml as edit makes it
+    (restored afterwards)."""
+    ci = pipelines["repo"] / ".gitlab-ci.yml"
+    original = ci.read_text()
+    try:
+        ci.write_text(edit(original))
+        return gitlab_ci_local(pipelines["repo"], pipelines["variables"], *jobs,
+                               secrets=pipelines["secrets"], env=pipelines["env"])
+    finally:
+        ci.write_text(original)
+
+
 def test_a_moved_job_made_to_run_says_where_its_work_is(pipelines: dict) -> None:
     """An override that gives docker-ros's `Slim run-amd64` rules of its own: that job fails
     with one line naming the job that slims now."""
-    repo = pipelines["repo"]
-    ci = repo / ".gitlab-ci.yml"
-    original = ci.read_text()
-    try:
-        ci.write_text(original.replace("Slim run-amd64:\n",
-                                       "Slim run-amd64:\n  rules:\n    - when: always\n"))
-        result = gitlab_ci_local(repo, pipelines["variables"], "Slim run-amd64",
-                                 secrets=pipelines["secrets"], env=pipelines["env"])
-    finally:
-        ci.write_text(original)
+    result = jobs_of(pipelines, lambda ci: ci.replace(
+        "Slim run-amd64:\n", "Slim run-amd64:\n  rules:\n    - when: always\n"), "Slim run-amd64")
     assert result.returncode != 0
     assert ('docker-ros: job "Slim run-amd64" is (or extends) a docker-ros job that no longer '
             'exists: its work runs in build-amd64 (ENABLE_SLIM); move your settings of "Slim '
@@ -214,17 +222,9 @@ def test_own_jobs_on_docker_ros_hidden_jobs_fail_saying_why(pipelines: dict) -> 
     """A job of the user's that extends docker-ros's .test (which ran industrial_ci on its
     DOCKER_IMAGE) never ran without a word; one that extends .push with IMG_RUN (pushed there
     in docker-ros) pushed docker-ros's names only. Both fail now, saying what to do."""
-    repo = pipelines["repo"]
-    ci = repo / ".gitlab-ci.yml"
-    original = ci.read_text()
     own = ("My tests:\n  extends: .test\n  variables:\n    DOCKER_IMAGE: my/image:1\n"
            "My push:\n  extends: .push\n  needs: []\n  variables:\n    IMG_RUN: my/image:stable\n")
-    try:
-        ci.write_text(original + own)
-        result = gitlab_ci_local(repo, pipelines["variables"], "My tests", "My push",
-                                 secrets=pipelines["secrets"], env=pipelines["env"])
-    finally:
-        ci.write_text(original)
+    result = jobs_of(pipelines, lambda ci: ci + own, "My tests", "My push")
     assert result.returncode != 0
     assert ('docker-ros: job "My tests" is (or extends) a docker-ros job that no longer exists: '
             'its work runs in build-<arch> (ENABLE_INDUSTRIAL_CI); move your settings of "My '
