@@ -954,7 +954,8 @@ def build_images_locked(
     """build_images' builds; (the images, the imports image they used)."""
     environ = os.environ if environ is None else environ
     chosen = selected_builder(settings)
-    dropped = settings.buildx_attestations and builder.attestations_dropped(chosen, environ)
+    attested = settings.buildx_attestations and not output and bool({"dev", "run"} & set(targets))
+    dropped = attested and builder.attestations_dropped(chosen, environ)
     if dropped:
         raise BuildError(f"BUILDX_ATTESTATIONS=true: {dropped}")
     export = builder.cache_export(chosen)

@@ -373,8 +373,11 @@ def run_plan(
     client = None
     try:
         try:
-            build.build_image(settings, target=plan.start, platform=settings.platform[0],
-                              tag=stage_tag, out=out)
+            # (a stage to run steps in, never pushed: no attestations, which only an engine on
+            # the containerd image store would keep)
+            build.build_image(dataclasses.replace(settings, buildx_attestations=False),
+                              target=plan.start, platform=settings.platform[0], tag=stage_tag,
+                              out=out)
         except build.BuildError as exc:
             if shell_on_failure and exc.stage in STAGES and exc.step:
                 # The state before the start failed to build: open the shell where that failed.
