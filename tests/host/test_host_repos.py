@@ -143,11 +143,11 @@ def test_hooks_know_where_they_run(repo: Path, tmp_path: Path) -> None:
     for step in ("clone", "scripts", "custom"):
         proc = run(["docker_ros", step], repo)
         assert proc.returncode == 0, proc.stderr
-    ws = tmp_path / "ws"  # the identification hook: the workspace; the others: their folder
+    ws = tmp_path / "ws"  # every hook: the workspace root (docker-ros's WORKDIR, as in images)
     assert seen.read_text().splitlines() == [
         f"before_dependency_identification.sh host {ws}",
-        f"before_dependency_installation.sh host {repo / 'docker'}",
-        f"custom.sh host {repo / 'docker'}",
+        f"before_dependency_installation.sh host {ws}",
+        f"custom.sh host {ws}",
     ]
 
 

@@ -65,7 +65,8 @@ def apply(ws: Workspace, step: str, plan: Dict[str, Any], *, dry_run: bool) -> N
     # install would miss a replaced version); on the host when it has none.
     if is_root() and shutil.which("apt-get") and (
             hook_context() == "image" or not apt_lists_present()):
-        run(apt_get(["update"]), step=step, dry_run=dry_run, env=apt_env())
+        # (-qq: errors only; its download rates would make two logs of one hook differ)
+        run(apt_get(["-qq", "update"]), step=step, dry_run=dry_run, env=apt_env())
     for hook in hooks:
         script = ws.state / hook["file"]
         source = ws.root / hook["source"]
