@@ -41,9 +41,27 @@ def typecheck(session: nox.Session) -> None:
 
 @nox.session
 def tests(session: nox.Session) -> None:
-    """pytest; arguments after `--` go to pytest (e.g. `nox -s tests -- -m "not docker"`)."""
+    """The whole suite, every tier; arguments after `--` go to pytest."""
     session.install("-e", ".[test]")
     session.run("pytest", *session.posargs)
+
+
+# One tier at a time, for a quick loop while developing (`nox -s docker -- -k slim`); `nox`
+# (and so `.ci/run`) runs them all through `tests`.
+TIERS = {"unit": "not docker and not host", "host": "host", "docker": "docker"}
+
+
+def tier_session(name: str, expression: str) -> None:
+    def run(session: nox.Session) -> None:
+        session.install("-e", ".[test]")
+        session.run("pytest", "-m", expression, *session.posargs)
+
+    run.__doc__ = f"Only the {name} tests (-m '{expression}'); arguments after `--` go to pytest."
+    nox.session(name=name)(run)
+
+
+for _name, _expression in TIERS.items():
+    tier_session(_name, _expression)
 
 
 @nox.session

@@ -62,6 +62,42 @@ def pytest_unconfigure(config: pytest.Config) -> None:
             os.environ["DOCKER_CONFIG"] = previous
 
 
+TIERS = ("unit", "host", "docker")
+
+
+def tier(item: pytest.Item) -> str:
+    """A test's tier: docker (needs an engine), host (real tools on this machine) or unit."""
+    return next((name for name in ("docker", "host") if item.get_closest_marker(name)), "unit")
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    for item in session.items:
+        item.user_properties.append(("tier", tier(item)))
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """Where the time went: the seconds of each tier and of the 15 slowest modules (setup,
+    call and teardown of their tests), so that the next person sees what a change costs."""
+    per_tier: dict = {}
+    per_module: dict = {}
+    for reports in terminalreporter.stats.values():
+        for report in reports:
+            if not isinstance(report, pytest.TestReport):
+                continue
+            name = dict(report.user_properties).get("tier", "unit")
+            per_tier[name] = per_tier.get(name, 0.0) + report.duration
+            module = report.nodeid.split("::", 1)[0]
+            per_module[module] = per_module.get(module, 0.0) + report.duration
+    if not per_tier:
+        return
+    terminalreporter.write_sep("=", "time per tier")
+    terminalreporter.write_line("  ".join(
+        f"{name}: {per_tier.get(name, 0.0) / 60:.1f} min" for name in TIERS))
+    terminalreporter.write_sep("-", "time per module (slowest 15)")
+    for module, seconds in sorted(per_module.items(), key=lambda kv: -kv[1])[:15]:
+        terminalreporter.write_line(f"{seconds / 60:6.1f} min  {module}")
+
+
 def pytest_report_header() -> str:
     return f"docker buildx: {buildx_version() if shutil.which('docker') else 'no docker CLI'}"
 
