@@ -416,6 +416,13 @@ def buildkit_image(engine26: str, ros2_base_image: str) -> str:
 
 
 @pytest.fixture(scope="session")
+def kept_builder(engine26: str, buildkit_image: str) -> str:
+    """The docker-container builder on Engine 26 that is kept between runs (tests.engines
+    .kept_container_builder); its name."""
+    return engines.kept_container_builder(engine26, buildkit_image)
+
+
+@pytest.fixture(scope="session")
 def docker_ros_wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """This checkout as a wheel, built once per run: CI jobs install it (a pip requirement as
     DOCKER_ROS_PIP_SPEC allows) in seconds, and jobs that run at once do not build in the same

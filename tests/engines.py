@@ -227,6 +227,27 @@ def buildkit_image(host: str, base_image: str) -> str:
     return tag
 
 
+def kept_container_builder(host: str, image: str) -> str:
+    """A docker-container builder of the engine at host (image: buildkit_image) that is kept
+    between runs, as the base images are: its BuildKit keeps its cache, so only the first run
+    on a machine builds under QEMU what the multi-arch and builder tests build (about 15
+    minutes); later runs take it from the cache and still go through the builder's whole path
+    (OCI layouts, push, manifest list). Named after the image, so a new BuildKit makes a new
+    one. A builder that must start empty (a fresh CI runner's) is container_builder's."""
+    name = f"docker-ros-test-bk-kept-{hashlib.sha256(image.encode()).hexdigest()[:8]}"
+    env = env_for(host)
+    # (each run has a DOCKER_CONFIG of its own: buildx then knows no builder, and `create`
+    # finds the container and state volume of the same name that an earlier run left)
+    if subprocess.run(["docker", "buildx", "inspect", name], env=env,
+                      capture_output=True).returncode != 0:
+        subprocess.run(["docker", "buildx", "create", "--name", name, "--driver",
+                        "docker-container", "--driver-opt", f"image={image}", "--driver-opt",
+                        "network=host"], env=env, check=True, capture_output=True)
+    subprocess.run(["docker", "buildx", "inspect", "--bootstrap", name], env=env, check=True,
+                   capture_output=True)
+    return name
+
+
 @contextlib.contextmanager
 def container_builder(host: str, image: str) -> Iterator[str]:
     """A buildx docker-container builder (buildkitd in a container of the engine at host,

@@ -47,14 +47,16 @@ def last_step(vertex: str, target: str) -> bool:
 
 
 def test_a_docker_container_builder_pushes_and_an_empty_one_builds_from_its_cache(
-    buildkit_image: str, engine26: str, ros1_base_image: str, local_registry: str,
+    buildkit_image: str, kept_builder: str, ros1_base_image: str, local_registry: str,
     tmp_path: Path
 ) -> None:
     """BUILDER names a docker-container builder: dev and run are built there (the tools and
     imports images reach its BuildKit as OCI layouts: a FROM of a local image would look for it
     on Docker Hub), loaded into the engine and pushed with a registry cache of every stage; the
     run image runs. A new, empty builder (a fresh CI runner's) then takes every step of dev and
-    run from that cache: the tools and imports images it gets have the digests of the first."""
+    run from that cache: the tools and imports images it gets have the digests of the first.
+    (The first builder is the one kept between runs: what it pushes is the registry cache of
+    every stage whether it built the steps or had them cached; the second starts empty.)"""
     base = f"{local_registry}/docker-ros-test/buildkit-base:bookworm"
     ref = f"{local_registry}/docker-ros-test/buildkit-{uuid.uuid4().hex[:8]}:1"
     project = copy_example(tmp_path / "example")
@@ -66,9 +68,8 @@ def test_a_docker_container_builder_pushes_and_an_empty_one_builds_from_its_cach
         pushed = on_engine26("push", base)
         assert pushed.returncode == 0, pushed.stderr
         on_engine26("rmi", base)
-        with container_builder(ENGINE26_HOST, buildkit_image) as name:
-            result = docker_ros(project, "push",
-                                env={"DOCKER_HOST": ENGINE26_HOST, "BUILDER": name})
+        name = kept_builder
+        result = docker_ros(project, "push", env={"DOCKER_HOST": ENGINE26_HOST, "BUILDER": name})
         assert result.returncode == 0, result.stdout[-6000:]
         assert f"builder: {name} (built in its own BuildKit" in result.stdout
         assert REGISTRY_CACHE in result.stdout
@@ -97,17 +98,17 @@ def test_a_docker_container_builder_pushes_and_an_empty_one_builds_from_its_cach
 
 
 def test_a_local_base_image_a_docker_container_builder_cannot_see_is_named(
-    buildkit_image: str, engine26: str, ros1_base_image: str, tmp_path: Path
+    kept_builder: str, ros1_base_image: str, tmp_path: Path
 ) -> None:
     """BASE_IMAGE is an image of the local engine only (bootstrapped here): the builder's own
     BuildKit looks for it in a registry, and the message says why it failed and what to do."""
     project = copy_example(tmp_path / "example")
     write_env(project, BASE_IMAGE=ros1_base_image, TARGET="run", COMMAND=EXAMPLE_COMMAND,
               IMAGE=f"docker-ros-test/buildkit-unseen-{uuid.uuid4().hex[:8]}:1")
-    with container_builder(ENGINE26_HOST, buildkit_image) as name:
-        env = {"DOCKER_HOST": ENGINE26_HOST, "BUILDER": name}
-        shown = docker_ros(project, "build", "--dry-run", env=env)
-        result = docker_ros(project, "build", env=env)
+    name = kept_builder
+    env = {"DOCKER_HOST": ENGINE26_HOST, "BUILDER": name}
+    shown = docker_ros(project, "build", "--dry-run", env=env)
+    result = docker_ros(project, "build", env=env)
     # the dry run shows the build as it would run: through the builder, with its registry
     # cache choice, the tools and imports images as OCI layouts
     assert shown.returncode == 0, shown.stdout[-3000:]
