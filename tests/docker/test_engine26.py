@@ -154,35 +154,26 @@ def assert_every_step_cached(log: str) -> None:
     assert "Starting >>> colcon" not in built["run"]
 
 
-def test_empty_engine26_takes_every_stage_from_the_registry_cache(
-    first_pipeline: dict, empty_engine26: str
-) -> None:
-    """Nothing changed, a fresh runner: every stage of dev and run comes from the registry
-    cache, the colcon RUN too. The pulled build state was built from these same inputs: the
-    build is seeded as that build was (empty), so the RUN's cache key is the first job's, and
-    the state pushed again is the same image."""
-    assert first_pipeline["result"].returncode == 0
-    repo: Path = first_pipeline["repo"]
-    registry: str = first_pipeline["registry"]
-    before = pushed_state(registry)
-    result = pipeline(repo, registry, empty_engine26, first_pipeline["wheel"],
-                      ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
-    assert result.returncode == 0, result.stdout[-6000:]
-    log = build_log(repo)
-    assert "seeding as that build was (empty)" in log
-    assert_every_step_cached(log)
-    assert pushed_state(registry) == before
-
-
 def test_after_a_one_file_edit_engine26_compiles_it_then_caches_every_stage(
-    first_pipeline: dict, empty_engine26: str
+    first_pipeline: dict, empty_engine26: str, tmp_path: Path
 ) -> None:
-    """One .cpp edited, a fresh runner: the job builds over the pulled state and compiles that
-    file only. The next job with nothing changed, on another fresh runner, is seeded as the
-    edit's job was (the state before it, by digest) and takes every stage from the cache."""
+    """Two fresh runners (empty Engine 26s), on a clone of the repository (the module's own
+    stays as the first pipeline built it):
+    1. one .cpp edited: the job builds over the pulled build state and compiles that file only;
+    2. nothing changed since: every stage of dev and run comes from the registry cache, the
+       colcon RUN too. The pulled build state was built from these same inputs: the build is
+       seeded as that build was (the state before the edit, by digest), so the RUN's cache key
+       is the edit job's, and the state pushed again is the same image.
+    (A no-change job after the first pipeline, seeded empty, is the same proof with the plainer
+    seed: test_buildstate.py has that seed's decision, test_ci_build_state.py its build.)"""
     assert first_pipeline["result"].returncode == 0
-    repo: Path = first_pipeline["repo"]
     registry: str = first_pipeline["registry"]
+    repo = tmp_path / "repo"
+    git(tmp_path, "clone", "-q", str(first_pipeline["repo"]), str(repo))
+    # (the first pipeline's checkout as it was: its variables file, which git ignores)
+    shutil.copy(first_pipeline["repo"] / ".gitlab-ci-local-variables.yml", repo)
+    shutil.copy(first_pipeline["repo"] / ".git" / "info" / "exclude",
+                repo / ".git" / "info" / "exclude")
     source = repo / "docker_ros_example" / "src" / "talker.cpp"
     source.write_text(source.read_text() + "// edited by the Engine 26 test\n")
     git(repo, "commit", "-qam", "edit talker.cpp")
@@ -195,6 +186,8 @@ def test_after_a_one_file_edit_engine26_compiles_it_then_caches_every_stage(
     assert "starting from the pulled build state" in run
     assert "colcon: 1 of " in run and "docker_ros_example changed" in run
     assert [len(o) for o in compiled_objects(run).values()] == [1], compiled_objects(run)
+
+    before = pushed_state(registry)
     with private_engine([first_pipeline["base"]], modern=True) as host:
         again = pipeline(repo, registry, host, first_pipeline["wheel"],
                          ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
@@ -202,6 +195,7 @@ def test_after_a_one_file_edit_engine26_compiles_it_then_caches_every_stage(
     log = build_log(repo)
     assert f"seeding as that build was ({registry}/{IMAGE}@sha256:" in log
     assert_every_step_cached(log)
+    assert pushed_state(registry) == before
 
 
 @pytest.fixture
