@@ -1,6 +1,6 @@
 """The command line: the invoke tasks (`tasks`, thin: they hand over to docker_ros.host.pipeline),
-the `docker-ros` program over them (`program`) and the README's settings table made from them
-(`readme`)."""
+the `docker-ros` program over them (`program`) and the configuration reference made from them
+(`reference`, rendered by the docs build)."""
 
 from docker_ros.cli.program import main
 

@@ -138,7 +138,8 @@ def settings_task(
     helps: Mapping[str, str] = {},
 ) -> Callable[..., Task]:
     """Make an invoke Task whose flags are the task's own, one per setting it uses, and
-    --set NAME=VALUE for any other setting (the full reference: README and `inv config`);
+    --set NAME=VALUE for any other setting (the full reference: the docs' configuration
+    reference and `inv config`);
     a flag whose default is a list may be given several times. `lenient`: invalid values
     reach the task in Settings.problems instead of stopping it. `logs_in`: a task that reaches
     a registry (a private BASE_IMAGE, CACHE_FROM/CACHE_TO, pushes) runs logged in with
@@ -269,10 +270,12 @@ def setting_help(name: str) -> str:
     `inv config`."""
     default = default_doc(name).replace("`", "").replace("*", "")
     text = str(FIELDS[name].metadata["help"])
-    # (the defaults of the CI integrations are not this machine's: the README lists them)
+    # (the defaults of the CI integrations are not this machine's: the reference lists them)
     if (not default or max(len(word) for word in default.split()) > 26
             or default.startswith("GitHub Action:")):
         return text
+    if default.startswith("required"):  # no default: a value must be given
+        return f"{text} ({default})"
     return f"{text} (default: {default})"
 
 
@@ -361,9 +364,9 @@ COMPOSITE_HELP = {
     "dev": "Build the dev image (or run clone..custom --host or --in-container)\n\n"
            "--host runs the steps on this machine, in WORKSPACE; --in-container runs them in "
            "one container, tagged <IMAGE>-after-dev.",
-    "run": "Build the run image (or run all steps and COMMAND --host or --in-container)\n\n"
-           "--host runs the ten steps and COMMAND on this machine, in WORKSPACE; "
-           "--in-container runs them in one container, tagged <IMAGE>-after-run.",
+    "run": "Build the run image (or run all ten steps --host or --in-container)\n\n"
+           "--host runs the ten steps on this machine, in WORKSPACE (the tenth, command, runs "
+           "COMMAND); --in-container runs them in one container, tagged <IMAGE>-after-run.",
 }
 
 

@@ -153,7 +153,7 @@ def parse_slim_args(text: str, additional: str = "") -> SlimOptions:
         raise SlimError(
             "/".join(dict.fromkeys(v for v, _ in unknown)) + ": unknown option(s) "
             + ", ".join(t for _, t in unknown) + "; supported: " + ", ".join(OPTIONS)
-            + " (see the README's Slim images section)")
+            + " (see the docs' guide, Slim images)")
     continue_after = seconds_option("--continue-after", given["--continue-after"], 10.0)
     settle = seconds_option("--settle", given["--settle"], SETTLE_SECONDS)
     for variable, pair in given["--env"]:

@@ -1012,7 +1012,7 @@ def default_doc(name: str) -> str:
 
 
 def markdown_table(flag_tasks: Optional[Mapping[str, str]] = None) -> str:
-    """The README configuration table, derived from the declarations; flag_tasks says which
+    """The configuration reference table, derived from the declarations; flag_tasks says which
     tasks have a setting as a flag, in words (others are reached with --set NAME=VALUE)."""
     flag_tasks = flag_tasks or {}
     rows = ["| variable | flag | default | description |", "|---|---|---|---|"]
