@@ -1,4 +1,4 @@
-"""The project's own checks: `nox` runs lint, typecheck and tests (see README)."""
+"""The project's own checks: `nox` runs lint, typecheck, docs and tests (see CONTRIBUTING.md)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ from typing import List
 
 import nox
 
-nox.options.sessions = ["lint", "typecheck", "tests"]
+nox.options.sessions = ["lint", "typecheck", "docs", "tests"]
 nox.options.reuse_existing_virtualenvs = True
 
 ROOT = Path(__file__).parent
-LINT_PATHS = ("src", "tests", "tasks.py", "noxfile.py", "scripts")
+LINT_PATHS = ("src", "tests", "tasks.py", "noxfile.py", "scripts", "docs")
 TYPECHECK_PATHS = ("src", "tasks.py", "noxfile.py", "scripts")
 
 
@@ -37,6 +37,15 @@ def typecheck(session: nox.Session) -> None:
     """mypy with the settings in pyproject.toml."""
     session.install("-e", ".[test]")
     session.run("mypy", *python_paths(TYPECHECK_PATHS))
+
+
+@nox.session
+def docs(session: nox.Session) -> None:
+    """The documentation site (Sphinx + MyST), strict: a warning, a broken link, a missing page
+    or an unknown reference fails. HTML in build/docs/html (`nox -s docs`)."""
+    session.install("-e", ".[docs]")
+    session.run("sphinx-build", "-W", "--keep-going", "-n", "-E", "-b", "html",
+                "docs", str(ROOT / "build" / "docs" / "html"))
 
 
 @nox.session
