@@ -17,7 +17,7 @@ import uuid
 from pathlib import Path
 from typing import Any, Dict, Iterator, Mapping, Optional, Sequence
 
-# Where scripts/setup.sh puts Engine 26 (see the README's "Two engine generations").
+# Where scripts/setup.sh puts Engine 26 (see CONTRIBUTING.md, "Setting up a machine").
 ENGINE26_HOST = "unix:///run/docker-ros-engine26/docker.sock"
 ENGINE26_ROOT = Path(os.environ.get("ENGINE26_ROOT", "/opt/docker-ros-engine26"))
 CONTAINERD_STORE = '{"features": {"containerd-snapshotter": true}}\n'

@@ -27,7 +27,7 @@ THEIRS = Path(__file__).resolve().parent / "data"
 SETUP_HINT = "run `bash scripts/setup.sh` first"
 # Settings that are no CI input: the host workspace; IMAGE (IMAGE_NAME/IMAGE_TAG are inputs).
 NOT_INPUTS = {"workspace", "image"}
-# Deliberately not docker-ros's action defaults (README, Migrating from docker-ros): derived from
+# Deliberately not docker-ros's action defaults (docs/migration.md): derived from
 # image-name (docker-ros's own ghcr.io default ignored a changed image-name).
 OUR_DEFAULTS = {"dev-image-name": None, "slim-image-name": None}
 
@@ -163,7 +163,8 @@ def test_template_installs_at_docker_ros_git_ref_and_runs_the_tasks() -> None:
 
 
 def test_switching_gitlab_is_one_include_line() -> None:
-    """DOCKER_ROS_GIT_URL defaults to where the template is published (the README's include)."""
+    """DOCKER_ROS_GIT_URL defaults to where the template is published (the include the README
+    and the docs show)."""
     url = load(TEMPLATE)["variables"]["DOCKER_ROS_GIT_URL"]
     include = load(EXAMPLES / "gitlab-ci.yml")["include"][0]["remote"]
     owner_repo = include.split("raw.githubusercontent.com/", 1)[1].rsplit("/", 3)[0]
@@ -274,7 +275,7 @@ def test_action_keeps_later_steps_python() -> None:
 def test_github_slug_is_the_slug_steps_for_names_without_other_letters() -> None:
     """Outside the Action, github_slug stands in for its gacts/github-slug step: the same slug
     (npm's slugify, as the harness runs it) for ASCII and accented names; ß and letters of other
-    scripts, which only the step transliterates, are what the README lists."""
+    scripts, which only the step transliterates, are what docs/ci/index.md lists."""
     names = [" Foo_bar--_--baz V1.2.3 %_#$ \t", "foo/bar_1.2.3(aaa_bbb)", "^*()_=+\\/?~`@;:'",
              "Feature/GitHub--Test", "fix/Ä@b&c", "feat/naïve café", "x|y<z>w", "-a--b-"]
     assert [github_slug(name) for name in names] == [github_slug_action(n) for n in names]
@@ -282,8 +283,17 @@ def test_github_slug_is_the_slug_steps_for_names_without_other_letters() -> None
     assert github_slug("fix/Straße") == "fix-strae"
 
 
-def test_readme_shows_the_example_files() -> None:
-    readme = (REPO / "README.md").read_text()
+def test_docs_show_the_example_files() -> None:
+    """Each CI example (validated above with actionlint and check-jsonschema) is what a docs
+    page shows, included from the file itself; the README shows the minimal GitHub and GitLab
+    ones as they are; the migration notes name docker-ros's action as users have it."""
+    docs = REPO / "docs"
+    pages = {page: page.read_text() for page in docs.rglob("*.md")}
     for path in sorted(EXAMPLES.iterdir()):
-        assert path.read_text().strip() in readme, f"README does not show {path.name}"
-    assert re.search(r"uses: ika-rwth-aachen/docker-ros@v1", readme)
+        including = [page for page, text in pages.items()
+                     if f"```{{literalinclude}} {os.path.relpath(path, page.parent)}\n" in text]
+        assert including, f"no docs page shows {path.name}"
+    readme = (REPO / "README.md").read_text()
+    for name in ("github-workflow.yml", "gitlab-ci.yml"):
+        assert (EXAMPLES / name).read_text().strip() in readme, f"README does not show {name}"
+    assert re.search(r"uses: ika-rwth-aachen/docker-ros@v1", pages[docs / "migration.md"])

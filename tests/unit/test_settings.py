@@ -1,4 +1,5 @@
-"""Settings: declarations, precedence, strict parsing, derived defaults, README table."""
+"""Settings: declarations, precedence, strict parsing, derived defaults, the generated
+configuration reference."""
 
 import re
 from pathlib import Path
@@ -6,7 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from docker_ros.cli import readme
+from docker_ros.cli import reference
 from docker_ros.in_image.settings import (
     FIELDS,
     SettingsError,
@@ -19,8 +20,8 @@ from docker_ros.in_image.settings import (
     required_for_build,
 )
 
-README = Path(__file__).resolve().parents[2] / "README.md"
-REFERENCE = Path(__file__).resolve().parent / "data" / "docker-ros-readme-defaults.yml"
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+ORIGINAL = Path(__file__).resolve().parent / "data" / "docker-ros-readme-defaults.yml"
 
 
 def load(**layers):
@@ -208,7 +209,7 @@ def test_unset_values_stay_unset():
 def reference_defaults():
     """Variable -> default text from the original docker-ros README (recorded in
     tests/unit/data)."""
-    return yaml.safe_load(REFERENCE.read_text())
+    return yaml.safe_load(ORIGINAL.read_text())
 
 
 def test_every_docker_ros_variable_is_declared_with_its_default():
@@ -233,39 +234,57 @@ def test_every_docker_ros_variable_is_declared_with_its_default():
         assert str(shown) == default, name
 
 
-def test_readme_configuration_table_matches_declarations():
-    text = README.read_text()
-    begin, end = "<!-- settings-table:begin -->", "<!-- settings-table:end -->"
-    assert begin in text and end in text, "README lacks the generated settings table"
-    table = text.split(begin, 1)[1].split(end, 1)[0].strip()
-    assert table == readme.table(), "regenerate with: python -m docker_ros.cli.readme"
+def test_the_reference_has_one_row_per_declared_setting():
+    """The reference is generated from the declarations when the docs are built: every
+    setting has its row, in declaration order, with its variable name first."""
+    rows = reference.table().splitlines()[2:]
+    names = [re.match(r"\| `([A-Z0-9_]+)` \|", row).group(1) for row in rows]
+    assert names == [name.upper() for name in FIELDS]
 
 
-def test_readme_configuration_table_rows_have_four_cells():
+def test_the_docs_render_the_generated_reference_and_link_to_it():
+    """The configuration reference page renders the generated table (no table kept by hand),
+    and the README, the docs' landing page and the configuration guide link to it."""
+    page = (DOCS / "reference" / "configuration.md").read_text()
+    assert "```{settings-reference}\n```" in page
+    assert "| variable |" not in page, "a table kept by hand: the reference is generated"
+    extension = (DOCS / "_ext" / "docker_ros_docs.py").read_text()
+    assert "reference.table()" in extension
+    links = {
+        DOCS.parent / "README.md": "(docs/reference/configuration.md)",
+        DOCS / "index.md": "(reference/configuration.md)",
+        DOCS / "guide" / "configuration.md": "(../reference/configuration.md)",
+    }
+    for path, link in links.items():
+        assert link in path.read_text(), f"{path.name} does not link to the reference"
+
+
+def test_reference_table_rows_have_four_cells():
     """A `|` inside a cell is escaped: GitHub would cut the row at it."""
-    for row in readme.table().splitlines():
+    for row in reference.table().splitlines():
         cells = re.split(r"(?<!\\)\|", row.strip())[1:-1]
         assert len(cells) == 4, row
 
 
 def test_the_flag_column_names_the_tasks_in_the_fewest_words():
     every, steps = ["a", "b", "c", "d", "e", "s1", "s2", "s3"], ["s1", "s2", "s3"]
-    assert readme.tasks_phrase(every, every, steps) == "every task"
-    assert readme.tasks_phrase(["a", "b"], every, steps) == "a, b"
-    assert readme.tasks_phrase(["a", "b", "c", "d", "e", "s1"], every, steps) == (
+    assert reference.tasks_phrase(every, every, steps) == "every task"
+    assert reference.tasks_phrase(["a", "b"], every, steps) == "a, b"
+    assert reference.tasks_phrase(["a", "b", "c", "d", "e", "s1"], every, steps) == (
         "every task but s2, s3")
-    assert readme.tasks_phrase(["a", "s1", "s2", "s3"], every, steps) == "the step tasks, a"
-    assert readme.tasks_phrase(["a", "b", "c", "d"], every, steps) == "a, b, c, d"
+    assert reference.tasks_phrase(["a", "s1", "s2", "s3"], every, steps) == "the step tasks, a"
+    assert reference.tasks_phrase(["a", "b", "c", "d"], every, steps) == "a, b, c, d"
     tie = ["a", "b", "c", "d", "e", "f", "s1"]  # 4 names, or "every task but" 3 names
-    assert readme.tasks_phrase(["a", "b", "c", "d"], tie, ["s1"]) == "a, b, c, d"
+    assert reference.tasks_phrase(["a", "b", "c", "d"], tie, ["s1"]) == "a, b, c, d"
 
 
 def test_the_flag_column_s_tasks_are_those_whose_help_has_the_flag():
     """WORKSPACE's flag is every step task's, dev's, run's and test's, not build's (the
     column said only `--workspace` while 13 of the 23 tasks had it)."""
-    row = next(r for r in readme.table().splitlines() if r.startswith("| `WORKSPACE` |"))
+    row = next(r for r in reference.table().splitlines() if r.startswith("| `WORKSPACE` |"))
     assert "| `--workspace` (the step tasks, dev, run, test) |" in row
-    assert "workspace" not in readme.ns["build"].help and "workspace" in readme.ns["dev"].help
+    assert "workspace" not in reference.task_flags("build")
+    assert "workspace" in reference.task_flags("dev")
 
 
 def test_a_later_source_s_valid_value_clears_an_earlier_invalid_one():
