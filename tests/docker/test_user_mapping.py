@@ -101,7 +101,7 @@ def test_renamed_user_owns_the_files_it_writes_in_a_mount(
 def test_mapped_user_is_in_the_sudo_video_and_dialout_groups(ros1_base_image: str) -> None:
     """As docker-ros's `useradd --groups sudo,video`: cameras and GPUs (/dev/video*, /dev/dri,
     group video) work for the mapped user; and serial devices (`--device /dev/ttyUSB0` keeps
-    the host's group dialout, which the README's dev shell example passes)."""
+    the host's group dialout, which the dev shell's `--device` passes: docs/guide/daily-work.md)."""
     result = mapped(ros1_base_image, "robot", 1242, 1242, script="id -nG")
     assert result.returncode == 0, result.stderr
     assert set(result.stdout.split()) == {"robot", "sudo", "video", "dialout"}, result.stdout
