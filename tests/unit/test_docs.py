@@ -193,3 +193,18 @@ def test_secrets_are_never_flags_in_the_docs() -> None:
         text = " ".join(path.read_text().split())
         assert "are never flags" in text and "refused" in text, path.name
     assert "have no flags" not in " ".join(p.read_text() for p in PAGES)
+
+
+def test_the_architecture_page_names_modules_that_exist() -> None:
+    """The layers table names each layer's modules, and the build's path names files: all of
+    them exist (a module moved or split must be moved in the page too)."""
+    package = REPO / "src" / "docker_ros"
+    text = (DOCS / "architecture.md").read_text()
+    for row in re.findall(r"^\| `(\w+)/` \|.*$", text, re.M):
+        line = next(r for r in text.splitlines() if r.startswith(f"| `{row}/` |"))
+        modules = line.split("|")[4]
+        for name in re.findall(r"`(\w+)/?`", modules):
+            found = [package / row / f"{name}.py", package / row / name]
+            assert any(path.exists() for path in found), f"{row}/{name} is named, not found"
+    for path in re.findall(r"`((?:cli|host|in_image)/[\w/]+\.py)`", text):
+        assert (package / path).exists(), path
