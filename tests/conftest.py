@@ -45,8 +45,9 @@ def pytest_configure(config: pytest.Config) -> None:
     docker command of the run (the tool's, the tests', the CI harnesses') finds it through a
     DOCKER_CONFIG of the run's own, which also keeps the user's logins and contexts out of it.
     test_buildx_versions.py checks that it is current and also builds with Debian's 0.13."""
-    if not engines.buildx_plugin("current").is_file():
-        return  # the docker tests then fail on the buildx version, with SETUP_HINT
+    if not engines.buildx_plugin("current").is_file():  # (never the machine's own, silently)
+        raise pytest.UsageError(f"no current buildx at {engines.buildx_plugin('current')}; "
+                                f"{SETUP_HINT}")
     folder = Path(tempfile.mkdtemp(prefix="docker-ros-test-docker-config-"))
     config.stash[DOCKER_CONFIG_KEY] = (folder, os.environ.get("DOCKER_CONFIG"))
     os.environ.update(engines.buildx_config(folder, "current"))

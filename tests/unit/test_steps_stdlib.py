@@ -2,7 +2,6 @@
 
 import ast
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -110,13 +109,13 @@ def python38():
 
 def test_runs_on_python_38(tmp_path):
     """Import every step module and run the step CLI (a dry run) under a real Python 3.8: pyenv's
-    on this project's machines (no registry here offers a 3.8 build to install). Elsewhere the
-    vermin check above stands in for it; in CI a missing 3.8 is a failure, never a skip."""
+    3.8, which this project's kind of machine has (a developer's, CI's), or python3.8 on PATH.
+    A missing one is a failure, in CI or not: vermin (above) checks API versions by name, not
+    what 3.8 really runs."""
     python = python38()
     if python is None:
-        if os.environ.get("CI"):
-            pytest.fail("no Python 3.8 interpreter (pyenv's 3.8 or python3.8 on PATH) in CI")
-        pytest.skip("no Python 3.8 interpreter on this machine (vermin checked the code)")
+        pytest.fail("no Python 3.8 interpreter (pyenv's 3.8, or python3.8 on PATH): install "
+                    "one, e.g. `pyenv install 3.8`")
     code = f"import sys; sys.path.insert(0, {str(SRC)!r})\n" + IMPORT_ALL
     subprocess.run([python, "-I", "-S", "-c", code], check=True, capture_output=True)
     ws = tmp_path / "ws"

@@ -2,9 +2,7 @@
 
 import errno
 import os
-import subprocess
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 
@@ -201,18 +199,13 @@ def test_results_go_to_the_flag_else_test_results_dir_else_the_workspace(tmp_pat
 
 
 @pytest.fixture
-def read_only(tmp_path: Path) -> Iterator[Path]:
-    """A folder nobody may write to (root too: immutable, where chattr can make it so)."""
-    folder = tmp_path / "read-only"
-    folder.mkdir()
-    if os.geteuid() != 0:
-        folder.chmod(0o555)
-    elif subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode != 0:
-        pytest.skip("no chattr +i here: cannot make a folder read-only for root")
-    yield folder
-    if os.geteuid() == 0:
-        subprocess.run(["chattr", "-i", str(folder)], check=True)
-    folder.chmod(0o755)
+def read_only() -> Path:
+    """A folder nobody may write to, root included, on every Linux machine: a sysctl folder
+    (procfs refuses to create anything in /proc/sys; in a container /proc/sys is mounted
+    read-only as well). No chattr, which some file systems and containers refuse."""
+    folder = Path("/proc/sys")
+    assert folder.is_dir() and not os.access(folder, os.W_OK), "/proc/sys is writable here"
+    return folder
 
 
 def test_a_results_dir_that_cannot_be_written_is_refused_up_front(read_only: Path) -> None:
