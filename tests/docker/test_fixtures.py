@@ -1,4 +1,20 @@
-"""Proofs that the shared Docker fixtures give what the other tests rely on."""
+"""Proofs that the shared Docker fixtures give what the other tests rely on.
+
+proves (each line: the test; all Docker-level, no image build of docker-ros):
+- the ROS 1 base round-trips a message through roscore, ROS from Debian in /usr:
+  test_ros1_image_round_trips_a_message_through_roscore
+- the ROS 2 base builds an ament_cmake package with colcon:
+  test_ros2_image_builds_an_ament_cmake_package
+- the local registry takes a push and gives the same image back:
+  test_local_registry_pushes_and_pulls
+- pip in a container reaches PyPI with the host's CA bundle mounted:
+  test_pip_in_a_container_trusts_pypi_only_with_the_host_ca
+- pip in a container fails (CERTIFICATE_VERIFY_FAILED) on a server signed by a CA it is not
+  given, and passes with that CA (was a test that skipped on machines without an extra CA: now
+  the test's own CA and server):
+  test_pip_in_a_container_trusts_an_intercepting_proxy_only_with_its_ca
+- the end of a run removes the images it left and nothing else:
+  test_a_run_removes_the_images_it_left_and_nothing_else"""
 
 from __future__ import annotations
 
@@ -15,6 +31,7 @@ import pytest
 from docker_ros.host.build import IMPORTS_LABEL, imports_owner
 from tests import leftovers
 from tests.docker.buildhelp import import_one_file_image, remove_image
+from tests.docker.test_extra_ca_certs import https_wheel  # noqa: F401 (a fixture)
 
 pytestmark = pytest.mark.docker
 
@@ -124,14 +141,22 @@ def test_pip_in_a_container_trusts_pypi_only_with_the_host_ca(
     assert "/usr/local/lib/python3" in out
 
 
-def test_pip_in_a_container_fails_without_the_host_ca(
-    docker_client: docker.DockerClient, ros1_base_image: str
+def test_pip_in_a_container_trusts_an_intercepting_proxy_only_with_its_ca(
+    docker_client: docker.DockerClient, ros1_base_image: str, https_wheel: tuple  # noqa: F811
 ) -> None:
-    if not any(Path("/usr/local/share/ca-certificates").glob("**/*.crt")):
-        pytest.skip("the host trusts no extra CA, so there is no TLS-intercepting proxy to fail on")
-    out = run(docker_client, ros1_base_image, f"{PIP_INSTALL_SIX} 2>&1 || echo PIP FAILED")
-    assert "CERTIFICATE_VERIFY_FAILED" in out
+    """Why the host's CA bundle is mounted above, on any machine (a TLS-intercepting proxy or
+    none): an HTTPS server on the host whose certificate a CA of the test's own signed. pip in a
+    container fails on it with CERTIFICATE_VERIFY_FAILED, and downloads from it with that CA."""
+    pki, url, _ = https_wheel
+    download = f"pip download --no-cache-dir --retries 0 --timeout 30 --no-deps -d /tmp/got {url}"
+    out = run(docker_client, ros1_base_image, f"{download} 2>&1 || echo PIP FAILED",
+              network_mode="host")
+    assert "CERTIFICATE_VERIFY_FAILED" in out, out
     assert out.rstrip().endswith("PIP FAILED")
+    ca = "/run/test-ca/ca.crt"
+    out = run(docker_client, ros1_base_image, f"{download} && ls /tmp/got", network_mode="host",
+              volumes={str(pki.ca): {"bind": ca, "mode": "ro"}}, environment={"PIP_CERT": ca})
+    assert out.rstrip().endswith(url.rsplit("/", 1)[1]), out
 
 
 def test_a_run_removes_the_images_it_left_and_nothing_else(
