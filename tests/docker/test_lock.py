@@ -5,7 +5,40 @@ newer wheel: the locked build keeps the locked commit and versions (dpkg-query /
 images equal the lock's entries; both carry the lock's digest), an unlocked dev build takes the
 new ones; a new debs line or a version the archive no longer has stop a locked build, named.
 The base image lacks tini, so prepare installs it (and the dev image's toolchain): the lock
-holds what prepare installed too."""
+holds what prepare installed too.
+
+proves (each line: where; "image" = a test here, on the module's images or builds):
+- `inv lock` resolves dev and run in the lock stages (commit, apt, pip, inputs, base digest,
+  prepare's packages, the toolchain in dev only): image, test_inv_lock_resolves_each_target_...
+- `inv lock --check` names the moved upstream commit and the newer wheel, then says stale:
+  image, test_lock_check_names_the_new_upstream_commit
+- a locked build installs exactly the lock (labels, dpkg, pip, no pins left, the locked
+  commit): image, test_locked_build_installs_exactly_the_lock
+- a pip requirement Debian satisfies keeps Debian's version, locked and built: image,
+  test_a_pip_requirement_debian_satisfies_keeps_debian_s_version
+- a locked build from scratch (NO_CACHE, another copy) installs the same: image,
+  test_a_locked_build_from_scratch_installs_the_same
+- a locked lean run image has the locked dev image's versions: image,
+  test_a_locked_lean_run_image_has_the_locked_dev_image_versions
+- an unlocked build takes the new commit and wheel: image, test_unlocked_build_takes_the_new_
+  commit_and_wheel (now in a copy under its own name: it overwrote the module's locked dev
+  image that four tests read, which passed only when they ran first)
+- a new debs line stops a locked build in the lock stage, named, before any install stage:
+  image, test_locked_build_stops_on_a_new_dependency_naming_it (the wording of every change:
+  unit, tests/unit/test_lock.py::test_stale_inputs_name_each_change)
+- a locked apt version the archive dropped stops the build naming it and the image's real apt
+  sources: image, test_locked_version_no_longer_available_is_named_with_its_source (the
+  wording: unit, tests/unit/test_lock_messages.py)
+- a locked pip version the index dropped is named with pip's sources: unit,
+  tests/unit/test_lock_messages.py (check_pip_available's message) and tests/unit/test_lock.py
+  (unavailable_pins on pip's own words); it reaches the user the way the apt one does (image
+  test above). Was a failing image build of its own.
+- a locked prepare version no longer available stops prepare, naming it with the sources:
+  unit, tests/unit/test_prepare.py (held_to_lock's check and message); real apt with a pin to
+  a version its sources lack installs the newest (what that check then sees): image,
+  test_apt_installs_the_pinned_version_where_a_newer_one_is_offered. Was a failing image build.
+- apt_preferences' pins hold real apt to the locked version where a newer one is offered:
+  image, test_apt_installs_the_pinned_version_where_a_newer_one_is_offered"""
 
 from __future__ import annotations
 
@@ -213,14 +246,17 @@ def install_space(ref: str) -> str:
 
 
 @contextmanager
-def built_copy(project: dict, tmp_path: Path, name: str, *args: str
+def built_copy(project: dict, tmp_path: Path, name: str, *args: str, locked: bool = True
                ) -> Iterator[Tuple[str, subprocess.CompletedProcess]]:
-    """A locked build (args added) of a copy of the project, its images tagged with a new name
-    starting with `name`: (the run image's tag, the build); the images go afterwards."""
+    """A build (locked unless told; args added) of a copy of the project, its images tagged
+    with a new name starting with `name`, so that the module's locked images stay what the
+    other tests read, in any order: (the run image's tag, the build); the images go
+    afterwards."""
     image = f"docker-ros-test/{name}-{uuid.uuid4().hex[:8]}:1"
     copy = own_copy(project["repo"], tmp_path / "repo", image)
+    lock = ["--set", "LOCKED=true"] if locked else []
     try:
-        yield image, docker_ros(copy, "build", "--set", "LOCKED=true", *args, env=project["env"])
+        yield image, docker_ros(copy, "build", *lock, *args, env=project["env"])
     finally:
         remove_image(image)
         remove_image(image + "-dev")
@@ -261,13 +297,15 @@ def test_a_locked_lean_run_image_has_the_locked_dev_image_versions(
         assert {n: dev.get(n) for n in installed} == installed
 
 
-def test_unlocked_build_takes_the_new_commit_and_wheel(project: dict) -> None:
-    unlocked = docker_ros(project["repo"], "build", "--target", "dev", env=project["env"])
-    assert unlocked.returncode == 0, unlocked.stdout[-5000:]
-    assert "lock: not in use" in unlocked.stdout
-    version = sh(IMAGE + "-dev", "cat /docker-ros/ws/src/upstream/upstream_libs/VERSION")
-    assert version.stdout.strip() == "two", version.stdout + version.stderr
-    assert pip_versions(IMAGE + "-dev")[WHEEL] == "1.1"
+def test_unlocked_build_takes_the_new_commit_and_wheel(project: dict, tmp_path: Path) -> None:
+    """(In a copy under a name of its own: the module's dev image stays the locked one.)"""
+    with built_copy(project, tmp_path, "lock-unlocked", "--target", "dev",
+                    locked=False) as (image, unlocked):
+        assert unlocked.returncode == 0, unlocked.stdout[-5000:]
+        assert "lock: not in use" in unlocked.stdout
+        version = sh(image + "-dev", "cat /docker-ros/ws/src/upstream/upstream_libs/VERSION")
+        assert version.stdout.strip() == "two", version.stdout + version.stderr
+        assert pip_versions(image + "-dev")[WHEEL] == "1.1"
 
 
 def locked_build_with(project: dict, path: Path, text: str) -> subprocess.CompletedProcess:
@@ -309,16 +347,6 @@ def test_locked_version_no_longer_available_is_named_with_its_source(project: di
     assert "deb.debian.org" in failed.stdout.split("cmatrix=0.0-gone1 no longer available")[1]
 
 
-def test_locked_prepare_version_no_longer_available_stops_prepare_naming_it(
-        project: dict) -> None:
-    failed = locked_build_with_versions(project, "prepare", "tini", "0.0-gone1")
-    assert failed.returncode != 0
-    last = failed.stdout.strip().splitlines()[-1]
-    assert "failed in step prepare: LOCKED: prepare installed otherwise than docker-ros.lock: " \
-           "tini=0.0-gone1 (installed " in last, failed.stdout[-3000:]
-    assert "deb.debian.org" in last.split("no longer available from apt's sources")[1], last
-
-
 # two versions of a package in a flat apt repository of the container's own, then an install
 PROBE_REPOSITORY = r"""set -e
 mkdir -p /tmp/repo && cd /tmp/repo
@@ -338,17 +366,13 @@ dpkg-query -W -f '${Version}' docker-ros-probe"""
 
 
 def test_apt_installs_the_pinned_version_where_a_newer_one_is_offered(project: dict) -> None:
-    """What held_to_lock writes (apt_preferences) in real apt: the locked 1.0, not 1.1."""
+    """What held_to_lock writes (apt_preferences) in real apt: the locked 1.0, not 1.1; a pin
+    to a version the sources no longer have holds nothing (apt installs 1.1, which held_to_lock
+    then names: tests/unit/test_prepare.py)."""
     assert project["build"].returncode == 0
-    for pins, expected in (({"docker-ros-probe": "1.0"}, "1.0"), ({}, "1.1")):
+    for pins, expected in (({"docker-ros-probe": "1.0"}, "1.0"), ({}, "1.1"),
+                           ({"docker-ros-probe": "0.9-gone1"}, "1.1")):
         installed = sh(IMAGE + "-dev", PROBE_REPOSITORY,
                        "-e", f"PREFERENCES={apt_preferences(pins)}")
         assert installed.returncode == 0, installed.stderr[-2000:]
         assert installed.stdout.strip().splitlines()[-1] == expected, installed.stdout
-
-
-def test_locked_pip_version_no_longer_available_is_named_with_its_source(project: dict) -> None:
-    failed = locked_build_with_versions(project, "pip", WHEEL, {"version": "0.9"})
-    assert failed.returncode != 0
-    assert f"LOCKED: {WHEEL}==0.9 no longer available from pip's sources (http://127.0.0.1:" \
-        in failed.stdout, failed.stdout[-3000:]
