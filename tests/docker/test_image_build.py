@@ -1,5 +1,50 @@
 """`docker-ros build` on a real Docker engine: the example's dev and run images, caching,
-user mapping, underlaying a docker-ros base image, and bad input (issue: container images)."""
+user mapping, underlaying a docker-ros base image, and bad input (issue: container images).
+
+proves (each line: where; "image" = a test here):
+- a build ends with the summary table of both images: image, test_build_ends_with_summary_table
+- the run image runs the node (talker heard): image, test_run_image_runs_the_node
+- DEFAULT_CMD replaces the command, sourced: image, test_default_cmd_replaces_the_command_...
+- `docker stop` reaches roslaunch, which shuts its nodes down and exits 0 by itself (not killed
+  after the grace period: 137, nor a shell in its stead: 143): image, test_docker_stop_shuts_
+  the_node_down_cleanly (was: under 8 s; now exit code 0 with a 120 s grace period)
+- docker-ros's ENVs and pip configuration in both images: image,
+  test_images_have_docker_ros_environment
+- the run image has no compiler and no sources: image, test_run_image_has_no_compiler_and_...
+- the dev image has the sources and builds them: image, test_dev_image_has_sources_and_builds_them
+- a source edit rebuilds without installing and ships the change: image,
+  test_rebuild_after_source_edit_installs_nothing_and_ships_the_change
+- a rebuild with no change is fully cached: image, test_no_change_rebuild_is_fully_cached
+- user mapping owns files written in mounts; a collision warns and goes on: image,
+  test_host_user_mapping_owns_files_written_in_mounts, test_user_mapping_collision_warns_...
+- `docker exec -it ... bash` has the workspace environment: image,
+  test_interactive_shell_has_the_workspace_environment
+- docker-ros's entrypoint paths (/tini, /entrypoint.sh) work: image,
+  test_docker_ros_entrypoint_paths_still_work
+- a docker-ros image as BASE_IMAGE underlays its workspace: image,
+  test_docker_ros_image_as_base_underlays_its_workspace
+- missing BASE_IMAGE and COMMAND are reported together, no traceback: unit,
+  tests/unit/test_failure_notes.py (needs no engine: was docker-marked here)
+- no daemon is one clear message: unit, tests/unit/test_failure_notes.py (was docker-marked)
+- a BASE_IMAGE that does not exist is refused before BuildKit, a typo naming the local image:
+  image, test_base_image_that_does_not_exist (no build; the engine's images are the input)
+- a failing step names the step and the cause on the last line and tags nothing, for a user's
+  script (custom), a repository rosdep rule to a package apt lacks (real rosdep and apt), a
+  compile error (real colcon and g++) and a COMMAND the run image cannot run: image,
+  test_failing_step_names_step_and_cause_and_tags_nothing (TARGET=run: one outcome)
+- the debs step's "apt has no package" wording: unit, tests/unit/test_steps_stdlib.py (apt_reason,
+  debs and rosdep-rule variants); it reaches the user as the rosdep-rule case above does. Was a
+  failing image build of its own (apt in the image)
+- an unresolvable rosdep key names the key and the packages: unit,
+  tests/unit/test_steps_parsing.py (the rosdep step's message). Was a failing image build
+- a failed bake run names a dev image BuildKit had tagged ("'dev' was built: ..."), else both
+  targets as failed: unit, tests/unit/test_failure_notes.py (run_buildx over BuildKit's log),
+  and the one-run-per-target case in tests/unit/test_build_plan.py. Was the colcon case with
+  TARGET=dev,run, which passed whichever way the race went
+- ENABLE_COMMAND_CHECK=false builds and tags a refused COMMAND: image,
+  test_command_check_can_be_turned_off
+- --until stops after a step, tagging that state; an unknown step is refused: image,
+  test_build_until_a_step_stops_there"""
 
 from __future__ import annotations
 
@@ -102,15 +147,16 @@ def test_docker_stop_shuts_the_node_down_cleanly(example: dict) -> None:
             logs = subprocess.run(["docker", "logs", name], capture_output=True,
                                   text=True).stdout
         assert "I heard" in logs, logs[-3000:]
-        started = time.monotonic()
-        subprocess.run(["docker", "stop", name], capture_output=True, check=True)
-        took = time.monotonic() - started
-        code = subprocess.run(["docker", "inspect", "-f", "{{.State.ExitCode}}", name],
-                              capture_output=True, text=True, check=True).stdout.strip()
+        # A grace period far longer than any shutdown: exit code 0 is roslaunch's own after
+        # SIGTERM; a container SIGKILLed after the grace period ends with 137, a shell that got
+        # the signal in roslaunch's stead with 143 (and neither shuts the nodes down).
+        subprocess.run(["docker", "stop", "-t", "120", name], capture_output=True, check=True)
+        state = json.loads(subprocess.run(["docker", "inspect", "-f", "{{json .State}}", name],
+                                          capture_output=True, text=True, check=True).stdout)
         logs = subprocess.run(["docker", "logs", name], capture_output=True, text=True).stdout
     finally:
         subprocess.run(["docker", "rm", "-f", name], capture_output=True)
-    assert code == "0" and took < 8, (code, took, logs[-2000:])
+    assert (state["ExitCode"], state["OOMKilled"]) == (0, False), (state, logs[-2000:])
     assert "shutting down processing monitor complete" in logs, logs[-2000:]
 
 
@@ -244,13 +290,6 @@ def test_docker_ros_image_as_base_underlays_its_workspace(
 # ---------------------------------------------------------------------------- bad input
 
 
-def test_missing_base_image_and_command_reported_together(tmp_path: Path) -> None:
-    result = docker_ros(tmp_path, "build", "--target", "dev,run")
-    assert result.returncode != 0
-    assert "BASE_IMAGE" in result.stdout and "COMMAND" in result.stdout
-    assert "Traceback" not in result.stdout
-
-
 @pytest.mark.parametrize("typo", [False, True], ids=["unknown", "typo"])
 def test_base_image_that_does_not_exist(typo: bool, ros1_base_image: str, tmp_path: Path) -> None:
     """Refused before the build; a typo of a local image's name (two letters swapped) names
@@ -275,14 +314,12 @@ def test_base_image_that_does_not_exist(typo: bool, ros1_base_image: str, tmp_pa
     [
         ("custom", "custom", ["docker/custom.sh", "exit code 3",
                               "; it stopped at line 2: `sh -c 'exit 3'` (exit code 3)"]),
-        ("rosdep", "rosdep", ["no_such_rosdep_key", "needs_missing"]),
         # a rule of the repository's resolving to a package apt does not have: the key named
         ("rosdep-rule", "rosdep", ["apt has no package no-such-deb-of-a-rule (rosdep key "
                                    "my_sdk of needs_sdk)"]),
         # the compiler's error line itself, with the file as the repository has it
         ("colcon", "colcon", ["package broken_pkg failed to build (exit code 2): "
                               "broken_pkg/src/main.cpp:1:", ": error: "]),
-        ("debs", "debs", ["apt has no package no-such-deb-xyz (check the name"]),
         # a typo of an installed package's name (the base's Debian ROS): that one is named
         ("command", "command", ["`rosrun rostopik node`: package rostopik is not in the run "
                                 "image: neither built in the workspace nor installed; did you "
@@ -292,6 +329,13 @@ def test_base_image_that_does_not_exist(typo: bool, ros1_base_image: str, tmp_pa
 def test_failing_step_names_step_and_cause_and_tags_nothing(
     ros1_base_image: str, tmp_path: Path, case: str, step: str, needles: list
 ) -> None:
+    """One real failing build per kind of failure whose cause only an image shows (a user's
+    script, real rosdep and apt, real colcon and g++, the run image's packages): the last line
+    names the step and the cause, and the run image is not tagged. TARGET=run alone: the
+    failure is the run image's only (with dev,run in one bake, whether BuildKit had tagged dev
+    before run failed was a race, and the test took either; the note naming a tagged dev image:
+    tests/unit/test_failure_notes.py). The wording of the debs step's and of rosdep's
+    unresolved-key messages: unit tests (see the module docstring)."""
     tag = f"docker-ros-test/bad-{case}:1"
     remove_image(tag)
     command = "true"
@@ -300,40 +344,26 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
         (tmp_path / "docker").mkdir()
         (tmp_path / "docker" / "custom.sh").write_text(
             "echo failing on purpose\nsh -c 'exit 3'\necho not reached\n")
-    elif case == "rosdep":
-        cmake_package(tmp_path, "needs_missing", depends=("no_such_rosdep_key",))
     elif case == "rosdep-rule":
         cmake_package(tmp_path, "needs_sdk", depends=("my_sdk",))
         (tmp_path / "docker").mkdir()
         (tmp_path / "docker" / "rosdep.yaml").write_text(
             "my_sdk:\n  debian: [no-such-deb-of-a-rule]\n  ubuntu: [no-such-deb-of-a-rule]\n")
-    elif case == "debs":
-        cmake_package(tmp_path, "pkg")
-        (tmp_path / "docker").mkdir()
-        (tmp_path / "docker" / "additional-debs.txt").write_text("no-such-deb-xyz\njq\n")
     elif case == "command":
         # the run image has pkg (a program on PATH) and rosrun, not the rest COMMAND names
         cmake_package(tmp_path, "pkg")
         command = "pkg && rosrun rostopik node; pkg_typo --now"
     else:
         cmake_package(tmp_path, "broken_pkg", body="int main() { this is not C++; }\n")
-    # colcon: the dev image (its stage ends before colcon) is built in the same BuildKit run
-    targets = "dev,run" if case == "colcon" else "run"
-    remove_image(f"{tag}-dev")
-    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND=command, IMAGE=tag, TARGET=targets)
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND=command, IMAGE=tag, TARGET="run")
     result = docker_ros(tmp_path, "build")
     assert result.returncode != 0
     last = result.stdout.strip().splitlines()[-1]
-    # the dev image, when BuildKit finished it before the run image failed, is said to be built
-    dev_built = image_exists(f"{tag}-dev")
-    failed = "targets 'dev', 'run'" if case == "colcon" and not dev_built else "target 'run'"
-    assert f"building {failed} (amd64) failed in step {step}" in last, result.stdout[-3000:]
+    assert f"building target 'run' (amd64) failed in step {step}" in last, result.stdout[-3000:]
     for needle in needles:
         assert needle in last, last
+    assert "was built" not in last, last
     assert not image_exists(tag)
-    assert last.endswith(f"; 'dev' was built: {tag}-dev") == dev_built, last
-    remove_image(f"{tag}-dev")
-    print(f"dev image built before the failure: {dev_built}")
 
 
 def test_command_check_can_be_turned_off(ros1_base_image: str, tmp_path: Path) -> None:
@@ -351,17 +381,6 @@ def test_command_check_can_be_turned_off(ros1_base_image: str, tmp_path: Path) -
     assert "command: not checked (ENABLE_COMMAND_CHECK=false)" in result.stdout
     assert image_exists(tag)
     remove_image(tag)
-
-
-def test_no_docker_daemon_is_one_clear_message(tmp_path: Path) -> None:
-    cmake_package(tmp_path, "pkg")
-    write_env(tmp_path, BASE_IMAGE="any:1", COMMAND="pkg", IMAGE="docker-ros-test/never:1")
-    result = docker_ros(tmp_path, "build", env={"DOCKER_HOST": "unix:///nonexistent.sock"})
-    assert result.returncode != 0
-    assert result.stdout.strip().splitlines()[-1] == (
-        "docker-ros build: no Docker daemon answers at unix:///nonexistent.sock: start it, "
-        "e.g. with scripts/setup.sh"
-    )
 
 
 def test_build_until_a_step_stops_there(ros1_base_image: str, tmp_path: Path) -> None:
