@@ -4,7 +4,27 @@ password and the private key are searched for in every layer of the dev and run 
 history and configuration, the build log and the command lines of the processes seen during the
 build (/proc polled every 20 ms: a process shorter than that may be missed).
 
-Both servers listen on the host's loopback: the builds use BUILD_NETWORK=host."""
+Both servers listen on the host's loopback: the builds use BUILD_NETWORK=host.
+
+proves (each line: where; "image" = a real build here, its images, log and command lines):
+- an HTTPS clone without a password fails in clone naming the repository, no secret in the
+  log: image, test_https_without_password_fails_in_clone_naming_the_repository
+- an HTTPS clone with the password from .env builds, in one bake run granted the host network,
+  and the password (in .env, the origin URL, gitlab-ci-local's file) is nowhere: image,
+  test_https_password_from_dotenv
+- the password from the environment is the same BuildKit secret as from .env, and outranks
+  it: unit, tests/unit/test_secret_sources.py; both secrets from the environment stay out of
+  a baked build: image, test_secrets_of_a_baked_build_stay_out; a secret from the environment
+  clones: image, test_ssh_private_key_from_environment. (Was test_https_password_from_
+  environment, the .env build again with the password in the environment.)
+- a baked build (no BUILD_NETWORK) keeps both secrets out: image,
+  test_secrets_of_a_baked_build_stay_out
+- an SSH clone without a key fails in clone naming the repository: image,
+  test_ssh_without_key_fails_in_clone_naming_the_repository
+- an SSH clone with the key from the environment builds, said in the log, nothing leaks:
+  image, test_ssh_private_key_from_environment
+- on a base without ssh, the clone installs openssh-client for itself only: image,
+  test_ssh_clone_on_a_base_without_ssh_installs_it_for_the_clone_only"""
 
 from __future__ import annotations
 
@@ -301,20 +321,6 @@ def test_https_without_password_fails_in_clone_naming_the_repository(
     assert not hits(built.log.encode(), material.needles)
 
 
-def test_https_password_from_environment(
-    ros1_base_image: str, http_remote: str, material: Material, tmp_path: Path
-) -> None:
-    url = f"http://{http_remote}/{UPSTREAM}.git"
-    repo = project(tmp_path, "https-environment", url)
-    built = build(repo, ros1_base_image, "https-env", {"GIT_HTTPS_PASSWORD": material.password},
-                  **https_settings(http_remote))
-    assert_upstream_built(built)
-    # BUILD_NETWORK=host on the suite's current buildx: dev and run in one bake run, granted
-    # the host's network
-    assert any(b"buildx\0bake" in c and b"--allow=network.host" in c for c in built.cmdlines)
-    assert_nothing_leaked(built, material)
-
-
 def test_secrets_of_a_baked_build_stay_out(
     ros1_base_image: str, material: Material, tmp_path: Path
 ) -> None:
@@ -349,6 +355,9 @@ def test_https_password_from_dotenv(
                   GIT_HTTPS_PASSWORD=material.password, **https_settings(http_remote))
     assert material.password in (repo / ".env").read_text()
     assert_upstream_built(built)
+    # BUILD_NETWORK=host on the suite's current buildx: dev and run in one bake run, granted
+    # the host's network
+    assert any(b"buildx\0bake" in c and b"--allow=network.host" in c for c in built.cmdlines)
     assert_nothing_leaked(built, material)
 
 
