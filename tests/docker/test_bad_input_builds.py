@@ -1,5 +1,18 @@
 """Bad input in real image builds (issue 11): the last line carries the cause and the fix;
-Ctrl-C stops with 130, tags nothing and leaves nothing running."""
+Ctrl-C stops with 130, tags nothing and leaves nothing running.
+
+proves (each line: where; "image" = a test here):
+- a clone of a server on the loopback fails in an image build (its network is not the host's)
+  and the last line points at BUILD_NETWORK=host: image (`--until clone`, no apt),
+  test_loopback_clone_in_an_image_build_points_at_build_network; the hint's wording beside
+  git's own cause: unit, tests/unit/test_bad_input.py::test_git_errors_keep_their_cause_and_
+  loopback_hint
+- Ctrl-C, from a terminal or to a background job, exits 130, tags nothing and leaves no
+  process of the build running: image, test_ctrl_c_exits_130_tags_nothing_leaves_nothing
+- a local amd64 base from no registry with PLATFORM=amd64,arm64 is refused before any build,
+  with the bootstrap command: image (no build: the engine's image is the input),
+  test_a_local_base_image_of_another_architecture_is_refused_before_any_build; its wording:
+  unit, tests/unit/test_build_plan.py"""
 
 from __future__ import annotations
 

@@ -1,6 +1,20 @@
 """The entrypoint's user mapping (DOCKER_UID/DOCKER_GID/DOCKER_USER) never stops a container:
 every collision with an existing user or group warns and goes on. The real entrypoint script
-runs in the ROS 1 base image (Debian bookworm's passwd/group), no image build needed."""
+runs in the ROS 1 base image (Debian bookworm's passwd/group), no image build needed.
+
+proves (each a container of the base image with the real entrypoint; no image build):
+- every collision of DOCKER_USER/UID/GID with the image's users and groups warns and goes on,
+  one warning each, none where nothing collides: test_user_mapping_collisions_warn_and_go_on
+- a restarted container maps again without warnings: test_restarted_container_maps_again_...
+- a renamed user owns what it writes in a mount: test_renamed_user_owns_the_files_it_writes_...
+- the mapped user is in sudo, video and dialout: test_mapped_user_is_in_the_sudo_video_and_...
+- a home docker made for a mount below it becomes the user's: test_a_home_docker_made_for_...
+- the mapped user gets root's .bashrc: test_mapped_user_gets_roots_bashrc
+- the sourced entrypoint only sets up the environment: test_sourced_entrypoint_only_sets_up_...
+- an unwritable HOME becomes /tmp, said once; a writable one stays silently:
+  test_unwritable_home_becomes_tmp_so_ros_can_log
+- --read-only without a writable /tmp names the --tmpfs to add:
+  test_read_only_without_a_writable_tmp_names_the_tmpfs"""
 
 from __future__ import annotations
 
