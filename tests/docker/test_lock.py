@@ -298,7 +298,9 @@ def test_a_locked_lean_run_image_has_the_locked_dev_image_versions(
 
 
 def test_unlocked_build_takes_the_new_commit_and_wheel(project: dict, tmp_path: Path) -> None:
-    """(In a copy under a name of its own: the module's dev image stays the locked one.)"""
+    """An unlocked build takes upstream's new commit and the index's newer wheel (built in a
+    copy under a name of its own: the module's dev image stays the locked one the other tests
+    read, in any order)."""
     with built_copy(project, tmp_path, "lock-unlocked", "--target", "dev",
                     locked=False) as (image, unlocked):
         assert unlocked.returncode == 0, unlocked.stdout[-5000:]
