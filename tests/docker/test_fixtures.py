@@ -144,9 +144,10 @@ def test_pip_in_a_container_trusts_pypi_only_with_the_host_ca(
 def test_pip_in_a_container_trusts_an_intercepting_proxy_only_with_its_ca(
     docker_client: docker.DockerClient, ros1_base_image: str, https_wheel: tuple  # noqa: F811
 ) -> None:
-    """Why the host's CA bundle is mounted above, on any machine (a TLS-intercepting proxy or
-    none): an HTTPS server on the host whose certificate a CA of the test's own signed. pip in a
-    container fails on it with CERTIFICATE_VERIFY_FAILED, and downloads from it with that CA."""
+    """pip in a container fails with CERTIFICATE_VERIFY_FAILED on an HTTPS server whose CA it is
+    not given, and downloads from it with that CA (PIP_CERT). Why the host's CA bundle is mounted
+    above, proven on any machine, a TLS-intercepting proxy or none: the test's own CA signed the
+    server's certificate."""
     pki, url, _ = https_wheel
     download = f"pip download --no-cache-dir --retries 0 --timeout 30 --no-deps -d /tmp/got {url}"
     out = run(docker_client, ros1_base_image, f"{download} 2>&1 || echo PIP FAILED",
