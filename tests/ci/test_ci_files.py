@@ -134,13 +134,28 @@ def test_template_has_every_docker_ros_variable_with_its_default() -> None:
     variables = theirs("gitlab-variables")
     for name, default in variables.items():
         if name.startswith("_"):
-            continue  # docker-ros's internal image names
+            continue  # docker-ros's internal image names: the pushing jobs' dotenv report
         assert name in ours, name
+        if name == "DOCKER_ROS_GIT_REF":  # the release the template belongs to, not `main`
+            assert ours[name] == "v" + pyproject_version()
+            continue
         # (DEV_IMAGE_NAME: ${IMAGE_NAME} and the like too: a user's job may name the images)
         assert str(ours[name]) == str(default), name
     for name in FIELDS:
         if name not in NOT_INPUTS and not name.startswith("enable_checkout"):
             assert name.upper() in ours, name
+
+
+def pyproject_version() -> str:
+    return str(tomllib_load(REPO / "pyproject.toml")["project"]["version"])
+
+
+def tomllib_load(path: Path) -> dict:
+    try:
+        import tomllib  # type: ignore[import-not-found]
+    except ImportError:  # Python < 3.11
+        import tomli as tomllib  # type: ignore[import-not-found,no-redef]
+    return dict(tomllib.loads(path.read_text()))
 
 
 def test_slim_build_args_default_is_docker_ros_s() -> None:
@@ -154,10 +169,15 @@ def test_template_installs_at_docker_ros_git_ref_and_runs_the_tasks() -> None:
     assert 'spec="git+${DOCKER_ROS_GIT_URL}@${DOCKER_ROS_GIT_REF}"' in setup
     # the job runs in BUILD_CONTEXT, so a relative one is read from there as "."
     assert 'cd "$BUILD_CONTEXT" && export BUILD_CONTEXT=.' in setup
+    dotenv = '--dotenv "${CI_PROJECT_DIR:-.}/docker-ros-images.env"'
     assert template[".build"]["script"] == [[".docker-ros-qemu", "script"],
-                                            'PLATFORM="$_PLATFORM" docker-ros ci']
-    assert template[".push"]["script"][-1] == "docker-ros manifest"  # (after the IMG_* check)
-    assert template["Push"] == {"extends": ".push"}
+                                            f'PLATFORM="$_PLATFORM" docker-ros ci {dotenv}']
+    # (after the IMG_* check)
+    assert template[".push"]["script"][-1] == f"docker-ros manifest {dotenv}"
+    for job in (".build", ".push"):  # docker-ros's _IMAGE_* names, for later jobs
+        assert template[job]["artifacts"]["reports"]["dotenv"] == "docker-ros-images.env"
+    for job in ("Push", "Push CI", "Push target tag"):
+        assert template[job]["extends"] == ".push" and set(template[job]) == {"extends", "rules"}
     assert template["default"]["image"] == "docker:27.5.1-git"  # pinned, as docker-ros
     assert template["default"]["services"] == ["docker:27.5.1-dind"]
 
@@ -188,6 +208,41 @@ def test_the_placeholder_url_installs_nothing(tmp_path: Path) -> None:
     assert not (tmp_path / "docker-ros-job-1" / "venv").exists()
 
 
+def test_the_repositorys_copy_of_docker_ros_python_is_installed(tmp_path: Path) -> None:
+    """A `docker/docker-ros` copy (a submodule) that holds this project is what the job
+    installs, as docker-ros runs its own copy there; a copy of docker-ros's shell scripts is
+    not, and the job says so (then the placeholder OWNER stops it before pip)."""
+    setup = load(TEMPLATE)["default"]["before_script"][0]
+    shim = tmp_path / "bin"
+    shim.mkdir()
+    # python3 -m venv makes a venv whose python writes its command line
+    (shim / "python3").write_text(
+        "#!/bin/sh\nfor last; do :; done\nmkdir -p \"$last/bin\"\n"
+        f"printf '#!/bin/sh\\necho \"$*\" >> {tmp_path}/python-argv\\n' > \"$last/bin/python\"\n"
+        "chmod +x \"$last/bin/python\"\n")
+    (shim / "python3").chmod(0o755)
+    context = tmp_path / "ctx"
+    copy = context / "docker" / "docker-ros"
+    (copy / "scripts").mkdir(parents=True)
+    (copy / "scripts" / "ci.sh").write_text("#!/bin/bash\n")  # docker-ros's own
+    env = {"PATH": f"{shim}:/usr/bin:/bin", "TMPDIR": str(tmp_path), "CI_JOB_ID": "1",
+           "BUILD_CONTEXT": str(context), "DOCKER_ROS_GIT_REF": "v0.1.0",
+           "DOCKER_ROS_GIT_URL": load(TEMPLATE)["variables"]["DOCKER_ROS_GIT_URL"]}
+    theirs_copy = subprocess.run(["sh", "-ec", setup], env=env, capture_output=True, text=True)
+    assert theirs_copy.returncode == 1
+    assert f"{copy} is not docker-ros (Python)" in theirs_copy.stdout
+    assert not (tmp_path / "python-argv").exists()
+    (copy / "src" / "docker_ros").mkdir(parents=True)
+    (copy / "src" / "docker_ros" / "__init__.py").write_text("")
+    (copy / "pyproject.toml").write_text("[project]\nname = 'docker-ros'\n")
+    ours = subprocess.run(["sh", "-ec", setup.split("export PATH=")[0]], env=env,
+                          capture_output=True, text=True)
+    assert ours.returncode == 0, ours.stderr
+    assert f"installing the repository's copy {copy}" in ours.stdout
+    installed = (tmp_path / "python-argv").read_text().splitlines()[-1]
+    assert installed.endswith(f"install --quiet --disable-pip-version-check {copy}")
+
+
 def stage_of(template: dict, job: str) -> object:
     """A job's stage, following `extends` (the last one that sets it wins, as in GitLab)."""
     spec = template[job]
@@ -210,31 +265,41 @@ def test_template_keeps_docker_ros_stages_and_job_names() -> None:
         expected = spec["stage"] or ("Test ROS Industrial CI" if job.startswith("Test")
                                      else "Build Images")
         assert stage_of(template, job) == expected, job
+    for job, spec in recorded["jobs"].items():  # docker-ros's rules, as written there
+        if "rules" in spec:
+            assert template[job]["rules"] == spec["rules"], job
+        if "needs" in spec and not job.startswith((".push", "Push")):
+            assert template[job]["needs"] == spec["needs"], job
+    # the Push jobs need the build jobs only (the Test and Slim jobs do no work here)
+    assert [n["job"] for n in template[".push"]["needs"]] == ["build-amd64", "build-arm64"]
+    # jobs whose work runs elsewhere run when docker-ros's would, and say where it ran
     for job in recorded["jobs"]:
-        if job.startswith(("Test", "Slim", "Push ")):  # moved: never run, fail if made to
-            assert template[job]["extends"] in ([".test", ".docker-ros-never"],
-                                                [".slim", ".docker-ros-never"],
-                                                [".push", ".docker-ros-moved", ".docker-ros-never"])
-            assert template[job]["variables"]["DOCKER_ROS_MOVED_TO"]
+        if job.startswith(("Test", "Slim", "Push latest", "Push tag")):
+            assert ".docker-ros-done" in template[job]["extends"], job
+            assert template[job]["variables"]["DOCKER_ROS_DONE_BY"]
     # a job of the user's that extends .test or .slim runs (no rules), and fails saying why
     for hidden in (".test", ".slim"):
         assert template[hidden]["extends"] == ".docker-ros-moved"
         assert "rules" not in template[hidden] and template[hidden]["variables"]
     assert "rules" not in template[".docker-ros-moved"]
-    assert template[".docker-ros-never"]["rules"] == [{"when": "never"}]
+    # docker-ros's .push rules end with no catch-all: a job's own condition (`when: manual`) wins
+    assert template[".push"]["rules"] == recorded["jobs"][".push"]["rules"]
 
 
 # A binfmt_misc handler's status file: enabled or disabled, its flags.
 HANDLER = "{state}\ninterpreter /usr/bin/qemu-aarch64-static\nflags: {flags}\noffset 0\n"
-REGISTER = ("registering QEMU (multiarch/qemu-user-static:7.2.0-1)",
-            "run --rm --privileged multiarch/qemu-user-static:7.2.0-1 --reset -p yes")
+BINFMT_IMAGE = "tonistiigi/binfmt:qemu-v10.2.3-68"
+SAID = f"registering QEMU for arm64 ({BINFMT_IMAGE})"
+INSTALL = f"run --rm --privileged {BINFMT_IMAGE} --install arm64"
+# (the handler of that name only: the runner's other handlers stay)
+REPLACE = [f"run --rm --privileged {BINFMT_IMAGE} --uninstall qemu-aarch64", INSTALL]
 QEMU_CASES = [
     ("amd64", {"qemu-aarch64": ("enabled", "F")}, "", None),
     ("arm64", {"qemu-aarch64": ("enabled", "PF")}, "QEMU (qemu-aarch64) is registered", None),
-    ("arm64", {}, *REGISTER),
-    ("arm64", {"qemu-aarch64": ("disabled", "F")}, *REGISTER),
+    ("arm64", {}, SAID, [INSTALL]),
+    ("arm64", {"qemu-aarch64": ("disabled", "F")}, SAID, REPLACE),
     # without F the kernel looks for the interpreter inside each container, which has none
-    ("arm64", {"qemu-aarch64": ("enabled", "")}, *REGISTER),
+    ("arm64", {"qemu-aarch64": ("enabled", "")}, SAID, REPLACE),
 ]
 
 
@@ -244,7 +309,7 @@ def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
     """The build jobs' QEMU snippet's decision, run by sh on this amd64 machine with a
     `docker` that only writes its command line: the default image's exact command. The
     registration itself runs for real in tests/ci/test_multiarch.py, with an image standing in
-    for multiarch/qemu-user-static (Docker Hub, out of this machine's reach)."""
+    for tonistiigi/binfmt (Docker Hub, out of this machine's reach)."""
     template = load(TEMPLATE)
     snippet = template[".docker-ros-qemu"]["script"][0]
     binfmt = tmp_path / "binfmt"
@@ -253,7 +318,7 @@ def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
         (binfmt / handler).write_text(HANDLER.format(state=state, flags=flags))
     shim = tmp_path / "bin"
     shim.mkdir()
-    (shim / "docker").write_text(f"#!/bin/sh\necho \"$*\" > {tmp_path}/docker-argv\n")
+    (shim / "docker").write_text(f"#!/bin/sh\necho \"$*\" >> {tmp_path}/docker-argv\n")
     (shim / "docker").chmod(0o755)
     env = {"PATH": f"{shim}:/usr/bin:/bin", "_PLATFORM": platform, "BINFMT_MISC": str(binfmt),
            "DOCKER_ROS_QEMU_IMAGE": template["variables"]["DOCKER_ROS_QEMU_IMAGE"]}
@@ -262,7 +327,8 @@ def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
     assert result.returncode == 0, result.stderr
     assert said in result.stdout and (said or result.stdout == "")
     recorded = tmp_path / "docker-argv"
-    assert (recorded.read_text().strip() if recorded.exists() else None) == docker_argv
+    assert (recorded.read_text().splitlines() if recorded.exists() else None) == docker_argv
+    assert "--reset" not in (recorded.read_text() if recorded.exists() else "")
 
 
 def test_action_keeps_later_steps_python() -> None:

@@ -112,7 +112,7 @@ def test_cache_to_falls_back_to_inline_cache_in_the_images():
 
 def test_cache_to_and_builder_are_derived_in_ci_only():
     gitlab = {"GITLAB_CI": "true", "CI_COMMIT_BRANCH": "feature", "CI_DEFAULT_BRANCH": "main",
-              "CI_REGISTRY_IMAGE": "reg/g/p", "BASE_IMAGE": "b:1"}
+              "CI_REGISTRY_IMAGE": "reg/g/p", "BASE_IMAGE": "b:1", "TARGET": "dev,run"}
     ci = load_settings(environ=gitlab, project_dir=Path("/tmp/p"))
     assert ci.cache_to == "reg/g/p:latest_feature_ci-cache"
     assert ci.source_of("cache_to").startswith("derived from the CI pipeline")

@@ -15,6 +15,7 @@ from docker_ros.in_image.ci import (
     Pipeline,
     detect_pipeline,
     error_annotation,
+    image_references,
     github_default_branch,
     github_slug,
     missing_tasks,
@@ -244,7 +245,8 @@ def test_ci_jobs_reuse_the_pushed_dev_and_run_images_as_cache_by_default() -> No
 
 
 def test_ci_jobs_start_from_the_pushed_build_state_then_the_default_branchs() -> None:
-    env = {**CASES["gitlab-feature"], "CI_REGISTRY_IMAGE": "reg/g/p", "PLATFORM": "amd64,arm64"}
+    env = {**CASES["gitlab-feature"], "CI_REGISTRY_IMAGE": "reg/g/p", "PLATFORM": "amd64,arm64",
+           "TARGET": "dev,run"}
     feature = load_settings(environ=env, project_dir=Path("/tmp/p"))
     assert feature.build_state_from == ("reg/g/p:latest_feature-my-thing_ci-build-state",
                                         "reg/g/p:latest-build-state")
@@ -255,6 +257,25 @@ def test_ci_jobs_start_from_the_pushed_build_state_then_the_default_branchs() ->
     outputs = plan_outputs(feature, push_targets(feature), pushed)
     assert outputs["images"] == "" and outputs["build-state-image"] == pushed[0]
     assert load_settings(environ={}, project_dir=Path("/tmp/p")).build_state_from == ()
+
+
+def test_a_run_only_pipeline_pushes_its_build_state_and_cache_only_where_named() -> None:
+    """The build state (the colcon build folder) and a registry cache of every stage hold the
+    sources: docker-ros's run-only pipeline pushed neither. By default they go only next to a
+    dev image the pipeline pushes; BUILD_STATE_REPOSITORY names a repository for both."""
+    env = {**CASES["gitlab-feature"], "CI_REGISTRY_IMAGE": "reg/g/p", "TARGET": "run"}
+    run_only = load_settings(environ=env, project_dir=Path("/tmp/p"))
+    assert (run_only.build_state_from, run_only.cache_to) == ((), None)
+    assert "build-state" not in push_targets(run_only)
+    named = load_settings(environ={**env, "BUILD_STATE_REPOSITORY": "reg/private/p"},
+                          project_dir=Path("/tmp/p"))
+    assert named.build_state_from == ("reg/private/p:latest_feature-my-thing_ci-build-state",
+                                      "reg/private/p:latest-build-state")
+    assert named.cache_to == "reg/private/p:latest_feature-my-thing_ci-cache"
+    assert named.source_of("cache_to") == (
+        "derived from the CI pipeline (to BUILD_STATE_REPOSITORY)")
+    pushed = [c[-1] for c in plan_push(named, push_targets(named)) if "build-state" in c[-1]]
+    assert pushed == ["reg/private/p:latest_feature-my-thing_ci-build-state-amd64"]
 
 
 def test_a_failed_task_is_a_github_error_annotation(tmp_path) -> None:
@@ -284,3 +305,40 @@ def test_a_failed_task_is_a_github_error_annotation(tmp_path) -> None:
     assert [line for line in job.stdout.splitlines() if line.startswith("::error")] == [
         "::error title=docker-ros build::missing required configuration: COMMAND (set it in "
         ".env, the environment, invoke.yaml under docker_ros: or as flags)"], job.stdout
+
+
+def test_docker_ros_image_variables_name_this_pipelines_images() -> None:
+    """docker-ros's 21 `_IMAGE_*` variables (its template's global variables, used by jobs of a
+    .gitlab-ci.yml) for the images our pipeline pushes: a feature branch's, a tag pipeline's."""
+    feature = dict(image_references(
+        {"RUN": ("reg/g/p", "latest_feat_ci"), "DEV": ("reg/g/p", "latest-dev_feat_ci"),
+         "SLIM": ("reg/g/p", "latest-slim_feat_ci")}, "_feat_ci", ""))
+    assert len(feature) == 21
+    assert feature["_RUN_IMAGE"] == "reg/g/p:latest"
+    assert feature["_DEV_IMAGE"] == "reg/g/p:latest-dev"
+    assert feature["_IMAGE_RUN_CI"] == "reg/g/p:latest_feat_ci"
+    assert feature["_IMAGE_DEV_CI_ARM64"] == "reg/g/p:latest-dev_feat_ci-arm64"
+    assert feature["_IMAGE_SLIM_LATEST"] == "reg/g/p:latest-slim"
+    assert feature["_IMAGE_RUN_TAG"] == feature["_IMAGE_RUN_TARGET_TAG"] == ""
+    tag = dict(image_references(
+        {"RUN": ("reg/g/p", "1.0-v2"), "DEV": ("reg/g/p", "1.0-dev-v2"),
+         "SLIM": ("reg/g/p", "1.0-slim-v2")}, "-v2", "v2"))
+    assert tag["_IMAGE_RUN_TARGET_TAG"] == tag["_IMAGE_RUN_CI"] == "reg/g/p:1.0-v2"
+    assert tag["_IMAGE_DEV_TARGET_TAG"] == "reg/g/p:1.0-dev-v2"
+    assert (tag["_IMAGE_RUN_TAG"], tag["_IMAGE_DEV_TAG"]) == ("reg/g/p:v2", "reg/g/p:v2-dev")
+
+
+def test_ci_dry_run_writes_the_image_variables_as_a_dotenv_file(tmp_path) -> None:
+    """`docker-ros manifest --dotenv FILE` (the template's Push jobs; `ci` alike) writes them as
+    GitLab's dotenv report reads them, also with --dry-run."""
+    env = {**os.environ, **CASES["gitlab-feature"], "PYTHONPATH": str(SRC),
+           "IMAGE_NAME": "reg.example/g/p", "TARGET": "dev,run", "PLATFORM": "amd64"}
+    dotenv = tmp_path / "images.env"
+    task = subprocess.run([sys.executable, "-m", "docker_ros", "manifest", "--dry-run",
+                           "--dotenv", str(dotenv)], cwd=tmp_path, env=env,
+                          capture_output=True, text=True)
+    assert task.returncode == 0, task.stdout + task.stderr
+    lines = dotenv.read_text().splitlines()
+    assert len(lines) == 21
+    assert "_IMAGE_RUN_CI=reg.example/g/p:latest_feature-my-thing_ci" in lines
+    assert "_IMAGE_RUN_CI_AMD64=reg.example/g/p:latest_feature-my-thing_ci-amd64" in lines

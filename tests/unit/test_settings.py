@@ -390,7 +390,7 @@ def test_none_turns_the_ci_caches_and_the_build_state_off():
     """They are pushed next to the images, as public as they are, and hold sources: a public
     image of private sources needs a way out of the CI defaults."""
     ci = {"GITLAB_CI": "true", "CI_REGISTRY_IMAGE": "reg.example/g/p", "CI_COMMIT_BRANCH": "main",
-          "CI_DEFAULT_BRANCH": "main"}
+          "CI_DEFAULT_BRANCH": "main", "TARGET": "dev,run"}
     default = load(environ=ci)
     assert default.cache_to and default.build_state_from and default.cache_from
     off = load(environ={**ci, "CACHE_TO": "none", "BUILD_STATE_FROM": "none",

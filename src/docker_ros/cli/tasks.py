@@ -44,7 +44,14 @@ from docker_ros.host.pipeline import (
     slimmed_here,
 )
 from docker_ros.host.push import manifest, official_only_names, push, push_targets
-from docker_ros.in_image.ci import error_annotation, plan_ci_job, slim_skipped
+from docker_ros.in_image.ci import (
+    detect_pipeline,
+    docker_tag_part,
+    error_annotation,
+    image_references,
+    plan_ci_job,
+    slim_skipped,
+)
 from docker_ros.in_image.runtime.lock import LockError
 from docker_ros.in_image.runtime.workspace import StepError, setup_logging
 from docker_ros.in_image.settings import (
@@ -68,6 +75,8 @@ from docker_ros.in_image.steps import BY_NAME, STEPS
 
 Flag = Tuple[str, object, str]  # name, default, help
 DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change nothing")
+DOTENV: Flag = ("dotenv", "", "Write docker-ros's `_IMAGE_*` names of the images to this file "
+                "as NAME=value lines (GitLab's dotenv report), at the end, with --dry-run too")
 HOST: Flag = ("host", False, "Run the steps directly on this machine instead of in an image")
 IN_CONTAINER: Flag = (
     "in_container", False,
@@ -479,29 +488,30 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     "Write multi-arch manifest lists over the pushed `-<arch>` images\n\n"
     "IMAGE_NAME:IMAGE_TAG (and dev, slim) over the `-<arch>` images that one CI job per "
     "PLATFORM pushed with ENABLE_SINGLEARCH_PUSH.",
-    [DRY_RUN],
+    [DOTENV, DRY_RUN],
     uses=("target", "image", "image_tag", "platform") + PUSH_SETTINGS,
     logs_in=True,
     login_required=True,
 )
-def manifest_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+def manifest_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
 
     images = made_images(settings)
     if "slim" in images:
         require_tasks([["slim"]], ns.task_names)
     push_and_report(settings, images, manifest, dry_run=dry_run)
+    write_image_references(settings, dotenv)
 
 
 @settings_task(
     "ci",
     "One CI job: build, test, slim, push (GitHub Action, GitLab template)\n\n"
     "Each a `docker-ros` task: build, test (ENABLE_INDUSTRIAL_CI), slim (ENABLE_SLIM), push.",
-    [DRY_RUN],
+    [DOTENV, DRY_RUN],
     uses=("target",) + IMAGE_SETTINGS + ("command",) + PUSH_SETTINGS,
     logs_in=True,
     login_required=True,
 )
-def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+def ci_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
 
     host = host_platform()
     plan = plan_ci_job(target=settings.target, enable_industrial_ci=settings.enable_industrial_ci,
@@ -512,6 +522,26 @@ def ci_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     if ["slim"] in plan:
         check_slim_options(settings)
     run_ci_plan(settings, plan, dry_run=dry_run)
+    write_image_references(settings, dotenv)
+
+
+def write_image_references(settings: Settings, path: str) -> None:
+    """docker-ros's `_IMAGE_*` names of this pipeline's images (image_references) written to
+    path, when given, as a dotenv file (GitLab's `artifacts: reports: dotenv:`)."""
+    if not path:
+        return
+    pipeline = detect_pipeline(os.environ)
+    git_tag = docker_tag_part(pipeline.ref) if pipeline and pipeline.kind == "tag" else ""
+    images = {"RUN": (str(settings.image_name), str(settings.image_tag)),
+              "DEV": (str(settings.dev_image_name), str(settings.dev_image_tag)),
+              "SLIM": (str(settings.slim_image_name), str(settings.slim_image_tag))}
+    lines = [f"{name}={value}\n" for name, value in
+             image_references(images, settings.image_postfix or "", git_tag)]
+    try:
+        Path(path).write_text("".join(lines))
+    except OSError as exc:
+        raise TaskError(f"--dotenv {path}: cannot write it: {exc.strerror or exc}") from None
+    print(f"image names (docker-ros's _IMAGE_* variables) written to {path}", flush=True)
 
 
 @settings_task(

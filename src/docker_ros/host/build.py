@@ -51,8 +51,10 @@ TOOLS_PATTERNS = ("__init__.py", "in_image/*.py", "in_image/*/*.py", "docker/*.s
 SECRETS = build_secrets()
 SCRATCH_FOLDER = ".gitlab-ci-local"  # gitlab-ci-local's copies of the repository
 # Names that never reach an image, wherever they are in the repository (see dockerignore);
-# the last, the GitLab template's copy of the tests' results, is an artifact of an earlier job.
-LEFT_OUT = (".env", ".git", ".gitlab-ci-local-variables.yml", "docker-ros-test-results")
+# the last two, the GitLab template's copy of the tests' results and its dotenv report of the
+# image names, are artifacts of an earlier job.
+LEFT_OUT = (".env", ".git", ".gitlab-ci-local-variables.yml", "docker-ros-test-results",
+            "docker-ros-images.env")
 BUILDX = ("docker", "buildx")  # the command reaching the default builder
 # The targets that export a registry cache (CACHE_TO); build-state imports run's, test dev's.
 CACHED_TARGETS = ("dev", "run")
@@ -101,8 +103,9 @@ def image_ref(settings: Settings, target: str) -> str:
         return f"{settings.dev_image_name}:{settings.dev_image_tag}"
     if target == "slim":
         return f"{settings.slim_image_name}:{settings.slim_image_tag}"
-    if target == "build-state":
-        return f"{settings.image_name}:{settings.image_tag}-build-state"
+    if target == "build-state":  # (BUILD_STATE_REPOSITORY: a repository of its own)
+        where = settings.build_state_repository or settings.image_name
+        return f"{where}:{settings.image_tag}-build-state"
     return f"{settings.image_name}:{settings.image_tag}"
 
 

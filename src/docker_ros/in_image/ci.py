@@ -202,3 +202,33 @@ def missing_tasks(plan: Sequence[Sequence[str]], available: Collection[str]) -> 
         for argv in plan
         if argv[0] not in available
     ]
+
+
+# docker-ros's GitLab template's 21 names of the images (its global `_*IMAGE*` variables), which
+# jobs of a .gitlab-ci.yml use; the template's pushing jobs give them as a dotenv report.
+IMAGE_KINDS = {"RUN": "", "DEV": "-dev", "SLIM": "-slim"}
+
+
+def image_references(
+    images: Mapping[str, Tuple[str, str]], postfix: str, git_tag: str
+) -> List[Tuple[str, str]]:
+    """docker-ros's `_RUN_IMAGE`, `_IMAGE_RUN_CI`, `_IMAGE_RUN_CI_AMD64`... for this pipeline's
+    images: images maps RUN, DEV and SLIM to (name, tag as pushed, IMAGE_POSTFIX included).
+    `_<KIND>_IMAGE` is the configured name (no postfix), `_IMAGE_<KIND>_CI` the name this
+    pipeline's Push job writes and `_IMAGE_<KIND>_CI_<ARCH>` the build job's (docker-ros's roles;
+    on the default branch these carry no `_<slug>_ci`, as the images here), `_IMAGE_<KIND>_LATEST`
+    the `latest` name, `_IMAGE_<KIND>_TARGET_TAG` and `_IMAGE_<KIND>_TAG` the names of a tag
+    pipeline (`<IMAGE_TAG>-<git tag>`, `<git tag>`; empty in other pipelines)."""
+    plain = {kind: (name, tag[: -len(postfix)] if postfix and tag.endswith(postfix) else tag)
+             for kind, (name, tag) in images.items()}
+    out = [(f"_{kind}_IMAGE", f"{plain[kind][0]}:{plain[kind][1]}") for kind in IMAGE_KINDS]
+    for kind, suffix in IMAGE_KINDS.items():
+        name, tag = images[kind]
+        out += [(f"_IMAGE_{kind}_CI", f"{name}:{tag}"),
+                (f"_IMAGE_{kind}_CI_AMD64", f"{name}:{tag}-amd64"),
+                (f"_IMAGE_{kind}_CI_ARM64", f"{name}:{tag}-arm64"),
+                (f"_IMAGE_{kind}_LATEST", f"{name}:latest{suffix}"),
+                (f"_IMAGE_{kind}_TARGET_TAG",
+                 f"{name}:{plain[kind][1]}-{git_tag}" if git_tag else ""),
+                (f"_IMAGE_{kind}_TAG", f"{name}:{git_tag}{suffix}" if git_tag else "")]
+    return out

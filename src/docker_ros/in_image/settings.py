@@ -376,6 +376,16 @@ class Settings:
         " images)",
         group="ours", build="tool",
     )
+    build_state_repository: Optional[str] = setting(
+        None,
+        "Registry repository (`registry/name`, no tag) for what holds sources or build products"
+        " besides the images: the CI build state (`<tag>-build-state-<arch>`) and the registry"
+        " cache (`<tag>-cache-<target>-<arch>`), e.g. a private one next to a public run image",
+        default_doc="IMAGE_NAME's repository, and in CI only when the pipeline pushes the dev"
+        " image (which holds the sources anyway): a run-only pipeline then pushes no build state"
+        " and no registry cache of every stage (the run image carries its inline cache)",
+        group="ours", build="tool",
+    )
     build_network: Optional[str] = setting(
         None,
         "Network of the build's RUN steps (`host` reaches services on this machine's loopback,"
@@ -753,14 +763,18 @@ def derived_defaults(
         out["cache_from"] = (ci_cache_refs(merged),
                              "derived from the CI pipeline (its pushed dev and run images)")
     merged = {**values, **{name: value for name, (value, _) in out.items()}}
-    if not values.get("cache_to") and detect_pipeline(environ) is not None and merged.get(
-            "image_name"):
-        out["cache_to"] = (f"{merged['image_name']}:{merged.get('image_tag', 'latest')}-cache",
-                           "derived from the CI pipeline (next to the images it pushes)")
+    # What holds the sources or build products (a registry cache of every stage, the build
+    # state) goes where docker-ros put nothing of the kind only when asked: to
+    # BUILD_STATE_REPOSITORY, or next to a dev image the pipeline pushes (it holds the sources).
+    where, why = sources_repository(merged)
+    if not values.get("cache_to") and detect_pipeline(environ) is not None and where:
+        out["cache_to"] = (f"{where}:{merged.get('image_tag', 'latest')}-cache",
+                           f"derived from the CI pipeline ({why})")
     if (not values.get("build_state_from") and detect_pipeline(environ) is not None
-            and merged.get("image_name")):
-        out["build_state_from"] = (ci_build_state_refs(merged),
-                                   "derived from the CI pipeline (the build state it pushes)")
+            and where):
+        out["build_state_from"] = (
+            ci_build_state_refs(merged),
+            f"derived from the CI pipeline (the build state it pushes, {why})")
     for name in TURNED_OFF:  # `none`: no CI default either
         if values.get(name) in (OFF, (OFF,)):
             out[name] = (None if name == "cache_to" else (), f"{sources[name]}: {OFF}, turned off")
@@ -795,12 +809,23 @@ def unpostfixed_tags(values: Mapping[str, object], tag: str) -> List[str]:
     return [tag] + ([tag[: -len(postfix)]] if postfix and tag.endswith(postfix) else [])
 
 
+def sources_repository(values: Mapping[str, object]) -> Tuple[str, str]:
+    """The repository of CI's default registry cache and build state, and why ('' none):
+    BUILD_STATE_REPOSITORY, else IMAGE_NAME's when TARGET pushes the dev image."""
+    if values.get("build_state_repository"):
+        return str(values["build_state_repository"]), "to BUILD_STATE_REPOSITORY"
+    target: Tuple[str, ...] = values.get("target") or FIELDS["target"].default  # type: ignore[assignment]
+    if "dev" in target and values.get("image_name"):
+        return str(values["image_name"]), "next to the dev image it pushes"
+    return "", ""
+
+
 def ci_build_state_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
     """BUILD_STATE_FROM of a CI job: the build state this pipeline pushes, then the default
     branch's (a new branch's first job starts from it)."""
     tag = str(values.get("image_tag", "latest"))
-    return tuple(f"{values['image_name']}:{each}-build-state"
-                 for each in unpostfixed_tags(values, tag))
+    where = values.get("build_state_repository") or values["image_name"]
+    return tuple(f"{where}:{each}-build-state" for each in unpostfixed_tags(values, tag))
 
 
 def slim_conflict(values: Mapping[str, object], sources: Mapping[str, str]) -> str:
@@ -861,8 +886,9 @@ def ci_cache_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
             refs += [f"{name}:{each}"] + [f"{name}:{each}-{p}" for p in platforms]
     # the registry caches CI exports (CACHE_TO), this pipeline's and the default branch's
     run_tag = str(values.get("image_tag", "latest"))
+    where = values.get("build_state_repository") or values["image_name"]
     for each in unpostfixed_tags(values, run_tag):
-        refs += [f"{values['image_name']}:{each}-cache-{kind}-{p}"
+        refs += [f"{where}:{each}-cache-{kind}-{p}"
                  for kind in ("dev", "run") for p in platforms]
     return tuple(dict.fromkeys(refs))
 
