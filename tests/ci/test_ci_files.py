@@ -169,7 +169,7 @@ def test_template_installs_at_docker_ros_git_ref_and_runs_the_tasks() -> None:
     assert 'spec="git+${DOCKER_ROS_GIT_URL}@${DOCKER_ROS_GIT_REF}"' in setup
     # the job runs in BUILD_CONTEXT, so a relative one is read from there as "."
     assert 'cd "$BUILD_CONTEXT" && export BUILD_CONTEXT=.' in setup
-    dotenv = '--dotenv "${CI_PROJECT_DIR:-.}/docker-ros-images.env"'
+    dotenv = '--dotenv "$DOCKER_ROS_CHECKOUT/docker-ros-images.env"'
     assert template[".build"]["script"] == [[".docker-ros-qemu", "script"],
                                             f'PLATFORM="$_PLATFORM" docker-ros ci {dotenv}']
     # (after the IMG_* check)
