@@ -346,15 +346,20 @@ def test_lock_resolves_each_platform_and_a_locked_arm64_build_installs_its_entry
 
 
 BINFMT = Path("/proc/sys/fs/binfmt_misc")
-# What `multiarch/qemu-user-static --reset -p yes` does for arm64 (the image is on Docker Hub,
-# out of this machine's reach): replace the qemu-aarch64 handler by one whose interpreter is the
-# image's static QEMU, opened at registration (F, as `-p yes`), so it works in every container.
+# What `tonistiigi/binfmt --install arm64` and `--uninstall qemu-aarch64` do (the image is on
+# Docker Hub, out of this machine's reach): register a qemu-aarch64 handler whose interpreter is
+# the image's static QEMU, opened at registration (F), so it works in every container (refused
+# when one is registered), or remove that handler only.
 QEMU_REGISTER = r"""#!/bin/sh -e
-[ "$*" = "--reset -p yes" ] || { echo "register: expected --reset -p yes, got: $*" >&2; exit 2; }
 b=/proc/sys/fs/binfmt_misc
 [ -e $b/register ] || mount -t binfmt_misc binfmt_misc $b
-[ ! -e $b/qemu-aarch64 ] || echo -1 > $b/qemu-aarch64
-printf '%s\n' '{rule}' > $b/register
+case "$*" in
+  "--install arm64")
+    [ ! -e $b/qemu-aarch64 ] || { echo "qemu-aarch64 already registered" >&2; exit 1; }
+    printf '%s\n' '{rule}' > $b/register ;;
+  "--uninstall qemu-aarch64") [ ! -e $b/qemu-aarch64 ] || echo -1 > $b/qemu-aarch64 ;;
+  *) echo "binfmt: expected --install arm64 or --uninstall qemu-aarch64, got: $*" >&2; exit 2 ;;
+esac
 """
 
 
@@ -373,12 +378,13 @@ def binfmt_rule(name: str, status: str, interpreter: str = "", flags: str = "") 
 def test_gitlab_job_of_another_architecture_registers_qemu_then_runs_arm64(
         engine26: str, ros1_base_image: str, ros1_arm64_base_image: str, tmp_path: Path) -> None:
     """The GitLab build jobs' QEMU snippet, run for real on this amd64 machine with no arm64
-    handler: it runs DOCKER_ROS_QEMU_IMAGE privileged, as docker-ros does, and arm64 containers
-    then run. The image stands in for multiarch/qemu-user-static (Docker Hub): this machine's
-    static QEMU and a register script that does what that image's `--reset -p yes` does for
-    arm64. The job's engine is Engine 26, as GitLab's docker:27 service: Engine 20.10 cannot start
-    a privileged container on this machine ("unable to apply caps": it lacks CAP_SYS_RESOURCE);
-    Engine 26 can. This machine's handler is put back, byte for byte."""
+    handler: it runs DOCKER_ROS_QEMU_IMAGE privileged (`--install arm64`, as
+    docker/setup-qemu-action does), arm64 containers then run, and the machine's other handlers
+    are untouched. The image stands in for tonistiigi/binfmt (Docker Hub): this machine's static
+    QEMU and a register script that does what that image's `--install arm64` and `--uninstall
+    qemu-aarch64` do. The job's engine is Engine 26, as GitLab's docker:27 service: Engine 20.10
+    cannot start a privileged container on this machine ("unable to apply caps": it lacks
+    CAP_SYS_RESOURCE); Engine 26 can. This machine's handler is put back, byte for byte."""
     assert host_arch() == "amd64", "the snippet is checked from an amd64 runner"
     handler = BINFMT / "qemu-aarch64"
     before = handler.read_text() if handler.exists() else None
@@ -400,10 +406,14 @@ def test_gitlab_job_of_another_architecture_registers_qemu_then_runs_arm64(
     try:
         handler.write_text("-1")  # a runner without arm64 emulation
         assert sh(ros1_arm64_base_image, "uname -m").returncode != 0  # cannot run arm64 now
+        others = {p.name: p.read_text() for p in BINFMT.iterdir()
+                  if p.name not in ("register", "status", "qemu-aarch64")}
         first = subprocess.run(["bash", "-ec", snippet], env=job_env, capture_output=True,
                                text=True)
         assert first.returncode == 0, first.stderr
-        assert f"registering QEMU ({image})" in first.stdout
+        assert f"registering QEMU for arm64 ({image})" in first.stdout
+        assert {p.name: p.read_text() for p in BINFMT.iterdir()
+                if p.name not in ("register", "status", "qemu-aarch64")} == others
         assert "interpreter /usr/bin/qemu-aarch64-static" in handler.read_text()
         assert sh(ros1_arm64_base_image, "uname -m").stdout.strip() == "aarch64"
         again = subprocess.run(["bash", "-ec", snippet], env=job_env, capture_output=True,

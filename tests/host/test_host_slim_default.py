@@ -110,3 +110,30 @@ def test_ci_passes_its_flags_on_as_given_and_its_plan_wins(project: Path) -> Non
     assert tested.stdout.count("[dry-run] test: would copy the results") == 1, tested.stdout
     assert ("docker-ros ci: docker-ros build --set ENABLE_INDUSTRIAL_CI=true --set "
             "ENABLE_SLIM=false --set ENABLE_INDUSTRIAL_CI=false --dry-run") in tested.stdout
+
+
+def test_a_run_only_ci_job_pushes_no_build_state_and_no_cache_of_every_stage(
+        project: Path) -> None:
+    """docker-ros's run-only pipeline pushed the run image only: the build state (the colcon
+    build folder) and a registry cache of every stage (the source stages too) go nowhere by
+    default, and to BUILD_STATE_REPOSITORY when it names a repository (issue 46)."""
+    gitlab = {"GITLAB_CI": "true", "CI_COMMIT_BRANCH": "feature", "CI_DEFAULT_BRANCH": "main",
+              "IMAGE_NAME": "registry.example/g/robot", "TARGET": "run"}
+    run_only = cli(project, "ci", "--dry-run", env=gitlab)
+    assert run_only.returncode == 0, run_only.stdout + run_only.stderr
+    pushed = re.findall(r"\[dry-run\] push: docker push (\S+)", run_only.stdout)
+    assert pushed == ["registry.example/g/robot:latest_feature_ci",
+                      "registry.example/g/robot:latest-slim_feature_ci"], run_only.stdout
+    # the run image carries its own inline cache, nothing else is exported
+    assert set(re.findall(r"--cache-to (\S+)", run_only.stdout)) == {"type=inline"}
+    assert not re.search(r":\S*-cache-", run_only.stdout) and "build-state" not in run_only.stdout
+    named = cli(project, "ci", "--dry-run",
+                env={**gitlab, "BUILD_STATE_REPOSITORY": "registry.example/g/private"})
+    assert named.returncode == 0, named.stdout + named.stderr
+    pushed = re.findall(r"\[dry-run\] push: docker push (\S+)", named.stdout)
+    assert "registry.example/g/private:latest_feature_ci-build-state-amd64" in pushed
+    assert "--cache-from registry.example/g/private:latest_feature_ci-cache-run-amd64" in (
+        named.stdout)
+    shown = cli(project, "config",
+                env={**gitlab, "BUILD_STATE_REPOSITORY": "registry.example/g/private"})
+    assert "registry.example/g/private:latest_feature_ci-cache" in shown.stdout, shown.stdout

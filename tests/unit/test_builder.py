@@ -37,7 +37,8 @@ def test_registry_cache_where_the_builder_can_export_it_else_inline():
 def test_the_line_names_the_builder_what_load_means_and_the_cache_choice():
     line = builder.describe(make(), LOCAL, cache_to=True)
     assert line.startswith("builder: default (docker driver of the local engine")
-    assert "inline cache only (this driver cannot export a registry cache)" in line
+    assert ("inline cache only (the docker driver of an engine on the classic image store "
+            "cannot export a registry cache" in line)
     remote = builder.describe(make(name="e26", host=E26, containerd=True), LOCAL, True)
     assert f"engine at {E26}: --load keeps the images in that engine, not the local one" in remote
     assert "registry cache of every stage (mode=max)" in remote

@@ -98,7 +98,9 @@ def describe(builder: Builder, cli_host: str, cache_to: bool) -> str:
     line = f"builder: {builder.name} ({where}{store})"
     if cache_to:
         how = ("registry cache of every stage (mode=max)" if cache_export(builder) == "registry"
-               else "inline cache only (this driver cannot export a registry cache)")
+               else "inline cache only (the docker driver of an engine on the classic image "
+               "store cannot export a registry cache: turn on the engine's containerd image "
+               "store, or set BUILDER to a docker-container builder)")
         line += f"; CACHE_TO: {how}"
     return line
 

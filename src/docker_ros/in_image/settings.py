@@ -886,8 +886,8 @@ def ci_cache_refs(values: Mapping[str, object]) -> Tuple[str, ...]:
             refs += [f"{name}:{each}"] + [f"{name}:{each}-{p}" for p in platforms]
     # the registry caches CI exports (CACHE_TO), this pipeline's and the default branch's
     run_tag = str(values.get("image_tag", "latest"))
-    where = values.get("build_state_repository") or values["image_name"]
-    for each in unpostfixed_tags(values, run_tag):
+    where = sources_repository(values)[0]  # (none by default in a run-only pipeline)
+    for each in unpostfixed_tags(values, run_tag) if where else ():
         refs += [f"{where}:{each}-cache-{kind}-{p}"
                  for kind in ("dev", "run") for p in platforms]
     return tuple(dict.fromkeys(refs))
