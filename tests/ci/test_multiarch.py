@@ -204,8 +204,8 @@ def test_gitlab_jobs_per_architecture_then_the_manifest_job(
     assert f"manifest: {local_registry}/{image}:latest-slim-arm64 is not in the registry" in (
         result.stdout)
     assert registry_tags(local_registry, image) == [
+        # (TARGET=run: no build state, docker-ros pushed the run image only)
         "latest", "latest-amd64", "latest-arm64",
-        "latest-build-state-amd64", "latest-build-state-arm64",
         "latest-slim", "latest-slim-amd64",
     ]
     assert manifest_architectures(f"{local_registry}/{image}:latest") == ["amd64", "arm64"]
