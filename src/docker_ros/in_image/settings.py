@@ -153,7 +153,9 @@ class Settings:
     )
     docker_ros_git_ref: str = setting(
         "main", "Git ref of docker-ros to run in CI (GitLab template variable, Action input)",
-        default_doc="GitLab template: `main`; GitHub Action: the action's own ref",
+        default_doc="GitLab template: `v<version>`, the release it belongs to (a"
+        " `docker/docker-ros` copy of docker-ros (Python) in the repository is installed"
+        " instead); GitHub Action: the action's own files",
         group="ci", build="none"
     )
     enable_checkout: bool = setting(
@@ -347,8 +349,9 @@ class Settings:
         " type=registry,mode=max`) where the builder can export it (an engine on the containerd"
         " image store, docker-container or remote builders); where it cannot (the classic"
         " store's docker driver, e.g. Engine 20.10) inline cache in the images instead",
-        default_doc="in CI: `<IMAGE_NAME>:<IMAGE_TAG>-cache`; else none; `none` turns it off"
-        " (every stage's layers, the sources' too, are pushed: as public as the images)",
+        default_doc="in CI: `<IMAGE_NAME>:<IMAGE_TAG>-cache` when the pipeline pushes the dev"
+        " image, `<BUILD_STATE_REPOSITORY>:<IMAGE_TAG>-cache` when that is set, else none; else"
+        " none; `none` turns it off (every stage's layers, the sources' too, are pushed)",
         group="ours", build="tool",
     )
     no_cache: bool = setting(
@@ -371,9 +374,9 @@ class Settings:
         " pullable one wins; `-<arch>` is appended) an empty build cache starts from: only"
         " changed packages compile on an empty CI runner; set, the build also makes the run"
         " image's build state, which `push` pushes",
-        default_doc="in CI: the build state the pipeline pushes (and the default branch's);"
-        " else none; `none` turns it off (the colcon build folder is pushed: as public as the"
-        " images)",
+        default_doc="in CI, when the pipeline pushes the dev image or BUILD_STATE_REPOSITORY is"
+        " set: the build state the pipeline pushes (and the default branch's); else none; `none`"
+        " turns it off (the colcon build folder is pushed)",
         group="ours", build="tool",
     )
     build_state_repository: Optional[str] = setting(
