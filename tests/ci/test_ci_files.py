@@ -179,7 +179,9 @@ def test_template_installs_at_docker_ros_git_ref_and_runs_the_tasks() -> None:
     for job in ("Push", "Push CI", "Push target tag"):
         assert template[job]["extends"] == ".push" and set(template[job]) == {"extends", "rules"}
     assert template["default"]["image"] == "docker:27.5.1-git"  # pinned, as docker-ros
-    assert template["default"]["services"] == ["docker:27.5.1-dind"]
+    # on the containerd image store: registry cache of every stage and attestations (issue 46)
+    assert template["default"]["services"] == [
+        {"name": "docker:27.5.1-dind", "command": ["--feature", "containerd-snapshotter"]}]
 
 
 def test_switching_gitlab_is_one_include_line() -> None:
