@@ -98,9 +98,9 @@ def test_ci_passes_its_flags_on_as_given_and_its_plan_wins(project: Path) -> Non
               "CI_REGISTRY_IMAGE": "reg.example/group/project"}
     ci = cli(project, "ci", "--image-tag", "v1", "--dry-run", env=branch)
     assert ci.returncode == 0, ci.stdout + ci.stderr
+    # (run only: no build state, test_a_run_only_ci_job_pushes_no_build_state_...)
     assert re.findall(r"\[dry-run\] push: docker push (\S+)", ci.stdout) == [
         "reg.example/group/project:v1_feature_ci",
-        "reg.example/group/project:v1_feature_ci-build-state-amd64",
         "reg.example/group/project:v1-slim_feature_ci"], ci.stdout
     assert "docker-ros ci: docker-ros build --set IMAGE_TAG=v1 --set ENABLE_SLIM=false" in (
         ci.stdout)

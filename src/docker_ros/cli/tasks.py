@@ -75,8 +75,7 @@ from docker_ros.in_image.steps import BY_NAME, STEPS
 
 Flag = Tuple[str, object, str]  # name, default, help
 DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change nothing")
-DOTENV: Flag = ("dotenv", "", "Write docker-ros's `_IMAGE_*` names of the images to this file "
-                "as NAME=value lines (GitLab's dotenv report), at the end, with --dry-run too")
+DOTENV: Flag = ("dotenv", "", "Write docker-ros's _IMAGE_* image names to this dotenv file")
 HOST: Flag = ("host", False, "Run the steps directly on this machine instead of in an image")
 IN_CONTAINER: Flag = (
     "in_container", False,
