@@ -364,4 +364,4 @@ def test_docs_show_the_example_files() -> None:
     readme = (REPO / "README.md").read_text()
     for name in ("github-workflow.yml", "gitlab-ci.yml"):
         assert (EXAMPLES / name).read_text().strip() in readme, f"README does not show {name}"
-    assert re.search(r"uses: ika-rwth-aachen/docker-ros@v1", pages[docs / "migration.md"])
+    assert re.search(r"uses: ika-rwth-aachen/docker-ros@<ref>", pages[docs / "migration.md"])

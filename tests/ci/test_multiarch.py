@@ -14,7 +14,6 @@ import json
 import os
 import platform
 import re
-import shutil
 import subprocess
 import time
 import uuid
@@ -346,82 +345,67 @@ def test_lock_resolves_each_platform_and_a_locked_arm64_build_installs_its_entry
 
 
 BINFMT = Path("/proc/sys/fs/binfmt_misc")
-# What `tonistiigi/binfmt --install arm64` and `--uninstall qemu-aarch64` do (the image is on
-# Docker Hub, out of this machine's reach): register a qemu-aarch64 handler whose interpreter is
-# the image's static QEMU, opened at registration (F), so it works in every container (refused
-# when one is registered), or remove that handler only.
-QEMU_REGISTER = r"""#!/bin/sh -e
-b=/proc/sys/fs/binfmt_misc
-[ -e $b/register ] || mount -t binfmt_misc binfmt_misc $b
-case "$*" in
-  "--install arm64")
-    [ ! -e $b/qemu-aarch64 ] || { echo "qemu-aarch64 already registered" >&2; exit 1; }
-    printf '%s\n' '{rule}' > $b/register ;;
-  "--uninstall qemu-aarch64") [ ! -e $b/qemu-aarch64 ] || echo -1 > $b/qemu-aarch64 ;;
-  *) echo "binfmt: expected --install arm64 or --uninstall qemu-aarch64, got: $*" >&2; exit 2 ;;
-esac
-"""
+# The runner's handler as the snippet finds it -> the stand-in's calls it must make.
+HANDLERS = {
+    "none": (None, ["--install arm64"]),
+    "disabled": ("disabled\ninterpreter /usr/bin/qemu-aarch64\nflags: F\n",
+                 ["--uninstall qemu-aarch64", "--install arm64"]),
+    "not fixed": ("enabled\ninterpreter /usr/bin/qemu-aarch64\nflags: P\n",
+                  ["--uninstall qemu-aarch64", "--install arm64"]),
+    "registered": ("enabled\ninterpreter /usr/bin/qemu-aarch64-static\nflags: PF\n", []),
+}
 
 
-def binfmt_rule(name: str, status: str, interpreter: str = "", flags: str = "") -> str:
-    """The register line of a handler from its status file (`cat qemu-aarch64`): the same
-    magic and mask; interpreter and flags as given, else as in the status."""
-    fields = dict(line.split(" ", 1) for line in status.splitlines()[1:] if " " in line)
-
-    def escape(hexes: str) -> str:
-        return "".join(f"\\x{hexes[i:i + 2]}" for i in range(0, len(hexes), 2))
-
-    return (f":{name}:M:{fields['offset']}:{escape(fields['magic'])}:{escape(fields['mask'])}:"
-            f"{interpreter or fields['interpreter']}:{flags or fields['flags:'].strip()}")
+def machine_handlers() -> dict:
+    """This machine's binfmt handlers and status (`register` is write-only)."""
+    return {path.name: path.read_bytes() for path in sorted(BINFMT.iterdir())
+            if path.name != "register"}
 
 
-def test_gitlab_job_of_another_architecture_registers_qemu_then_runs_arm64(
-        engine26: str, ros1_base_image: str, ros1_arm64_base_image: str, tmp_path: Path) -> None:
-    """The GitLab build jobs' QEMU snippet, run for real on this amd64 machine with no arm64
-    handler: it runs DOCKER_ROS_QEMU_IMAGE privileged (`--install arm64`, as
-    docker/setup-qemu-action does), arm64 containers then run, and the machine's other handlers
-    are untouched. The image stands in for tonistiigi/binfmt (Docker Hub): this machine's static
-    QEMU and a register script that does what that image's `--install arm64` and `--uninstall
-    qemu-aarch64` do. The job's engine is Engine 26, as GitLab's docker:27 service: Engine 20.10
-    cannot start a privileged container on this machine ("unable to apply caps": it lacks
-    CAP_SYS_RESOURCE); Engine 26 can. This machine's handler is put back, byte for byte."""
+def test_gitlab_job_of_another_architecture_registers_qemu_for_its_architecture_only(
+        engine26: str, ros1_base_image: str, tmp_path: Path) -> None:
+    """The GitLab build jobs' QEMU snippet, run for real, for each state of the runner's
+    qemu-aarch64 handler: none, disabled, not fixed (no F) -> DOCKER_ROS_QEMU_IMAGE is run
+    privileged with `--install arm64` (after `--uninstall qemu-aarch64` where one is there), as
+    docker/setup-qemu-action runs tonistiigi/binfmt, never a reset of every handler; registered
+    and fixed -> nothing is run; an amd64 job on this amd64 runner -> nothing. The snippet reads
+    the handlers where BINFMT_MISC says (a folder of this test's), and the image stands in for
+    tonistiigi/binfmt (Docker Hub) by printing its arguments: this machine's binfmt handlers,
+    which other work on it may be using, are never touched (checked byte for byte). That the
+    real image then registers the handler is tonistiigi/binfmt's to prove. The job's engine is
+    Engine 26, as GitLab's docker:27 service (Engine 20.10 cannot start a privileged container
+    here: it lacks CAP_SYS_RESOURCE)."""
     assert host_arch() == "amd64", "the snippet is checked from an amd64 runner"
-    handler = BINFMT / "qemu-aarch64"
-    before = handler.read_text() if handler.exists() else None
-    assert before, "setup.sh registers qemu-aarch64 (the multi-arch tests need it)"
-    context = tmp_path / "qemu"
+    before = machine_handlers()
+    context = tmp_path / "binfmt"
     context.mkdir()
-    rule = binfmt_rule("qemu-aarch64", before, "/usr/bin/qemu-aarch64-static", "F")
-    (context / "register").write_text(QEMU_REGISTER.replace("{rule}", rule))
-    (context / "register").chmod(0o755)
-    shutil.copy(Path("/usr/bin/qemu-aarch64-static"), context / "qemu-aarch64-static")
     (context / "Dockerfile").write_text(
-        f"FROM {ros1_base_image}\nCOPY qemu-aarch64-static /usr/bin/\nCOPY register /\n"
-        'ENTRYPOINT ["/register"]\n')
+        f'FROM {ros1_base_image}\nENTRYPOINT ["echo", "binfmt stand-in:"]\n')
     snippet = load(REPO / ".gitlab-ci" / "docker-ros.yml")[".docker-ros-qemu"]["script"][0]
-    image = f"docker-ros-test/qemu-user-static:{uuid.uuid4().hex[:12]}"
-    job_env = {**env_for(engine26), "_PLATFORM": "arm64", "DOCKER_ROS_QEMU_IMAGE": image}
-    subprocess.run(["docker", "build", "-q", "-t", image, str(context)], env=job_env,
+    image = f"docker-ros-test/binfmt-stand-in:{uuid.uuid4().hex[:12]}"
+    env26 = env_for(engine26)
+    subprocess.run(["docker", "build", "-q", "-t", image, str(context)], env=env26,
                    check=True, capture_output=True)
     try:
-        handler.write_text("-1")  # a runner without arm64 emulation
-        assert sh(ros1_arm64_base_image, "uname -m").returncode != 0  # cannot run arm64 now
-        others = {p.name: p.read_text() for p in BINFMT.iterdir()
-                  if p.name not in ("register", "status", "qemu-aarch64")}
-        first = subprocess.run(["bash", "-ec", snippet], env=job_env, capture_output=True,
-                               text=True)
-        assert first.returncode == 0, first.stderr
-        assert f"registering QEMU for arm64 ({image})" in first.stdout
-        assert {p.name: p.read_text() for p in BINFMT.iterdir()
-                if p.name not in ("register", "status", "qemu-aarch64")} == others
-        assert "interpreter /usr/bin/qemu-aarch64-static" in handler.read_text()
-        assert sh(ros1_arm64_base_image, "uname -m").stdout.strip() == "aarch64"
-        again = subprocess.run(["bash", "-ec", snippet], env=job_env, capture_output=True,
-                               text=True)
-        assert "QEMU (qemu-aarch64) is registered" in again.stdout, again.stdout + again.stderr
+        for state, (status, calls) in HANDLERS.items():
+            fake = tmp_path / state.replace(" ", "-")
+            fake.mkdir()
+            if status is not None:
+                (fake / "qemu-aarch64").write_text(status)
+            ran = subprocess.run(["bash", "-ec", snippet], capture_output=True, text=True,
+                                 env={**env26, "_PLATFORM": "arm64", "BINFMT_MISC": str(fake),
+                                      "DOCKER_ROS_QEMU_IMAGE": image})
+            assert ran.returncode == 0, (state, ran.stderr)
+            made = re.findall(r"^binfmt stand-in: (.*)$", ran.stdout, re.MULTILINE)
+            assert made == calls, (state, ran.stdout)
+            said = ("QEMU (qemu-aarch64) is registered" if not calls
+                    else f"registering QEMU for arm64 ({image})")
+            assert f"docker-ros: arm64 job on a amd64 runner: {said}" in ran.stdout, ran.stdout
+        native = subprocess.run(["bash", "-ec", snippet], capture_output=True, text=True,
+                                env={**env26, "_PLATFORM": "amd64",
+                                     "BINFMT_MISC": str(tmp_path / "none"),
+                                     "DOCKER_ROS_QEMU_IMAGE": image})
+        assert native.returncode == 0 and native.stdout == "", native.stdout + native.stderr
     finally:
-        if handler.exists():
-            handler.write_text("-1")
-        (BINFMT / "register").write_text(binfmt_rule("qemu-aarch64", before) + "\n")
-        subprocess.run(["docker", "image", "rm", image], env=job_env, capture_output=True)
-    assert handler.read_text() == before
+        subprocess.run(["docker", "image", "rm", image], env=env26, capture_output=True)
+    assert machine_handlers() == before
