@@ -15,7 +15,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 from bench import REPO, BenchError
 from bench.workspace import COMPILE_MARK, DEV_IMAGE, IMAGE
-from docker_ros.in_image.settings import FIELDS, env_name
+from docker_ros.core.settings import FIELDS, env_name
 
 # bake puts the target before the stage: `#12 [dev upstream 2/2] RUN ...`
 UPSTREAM_VERTEX = re.compile(r"^#(\d+) \[(?:\S+ )?upstream .*clone --imports-only")

@@ -52,8 +52,8 @@ from bench.workspace import (
     set_mark,
     write_workspace,
 )
+from docker_ros.core.loading import host_platform
 from docker_ros.host import engine
-from docker_ros.in_image.settings import host_platform
 from tests import leftovers
 
 BUILD_STATE_PULLED = re.compile(r"build state: \S+ pulled in ([\d.]+) s \((\d+) MB\)")

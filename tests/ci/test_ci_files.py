@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from docker_ros.in_image.ci import github_slug
-from docker_ros.in_image.settings import FIELDS, SLIM_BUILD_ARGS_DEFAULT
+from docker_ros.core.ci import github_slug
+from docker_ros.core.settings import FIELDS, SLIM_BUILD_ARGS_DEFAULT
 from tests.ci.cihelp import load
 from tests.ci.github_harness import github_slug_action
 

@@ -56,7 +56,7 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.in_image.settings import host_platform
+from docker_ros.core.loading import host_platform
 from tests.docker.buildhelp import (
     STAGE,
     cached_vertices,

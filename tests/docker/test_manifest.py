@@ -14,9 +14,9 @@ from typing import Tuple
 
 import pytest
 
+from docker_ros.core.loading import load_settings
 from docker_ros.host.push import manifest
 from docker_ros.host.slim import LABEL_SOURCE
-from docker_ros.in_image.settings import load_settings
 
 pytestmark = pytest.mark.docker
 

@@ -8,8 +8,9 @@ from typing import Callable, Dict
 
 import pytest
 
+from docker_ros.core.loading import load_settings
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.workspace import Workspace
-from docker_ros.in_image.settings import Settings, load_settings
 
 
 class Project:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.in_image.settings import host_platform
+from docker_ros.core.loading import host_platform
 from tests.rosfixtures import make_package, tree_snapshot
 
 pytestmark = pytest.mark.host

@@ -58,9 +58,9 @@ def test_commits_of_nested_checkouts_and_pinned_import(tmp_path: Path):
 
 
 def test_locked_clone_step_imports_the_locked_commit_and_unlocked_the_new(tmp_path: Path):
+    from docker_ros.core.loading import load_settings
     from docker_ros.in_image.runtime.lock import LOCK_FILE, dump_lock, host_platform
     from docker_ros.in_image.runtime.workspace import StepError, Workspace
-    from docker_ros.in_image.settings import load_settings
     from docker_ros.in_image.steps import clone
 
     remote = tmp_path / "remote" / "foo"

@@ -9,6 +9,8 @@ import pytest
 from docker.errors import APIError, NotFound
 from dotenv import dotenv_values
 
+from docker_ros.core.loading import has_bare_set, load_settings, parse_set
+from docker_ros.core.settings import SettingsError, explicitly_set
 from docker_ros.host import build, engine
 from docker_ros.host.config import (
     config_table,
@@ -29,13 +31,6 @@ from docker_ros.in_image.runtime.packages import (
 )
 from docker_ros.in_image.runtime.process import script_hint
 from docker_ros.in_image.runtime.workspace import read_user_text
-from docker_ros.in_image.settings import (
-    SettingsError,
-    explicitly_set,
-    has_bare_set,
-    load_settings,
-    parse_set,
-)
 from docker_ros.in_image.steps import clone, pip
 
 TAG_RULE = ": up to 128 letters, digits, _ . and -, not starting with . or -"

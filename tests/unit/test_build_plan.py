@@ -10,9 +10,10 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core.loading import load_settings
+from docker_ros.core.settings import FIELDS
 from docker_ros.host import build, buildlog
 from docker_ros.host.config import config_table
-from docker_ros.in_image.settings import FIELDS, load_settings
 
 
 def settings(**environ):

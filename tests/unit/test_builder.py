@@ -5,8 +5,8 @@ import hashlib
 import json
 from pathlib import Path
 
+from docker_ros.core.loading import load_settings
 from docker_ros.host import builder, engine
-from docker_ros.in_image.settings import load_settings
 from tests.unit.test_build_plan import plan, settings
 
 LOCAL = "unix:///var/run/docker.sock"

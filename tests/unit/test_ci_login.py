@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from docker_ros.cli.tasks import logs_in_now
+from docker_ros.core.loading import load_settings
 from docker_ros.host import login
 from docker_ros.host.build import slim_platforms
 from docker_ros.host.login import (
@@ -22,7 +23,6 @@ from docker_ros.host.login import (
     private_config,
 )
 from docker_ros.host.push import plan_push, push_targets
-from docker_ros.in_image.settings import load_settings
 from tests.rosfixtures import free_port
 
 

@@ -8,9 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.host.config import read_settings
-from docker_ros.host.push import plan_outputs, plan_push, push_targets
-from docker_ros.in_image.ci import (
+from docker_ros.core.ci import (
     REF_SLUG,
     Pipeline,
     detect_pipeline,
@@ -24,7 +22,9 @@ from docker_ros.in_image.ci import (
     slugify,
     tag_postfix,
 )
-from docker_ros.in_image.settings import load_settings
+from docker_ros.core.loading import load_settings
+from docker_ros.host.config import read_settings
+from docker_ros.host.push import plan_outputs, plan_push, push_targets
 from tests.rosfixtures import make_package
 
 SRC = Path(__file__).resolve().parents[2] / "src"

@@ -12,8 +12,8 @@ from pathlib import Path
 import docker
 import pytest
 
+from docker_ros.core.loading import load_settings
 from docker_ros.host import build, buildlog, container
-from docker_ros.in_image.settings import load_settings
 from docker_ros.in_image.steps import BY_NAME, OPTIONS, STEPS, step_options
 
 STEP_CALL = r"python3 -m docker_ros\.in_image\.steps ([-a-z ]+?)\s*(?:&&|$)"

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core.loading import load_settings
 from docker_ros.host import devshell
 from docker_ros.host.devshell import HostUser, ShellOptions
-from docker_ros.in_image.settings import load_settings
 
 REF = "robot:latest-dev"
 USER = HostUser(1234, 1235, "alice", tty=False, cwd=Path("/home/alice/robot"))

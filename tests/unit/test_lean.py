@@ -5,6 +5,7 @@ tests/docker/test_lean.py."""
 import json
 from pathlib import Path
 
+from docker_ros.core.loading import load_settings
 from docker_ros.host.build import definition, run_resolution
 from docker_ros.in_image.runtime.lean import (
     canonical,
@@ -21,7 +22,6 @@ from docker_ros.in_image.runtime.lean import (
     providers,
 )
 from docker_ros.in_image.runtime.workspace import Workspace
-from docker_ros.in_image.settings import load_settings
 
 LDD = """\
 \tlinux-vdso.so.1 (0x00007ffd5b3f6000)

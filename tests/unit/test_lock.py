@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core.loading import host_platform
 from docker_ros.in_image.runtime import lock
-from docker_ros.in_image.settings import host_platform
 
 
 def test_apt_simulation_gives_every_package_with_its_version():
@@ -116,8 +116,8 @@ def test_base_image_record_prefers_the_registry_digest_of_its_repository():
 
 
 def _plan(tmp_path: Path, target: str = "run", **environ):
+    from docker_ros.core.loading import load_settings
     from docker_ros.host import build
-    from docker_ros.in_image.settings import load_settings
 
     s = load_settings(environ={"BASE_IMAGE": "reg:5000/ros:noetic", "BUILD_CONTEXT": str(tmp_path),
                                **environ}, project_dir=tmp_path)
@@ -153,8 +153,8 @@ def test_unlocked_builds_are_unchanged_and_a_locked_one_builds_from_the_digest(t
 
 
 def _locked_ws(tmp_path: Path, debs: str, inputs):
+    from docker_ros.core.loading import load_settings
     from docker_ros.in_image.runtime.workspace import Workspace
-    from docker_ros.in_image.settings import load_settings
 
     ws = Workspace(tmp_path / "ws")
     ws.target.mkdir(parents=True)
@@ -256,8 +256,8 @@ def test_entry_changes_name_each_difference_by_entry():
 
 
 def test_lock_status_says_whether_a_lock_is_in_use(tmp_path: Path):
+    from docker_ros.core.loading import load_settings
     from docker_ros.host.lock import lock_status
-    from docker_ros.in_image.settings import load_settings
 
     def status(**environ):
         return lock_status(load_settings(environ={"BUILD_CONTEXT": str(tmp_path), **environ},
@@ -273,8 +273,8 @@ def test_lock_status_says_whether_a_lock_is_in_use(tmp_path: Path):
 
 
 def test_a_locked_build_takes_the_lock_into_its_imports_even_with_a_hook(tmp_path: Path):
+    from docker_ros.core.loading import load_settings
     from docker_ros.host import build
-    from docker_ros.in_image.settings import load_settings
 
     (tmp_path / ".repos").write_text("repositories: {}\n")
     (tmp_path / lock.LOCK_FILE).write_text(lock.dump_lock({"format": 1, "targets": {}}))
@@ -355,8 +355,8 @@ def test_an_install_otherwise_than_the_lock_names_each_difference():
 
 def test_the_prepare_pins_are_the_run_and_dev_entries_and_an_old_lock_is_refused(
         tmp_path: Path):
+    from docker_ros.core.loading import load_settings
     from docker_ros.host.lock import prepare_pins
-    from docker_ros.in_image.settings import load_settings
 
     entries = {"run/amd64": {"prepare": {"tini": "1"}},
                "dev/amd64": {"prepare": {"tini": "1", "g++": "2"}}}

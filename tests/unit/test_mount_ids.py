@@ -5,8 +5,8 @@ shared by every repository and platform (found by scripts/bench.py)."""
 import re
 from pathlib import Path
 
+from docker_ros.core.loading import load_settings
 from docker_ros.host import build
-from docker_ros.in_image.settings import load_settings
 
 
 def settings(**environ):

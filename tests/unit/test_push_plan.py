@@ -4,6 +4,7 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core.loading import load_settings
 from docker_ros.host import engine
 from docker_ros.host.build import BuildError
 from docker_ros.host.push import (
@@ -20,7 +21,6 @@ from docker_ros.host.push import (
     slimmed_from,
     write_outputs,
 )
-from docker_ros.in_image.settings import load_settings
 
 
 def settings(**environ):

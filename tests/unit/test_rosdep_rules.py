@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core.loading import load_settings
 from docker_ros.host.config import input_problems
 from docker_ros.in_image.runtime.rosdeprules import (
     cached_sources,
@@ -15,7 +16,6 @@ from docker_ros.in_image.runtime.rosdeprules import (
     override_lines,
     rules_problem,
 )
-from docker_ros.in_image.settings import load_settings
 
 
 def write(tmp_path: Path, text: str) -> Path:

@@ -8,17 +8,15 @@ import pytest
 import yaml
 
 from docker_ros.cli import reference
-from docker_ros.in_image.settings import (
-    FIELDS,
-    SettingsError,
+from docker_ros.core.display import (
     as_env,
     display_value,
-    load_settings,
     missing_required,
-    parse_set,
     require,
     required_for_build,
 )
+from docker_ros.core.loading import load_settings, parse_set
+from docker_ros.core.settings import FIELDS, SettingsError
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 ORIGINAL = Path(__file__).resolve().parent / "data" / "docker-ros-readme-defaults.yml"

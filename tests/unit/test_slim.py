@@ -14,6 +14,8 @@ from typing import Any, Callable, Iterator, List, Optional, Set, Tuple
 
 import pytest
 
+from docker_ros.core.loading import load_settings
+from docker_ros.core.settings import SLIM_BUILD_ARGS_DEFAULT
 from docker_ros.host import slim
 from docker_ros.host.push import plan_push, push_targets
 from docker_ros.host.slim import (
@@ -36,7 +38,6 @@ from docker_ros.host.slim import (
     watch,
 )
 from docker_ros.in_image import slimtrace
-from docker_ros.in_image.settings import SLIM_BUILD_ARGS_DEFAULT, load_settings
 
 # a shorter variant of docker-ros's default (SLIM_BUILD_ARGS_DEFAULT)
 DOCKER_ROS_GITLAB_DEFAULT = (

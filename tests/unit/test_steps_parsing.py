@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core.loading import load_settings
 from docker_ros.in_image.runtime.files import read_list_file
 from docker_ros.in_image.runtime.lock import dump_repos
 from docker_ros.in_image.runtime.packages import Package
@@ -20,7 +21,6 @@ from docker_ros.in_image.runtime.rosenv import (
     sourced_env,
 )
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, phases
-from docker_ros.in_image.settings import load_settings
 from docker_ros.in_image.steps import clone, colcon, debs, pip, rosdep
 
 

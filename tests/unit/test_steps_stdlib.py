@@ -10,16 +10,19 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parents[2] / "src"
-# Everything under in_image/ runs in images (the steps, their runtime, settings, CI detection,
-# the test runner, the slim tracer): the folder is the rule, no list of names.
+# Everything under in_image/ runs in images (the steps, their runtime, the test runner, the
+# slim tracer), and so does core/ (settings, CI detection, errors), which they import: the
+# folders are the rule, no list of names.
 IN_IMAGE = SRC / "docker_ros" / "in_image"
-CHECKED = sorted(IN_IMAGE.rglob("*.py"))
+CORE = SRC / "docker_ros" / "core"
+CHECKED = sorted([*IN_IMAGE.rglob("*.py"), *CORE.rglob("*.py")])
 
 IMPORT_ALL = """
 import importlib, json, pkgutil, sys
-import docker_ros.in_image
-for info in pkgutil.walk_packages(docker_ros.in_image.__path__, "docker_ros.in_image."):
-    importlib.import_module(info.name)
+import docker_ros.core, docker_ros.in_image
+for package in (docker_ros.core, docker_ros.in_image):
+    for info in pkgutil.walk_packages(package.__path__, package.__name__ + "."):
+        importlib.import_module(info.name)
 print(json.dumps(sorted(sys.modules)))
 """
 
@@ -43,10 +46,12 @@ def test_imports_only_the_standard_library():
         if m.split(".")[0] not in stdlib and m.split(".")[0] != "docker_ros" and m != "__main__"
     )
     assert foreign == []
-    # and of this package only in_image itself (and the version in docker_ros/__init__.py)
+    # and of this package only in_image and core (and the version in docker_ros/__init__.py)
     ours = [m for m in modules if m.split(".")[0] == "docker_ros"]
-    assert [m for m in ours if m != "docker_ros" and not m.startswith("docker_ros.in_image")] == []
-    assert {"docker_ros.in_image.steps.clone", "docker_ros.in_image.slimtrace"} <= set(ours)
+    assert [m for m in ours if m != "docker_ros"
+            and not m.startswith(("docker_ros.in_image", "docker_ros.core"))] == []
+    assert {"docker_ros.in_image.steps.clone", "docker_ros.in_image.slimtrace",
+            "docker_ros.core.display"} <= set(ours)
 
 
 def test_same_check_fails_for_a_third_party_import(tmp_path):

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core.loading import load_settings
 from docker_ros.host import build
 from docker_ros.in_image import testing
-from docker_ros.in_image.settings import load_settings
 from docker_ros.in_image.testing import Counts
 
 # What pytest writes for colcon (one passed, one failed, one skipped).

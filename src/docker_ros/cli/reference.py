@@ -9,7 +9,8 @@ import re
 from typing import Dict, List, Sequence
 
 from docker_ros.cli.tasks import ns
-from docker_ros.in_image.settings import FIELDS, env_name, flag_name, is_secret, markdown_table
+from docker_ros.core.display import markdown_table
+from docker_ros.core.settings import FIELDS, env_name, flag_name, is_secret
 from docker_ros.in_image.steps import BY_NAME, STEPS
 
 

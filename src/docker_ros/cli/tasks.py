@@ -22,6 +22,26 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 from invoke import Argument, Collection, Context, Exit, Task
 
 import docker_ros
+from docker_ros.core.ci import (
+    detect_pipeline,
+    docker_tag_part,
+    error_annotation,
+    image_references,
+    plan_ci_job,
+    slim_skipped,
+)
+from docker_ros.core.display import default_doc, made_images, require, required_for_build
+from docker_ros.core.loading import has_bare_set, host_platform, parse_set
+from docker_ros.core.settings import (
+    FIELDS,
+    Settings,
+    SettingsError,
+    env_name,
+    flag_name,
+    is_secret,
+    kind_of,
+    settings_where,
+)
 from docker_ros.host import baseimage, build, container, devshell, engine
 from docker_ros.host.config import config_table, input_problems, read_settings
 from docker_ros.host.lock import lock, lock_status
@@ -44,33 +64,8 @@ from docker_ros.host.pipeline import (
     slimmed_here,
 )
 from docker_ros.host.push import manifest, official_only_names, push, push_targets
-from docker_ros.in_image.ci import (
-    detect_pipeline,
-    docker_tag_part,
-    error_annotation,
-    image_references,
-    plan_ci_job,
-    slim_skipped,
-)
 from docker_ros.in_image.runtime.lock import LockError
 from docker_ros.in_image.runtime.workspace import StepError, setup_logging
-from docker_ros.in_image.settings import (
-    FIELDS,
-    Settings,
-    SettingsError,
-    default_doc,
-    env_name,
-    flag_name,
-    has_bare_set,
-    host_platform,
-    is_secret,
-    kind_of,
-    made_images,
-    parse_set,
-    require,
-    required_for_build,
-    settings_where,
-)
 from docker_ros.in_image.steps import BY_NAME, STEPS
 
 Flag = Tuple[str, object, str]  # name, default, help

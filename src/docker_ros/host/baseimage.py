@@ -17,10 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import List, Optional, Sequence, Tuple
 
+from docker_ros.core.loading import host_platform
 from docker_ros.host.engine import image_exists, inspect_image, remove_image
 from docker_ros.in_image.runtime.process import privileged, run
 from docker_ros.in_image.runtime.workspace import StepError, format_argv, step_log
-from docker_ros.in_image.settings import host_platform
 
 LOG = logging.getLogger(__name__)
 STEP = "baseimage"

@@ -21,6 +21,8 @@ from pathlib import Path
 from typing import IO, Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 import docker_ros
+from docker_ros.core.display import as_env
+from docker_ros.core.settings import FIELDS, Settings, build_secrets, env_name
 from docker_ros.host import builder, buildlog, buildstate, engine
 from docker_ros.host.baseimage import arch_ref
 from docker_ros.host.config import rmw_chosen
@@ -30,13 +32,6 @@ from docker_ros.in_image.runtime.files import walk
 from docker_ros.in_image.runtime.inputs import resolve_inputs
 from docker_ros.in_image.runtime.lock import LOCK_FILE
 from docker_ros.in_image.runtime.workspace import StepError, Workspace
-from docker_ros.in_image.settings import (
-    FIELDS,
-    Settings,
-    as_env,
-    build_secrets,
-    env_name,
-)
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
@@ -47,7 +42,7 @@ IMPORTS_LABEL = "docker-ros.imports-of"  # the repository (imports_owner) that m
 # imports image's), which `inv dev-shell` compares with the repository's (stale_dev_image)
 INPUTS_LABEL = "io.github.docker-ros.dependency-inputs"
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
-TOOLS_PATTERNS = ("__init__.py", "in_image/*.py", "in_image/*/*.py", "docker/*.sh")
+TOOLS_PATTERNS = ("__init__.py", "core/*.py", "in_image/*.py", "in_image/*/*.py", "docker/*.sh")
 SECRETS = build_secrets()
 SCRATCH_FOLDER = ".gitlab-ci-local"  # gitlab-ci-local's copies of the repository
 # Names that never reach an image, wherever they are in the repository (see dockerignore);

@@ -8,7 +8,7 @@ import re
 import time
 from typing import IO, Dict, Iterator, List, Mapping, Sequence, Tuple
 
-from docker_ros.in_image.settings import ref_host
+from docker_ros.core.display import ref_host
 from docker_ros.in_image.steps import IMAGE_STEPS, STEPS
 
 STEP_ERROR = re.compile(r"docker-ros (\w+): (.*)")

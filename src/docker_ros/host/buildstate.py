@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Callable, Dict, Mapping, Optional
 
+from docker_ros.core.settings import Settings
 from docker_ros.host import engine
-from docker_ros.in_image.settings import Settings
 
 SEED_ARG = "DOCKER_ROS_BUILD_STATE"
 SEED_LABEL = "io.github.docker-ros.build-state.seed"

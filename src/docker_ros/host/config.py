@@ -14,7 +14,17 @@ from typing import Dict, List, Mapping, Optional, Sequence
 from dotenv import dotenv_values
 from dotenv.parser import parse_stream
 
-from docker_ros.in_image.ci import github_default_branch
+from docker_ros.core.ci import github_default_branch
+from docker_ros.core.display import display_value
+from docker_ros.core.loading import load_settings
+from docker_ros.core.settings import (
+    FIELDS,
+    Settings,
+    SettingsError,
+    env_name,
+    explicitly_set,
+    path_settings,
+)
 from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import (
     duplicates_message,
@@ -26,16 +36,6 @@ from docker_ros.in_image.runtime.packages import (
 from docker_ros.in_image.runtime.repos import repos_problem
 from docker_ros.in_image.runtime.rosdeprules import rules_problem
 from docker_ros.in_image.runtime.workspace import read_user_text
-from docker_ros.in_image.settings import (
-    FIELDS,
-    Settings,
-    SettingsError,
-    display_value,
-    env_name,
-    explicitly_set,
-    load_settings,
-    path_settings,
-)
 
 LOG = logging.getLogger("docker_ros")
 # docker's reference grammar (distribution/reference): [domain[:port]/]component(/component)*

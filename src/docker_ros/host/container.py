@@ -27,9 +27,9 @@ from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, T
 
 import docker
 
+from docker_ros.core.settings import Settings, env_name
 from docker_ros.host import build, builder, engine
 from docker_ros.in_image.runtime.workspace import StepError
-from docker_ros.in_image.settings import Settings, env_name
 from docker_ros.in_image.steps import BY_NAME, PHASED, STEPS
 
 Command = Tuple[str, ...]  # the arguments after `python3 -m docker_ros.in_image.steps`

@@ -12,9 +12,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
+from docker_ros.core.settings import FALSE_WORDS, TRUE_WORDS, Settings
 from docker_ros.in_image.runtime.files import read_list_file
 from docker_ros.in_image.runtime.workspace import StepError
-from docker_ros.in_image.settings import FALSE_WORDS, TRUE_WORDS, Settings
 from docker_ros.in_image.steps.blacklist import listed_names
 
 TARGET = "/docker-ros/ws/src/target"

@@ -10,6 +10,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
+from docker_ros.core.loading import host_platform
+from docker_ros.core.settings import Settings
 from docker_ros.host import engine
 from docker_ros.in_image.runtime.lock import (
     FORMAT,
@@ -32,7 +34,6 @@ from docker_ros.in_image.runtime.lock import (
     target_key,
 )
 from docker_ros.in_image.runtime.workspace import Workspace
-from docker_ros.in_image.settings import Settings, host_platform
 
 
 def base_image_record(ref: str, attrs: Optional[Mapping[str, Any]]) -> Dict[str, Any]:

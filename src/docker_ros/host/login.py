@@ -14,8 +14,9 @@ import tempfile
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, MutableMapping, Optional
 
+from docker_ros.core.display import registry_of, server_host
+from docker_ros.core.settings import Settings
 from docker_ros.host.engine import docker_config_dir
-from docker_ros.in_image.settings import Settings, registry_of, server_host
 
 # Set while a job's login is in force: the registry and user it logged in as.
 LOGGED_IN = "DOCKER_ROS_LOGGED_IN"

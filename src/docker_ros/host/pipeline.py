@@ -26,6 +26,10 @@ from typing import (
     Tuple,
 )
 
+from docker_ros.core.ci import missing_tasks
+from docker_ros.core.display import missing_required, require, required_for_build
+from docker_ros.core.loading import host_platform
+from docker_ros.core.settings import Settings, SettingsError, env_name
 from docker_ros.host import build, builder, container, devshell, engine, slim
 from docker_ros.host.build import BuiltImage
 from docker_ros.host.config import image_problems, input_problems
@@ -33,17 +37,7 @@ from docker_ros.host.lock import lock_status
 from docker_ros.host.login import LoginError, job_login, plan_login
 from docker_ros.host.push import plan_outputs, registry_warning, write_outputs
 from docker_ros.in_image import testing
-from docker_ros.in_image.ci import missing_tasks
 from docker_ros.in_image.runtime.workspace import STATE_DIR_NAME, Workspace, format_argv
-from docker_ros.in_image.settings import (
-    Settings,
-    SettingsError,
-    env_name,
-    host_platform,
-    missing_required,
-    require,
-    required_for_build,
-)
 from docker_ros.in_image.steps import BY_NAME, STEPS, run_step
 
 DEV_STEPS = tuple(s for s in STEPS if BY_NAME[s].stage in ("source", "dependencies-dev"))

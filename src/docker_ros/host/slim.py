@@ -26,10 +26,11 @@ from typing import IO, Any, Callable, Dict, Iterator, List, Mapping, Optional, S
 from docker.errors import DockerException
 from docker.models.containers import Container
 
+from docker_ros.core.loading import host_platform
+from docker_ros.core.settings import SLIM_BUILD_ARGS_DEFAULT, Settings
 from docker_ros.host.build import PACKAGE_DIR, image_size, target_ref
 from docker_ros.host.engine import client, inspect_image, signals_held, tag
 from docker_ros.host.lock import LOCK_LABEL, lock_labels, lock_path
-from docker_ros.in_image.settings import SLIM_BUILD_ARGS_DEFAULT, Settings, host_platform
 
 TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
 EXCHANGE = "/docker-ros-slim"  # the tracer and its results inside the trace container

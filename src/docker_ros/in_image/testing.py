@@ -236,10 +236,10 @@ def copy_results(ws_root: Path, destination: Path, *, junit: bool = True) -> Non
 def run_in_image(ws_root: Path, destination: Path, environ: Dict[str, str]) -> Dict[str, int]:
     """colcon build (as the build stage: same arguments, same build/ cache), colcon test,
     colcon test-result; returns and records the exit codes, never raises for a failed test."""
+    from docker_ros.core.loading import load_settings
     from docker_ros.in_image.runtime.process import run_tee
     from docker_ros.in_image.runtime.rosenv import ros_setup_files, sourced_env
     from docker_ros.in_image.runtime.workspace import StepError, Workspace
-    from docker_ros.in_image.settings import load_settings
     from docker_ros.in_image.steps import colcon
     from docker_ros.in_image.steps.blacklist import blacklisted_packages
 

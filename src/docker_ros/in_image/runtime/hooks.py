@@ -7,11 +7,11 @@ import shutil
 from pathlib import Path
 from typing import Any, Dict, List
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.apt import apt_env, apt_get, apt_lists_present
 from docker_ros.in_image.runtime.files import find_special_files, remove_tree
 from docker_ros.in_image.runtime.process import hook_context, is_root, run, run_script
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, dry, phases, step_log
-from docker_ros.in_image.settings import Settings
 
 LOG = logging.getLogger(__name__)
 

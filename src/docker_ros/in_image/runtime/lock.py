@@ -25,6 +25,8 @@ import subprocess
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
+from docker_ros.core.loading import host_platform
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.apt import (
     DPKG_STATUS,
     apt_env,
@@ -34,7 +36,6 @@ from docker_ros.in_image.runtime.apt import (
 )
 from docker_ros.in_image.runtime.process import probe
 from docker_ros.in_image.runtime.workspace import StepError, Workspace
-from docker_ros.in_image.settings import Settings, host_platform
 
 LOCK_FILE = "docker-ros.lock"
 FORMAT = 1

@@ -24,6 +24,7 @@ from typing import (
 )
 from xml.etree import ElementTree
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.files import walk
 from docker_ros.in_image.runtime.process import HOST_EXTRA
 from docker_ros.in_image.runtime.rosenv import (
@@ -33,7 +34,6 @@ from docker_ros.in_image.runtime.rosenv import (
     ros_version,
 )
 from docker_ros.in_image.runtime.workspace import IGNORE_MARKERS, StepError, Workspace
-from docker_ros.in_image.settings import Settings
 
 LOG = logging.getLogger(__name__)
 

@@ -9,6 +9,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Dict, Iterator, List, Mapping, Optional, Sequence
 
+from docker_ros.core.settings import Settings, explicitly_set
 from docker_ros.in_image.runtime.apt import DPKG_STATUS, apt_env, install_options
 from docker_ros.in_image.runtime.lock import (
     LOCK_PREFERENCES,
@@ -20,7 +21,6 @@ from docker_ros.in_image.runtime.lock import (
 from docker_ros.in_image.runtime.process import run
 from docker_ros.in_image.runtime.rosenv import BASE_IMAGE_WS, ROS1_DISTROS
 from docker_ros.in_image.runtime.workspace import LOG, StepError, Workspace, step_log
-from docker_ros.in_image.settings import Settings, explicitly_set
 
 # prepare runs in image builds only
 IMAGE_INSTALL = install_options("image")

@@ -6,9 +6,9 @@ import os
 from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.process import probe
 from docker_ros.in_image.runtime.workspace import LOG, StepError
-from docker_ros.in_image.settings import Settings
 
 SECRETS_DIR = Path("/run/secrets")
 

@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 from typing import List, Optional
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.files import remove_tree, repository_path
 from docker_ros.in_image.runtime.workspace import Workspace, image_main
-from docker_ros.in_image.settings import Settings
 
 LOG = logging.getLogger(__name__)
 

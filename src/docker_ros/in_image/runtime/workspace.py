@@ -214,7 +214,8 @@ def image_main(argv: Sequence[str], *, module: str, step: str, description: str,
     argv (entry_parser), loads the settings from the environment (unless settings is False:
     action then gets None), runs action(workspace, settings, values); errors as one
     `docker-ros <step>:` line and exit code 1."""
-    from docker_ros.in_image.settings import SettingsError, load_settings
+    from docker_ros.core.loading import load_settings
+    from docker_ros.core.settings import SettingsError
 
     parser = entry_parser(module, description)
     for name in arguments:

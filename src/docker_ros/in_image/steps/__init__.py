@@ -5,8 +5,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Dict, Mapping, Tuple
 
 if TYPE_CHECKING:  # the settings type only; nothing outside the standard library at run time
+    from docker_ros.core.settings import Settings
     from docker_ros.in_image.runtime.workspace import Workspace
-    from docker_ros.in_image.settings import Settings
 
 @dataclass(frozen=True)
 class Option:

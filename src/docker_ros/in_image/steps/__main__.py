@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 from typing import List, Optional
 
+from docker_ros.core.loading import load_settings
+from docker_ros.core.settings import SettingsError
 from docker_ros.in_image.runtime.workspace import (
     PHASES,
     StepError,
@@ -16,7 +18,6 @@ from docker_ros.in_image.runtime.workspace import (
     entry_parser,
     setup_logging,
 )
-from docker_ros.in_image.settings import SettingsError, load_settings
 from docker_ros.in_image.steps import IMAGE_STEPS, OPTIONS, STEPS, run_step, step_options
 
 

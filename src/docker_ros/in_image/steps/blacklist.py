@@ -10,10 +10,10 @@ import logging
 from pathlib import Path
 from typing import Any, Dict, List, Sequence
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.files import collect_list_entries, unique
 from docker_ros.in_image.runtime.packages import Package, find_packages
 from docker_ros.in_image.runtime.workspace import Workspace, dry, phases, step_log
-from docker_ros.in_image.settings import Settings
 
 STEP = "blacklist"
 STATE_FILE = "blacklist.json"

@@ -15,6 +15,8 @@ import tempfile
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Set
 
+from docker_ros.core.display import server_host
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime import system
 from docker_ros.in_image.runtime.apt import apt_install
 from docker_ros.in_image.runtime.files import (
@@ -35,7 +37,6 @@ from docker_ros.in_image.runtime.workspace import (
     phases,
     step_log,
 )
-from docker_ros.in_image.settings import Settings, server_host
 
 STEP = "clone"
 STATE_FILE = "clone.json"

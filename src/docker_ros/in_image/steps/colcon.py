@@ -11,12 +11,12 @@ import time
 from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence, Set, Tuple
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.apt import DPKG_STATUS
 from docker_ros.in_image.runtime.packages import Package, find_packages
 from docker_ros.in_image.runtime.process import ERROR_LINE, run, run_tee
 from docker_ros.in_image.runtime.rosenv import ros_setup_files, sourced_env
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, dry, phases, step_log
-from docker_ros.in_image.settings import Settings
 from docker_ros.in_image.steps.blacklist import blacklisted_packages
 
 STEP = "colcon"

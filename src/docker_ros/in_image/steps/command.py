@@ -7,11 +7,11 @@ import logging
 from pathlib import Path
 from typing import List, Optional
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.launch import command_problems, simple_commands
 from docker_ros.in_image.runtime.process import probe, run
 from docker_ros.in_image.runtime.rosenv import sourced_env, workspace_setup_files
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, dry, phases, step_log
-from docker_ros.in_image.settings import Settings
 
 STEP = "command"
 LOG = logging.getLogger(__name__)

@@ -2,11 +2,11 @@
 
 from typing import Any, Dict, List, Sequence
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.apt import apt_install
 from docker_ros.in_image.runtime.files import collect_list_entries
 from docker_ros.in_image.runtime.lock import locked_arguments
 from docker_ros.in_image.runtime.workspace import Workspace, planned_step
-from docker_ros.in_image.settings import Settings
 
 STEP = "debs"
 STATE_FILE = "debs.json"

@@ -4,9 +4,9 @@ import logging
 from pathlib import Path
 from typing import Optional
 
+from docker_ros.core.settings import Settings, explicitly_set
 from docker_ros.in_image.runtime.files import copy_tree, remove_tree, repository_path
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, dry, phases, step_log
-from docker_ros.in_image.settings import Settings, explicitly_set
 
 STEP = "files"
 STATE_DIR = "additional-files"

@@ -12,6 +12,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.files import find_special_files, unique
 from docker_ros.in_image.runtime.lock import locked_arguments
 from docker_ros.in_image.runtime.process import ERROR_LINE, is_root, probe, run, run_tee
@@ -23,7 +24,6 @@ from docker_ros.in_image.runtime.workspace import (
     format_argv,
     planned_step,
 )
-from docker_ros.in_image.settings import Settings
 
 STEP = "pip"
 STATE_FILE = "pip.json"

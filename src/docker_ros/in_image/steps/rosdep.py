@@ -14,6 +14,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
+from docker_ros.core.settings import Settings, explicitly_set
 from docker_ros.in_image.runtime.apt import apt_install
 from docker_ros.in_image.runtime.files import repository_path
 from docker_ros.in_image.runtime.lock import locked_rosdep_plan
@@ -42,7 +43,6 @@ from docker_ros.in_image.runtime.workspace import (
     phases,
     step_log,
 )
-from docker_ros.in_image.settings import Settings, explicitly_set
 from docker_ros.in_image.steps.blacklist import blacklisted_packages
 from docker_ros.in_image.steps.pip import pip_install
 

@@ -1,8 +1,8 @@
 """scripts: run the before-dependency-installation hook script(s)."""
 
+from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime import hooks
 from docker_ros.in_image.runtime.workspace import Workspace
-from docker_ros.in_image.settings import Settings
 
 STEP = "scripts"
 
