@@ -17,7 +17,7 @@ from typing import Callable, Iterator, Set
 import docker
 
 from docker_ros.host.baseimage import RECIPE_LABEL
-from docker_ros.host.build import IMPORTS_LABEL, imports_owner
+from docker_ros.host.buildcontext import IMPORTS_LABEL, imports_owner
 
 
 def folders(root: Path, depth: int) -> Iterator[Path]:

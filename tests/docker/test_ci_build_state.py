@@ -13,7 +13,7 @@ from typing import Iterator, List
 import pytest
 
 from docker_ros.core.loading import load_settings
-from docker_ros.host.build import cache_id
+from docker_ros.host.buildplan import cache_id
 from tests.conftest import cache_record_ids
 from tests.docker.buildhelp import docker_ros, write_env
 from tests.docker.test_fast_rebuilds import compiled_objects

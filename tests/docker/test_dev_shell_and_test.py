@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from docker_ros.core.loading import load_settings
-from docker_ros.host.build import image_ref
 from docker_ros.host.devshell import HostUser, ShellOptions, dev_shell_argv
+from docker_ros.host.refs import image_ref
 from docker_ros.in_image.testing import MARKER, summarize
 from tests.docker.buildhelp import docker_ros, remove_image, write_env
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import docker
 import pytest
 
-from docker_ros.host.build import IMPORTS_LABEL, imports_owner
+from docker_ros.host.buildcontext import IMPORTS_LABEL, imports_owner
 from tests import leftovers
 from tests.docker.buildhelp import import_one_file_image, remove_image
 from tests.docker.test_extra_ca_certs import https_wheel  # noqa: F401 (a fixture)

@@ -13,7 +13,7 @@ from typing import Dict, Iterator, List
 
 import pytest
 
-from docker_ros.host import build, engine
+from docker_ros.host import buildcontext, engine
 from docker_ros.host.engine import image_exists
 from tests.docker.buildhelp import (
     cached_vertices,
@@ -97,7 +97,8 @@ def test_own_rosdep_rules_and_hook_context_in_the_image(workspace: dict) -> None
 
 def imports_images(repo: Path) -> List[str]:
     """The imports images the tool made for this repository (its label)."""
-    return sorted(engine.tags_labelled({build.IMPORTS_LABEL: build.imports_owner(repo)}))
+    owner = buildcontext.imports_owner(repo)
+    return sorted(engine.tags_labelled({buildcontext.IMPORTS_LABEL: owner}))
 
 
 def test_source_edit_keeps_imports_cached_and_uncompiled(workspace: dict, tmp_path: Path) -> None:

@@ -11,8 +11,8 @@ from typing import Iterator
 import pytest
 
 from docker_ros.core.loading import load_settings
-from docker_ros.host.build import image_ref
 from docker_ros.host.devshell import HostUser, ShellOptions, dev_shell_argv
+from docker_ros.host.refs import image_ref
 from tests.docker.buildhelp import docker_ros, remove_image, write_env
 from tests.rosfixtures import make_ros1_repo
 

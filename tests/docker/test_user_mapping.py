@@ -25,7 +25,7 @@ from typing import List, Optional
 
 import pytest
 
-from docker_ros.host.build import PACKAGE_DIR
+from docker_ros.host.buildcontext import PACKAGE_DIR
 
 pytestmark = pytest.mark.docker
 

@@ -9,9 +9,10 @@ import pytest
 from docker.errors import APIError, NotFound
 from dotenv import dotenv_values
 
+from docker_ros.core import errors
 from docker_ros.core.loading import has_bare_set, load_settings, parse_set
 from docker_ros.core.settings import SettingsError, explicitly_set
-from docker_ros.host import build, engine
+from docker_ros.host import build, buildcontext, engine, refs
 from docker_ros.host.config import (
     config_table,
     dotenv_warnings,
@@ -479,7 +480,7 @@ def test_a_ca_bundle_with_a_latin1_comment_is_read(tmp_path: Path) -> None:
     pem = "-----BEGIN CERTIFICATE-----\nMIIB\n-----END CERTIFICATE-----\n"
     (tmp_path / "ca.pem").write_bytes("# Zertifikat für den Proxy\n".encode("latin-1")
                                       + pem.encode())
-    bundle = build.ca_bundle(tmp_path / "ca.pem", tmp_path / "bundle.pem")
+    bundle = buildcontext.ca_bundle(tmp_path / "ca.pem", tmp_path / "bundle.pem")
     assert pem in bundle.read_text()
 
 
@@ -500,8 +501,8 @@ def test_a_base_image_the_registry_refuses_names_why_and_the_login_settings(
     monkeypatch.setattr(engine, "client", lambda: SimpleNamespace(
         images=Images(), api=SimpleNamespace(images=lambda: local)))
     settings = settings_for(tmp_path, BASE_IMAGE="127.0.0.1:5000/private/base:1")
-    with pytest.raises(build.BuildError) as raised:
-        build.platform_base(settings, "amd64")
+    with pytest.raises(errors.BuildError) as raised:
+        refs.platform_base(settings, "amd64")
     message = str(raised.value)
     assert "(Head \"127.0.0.1:5000/private/base\": no basic auth credentials)" in message
     assert "REGISTRY_USER and REGISTRY_PASSWORD" in message
@@ -584,7 +585,7 @@ def test_many_duplicates_are_counted_not_all_listed() -> None:
 
 def test_a_build_error_naming_ros_distro_says_where_it_comes_from() -> None:
     """A shell with ROS sourced exports ROS_DISTRO; the image's prepare step cannot know that."""
-    failed = build.BuildError("building target 'run' (amd64) failed in step prepare: "
+    failed = errors.BuildError("building target 'run' (amd64) failed in step prepare: "
                               "ROS_DISTRO=noetic, but BASE_IMAGE has ROS humble in /opt/ros: "
                               "set ROS_DISTRO=humble, or leave it unset", 1, step="prepare")
     shell = load_settings(environ={"ROS_DISTRO": "noetic"})
@@ -593,7 +594,7 @@ def test_a_build_error_naming_ros_distro_says_where_it_comes_from() -> None:
                               "where a sourced ROS setup file exports it)")
     assert told.step == "prepare"
     assert build.with_sources(failed, load_settings(environ={})) is failed
-    other = build.BuildError("failed in step colcon: x")
+    other = errors.BuildError("failed in step colcon: x")
     assert build.with_sources(other, shell) is other
 
 

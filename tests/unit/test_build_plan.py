@@ -10,9 +10,10 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core import errors
 from docker_ros.core.loading import load_settings
 from docker_ros.core.settings import FIELDS
-from docker_ros.host import build, buildlog
+from docker_ros.host import build, buildcontext, buildlog, buildplan, refs
 from docker_ros.host.config import config_table
 
 
@@ -25,17 +26,17 @@ def plan(s, **kw):
     args = {"target": "run", "platform": "amd64", "tools_image": "tools:x", "tag": "img:t",
             "secrets": {}}
     args.update(kw)
-    return build.plan_build(s, **args)
+    return buildplan.plan_build(s, **args)
 
 
 def test_every_setting_reaches_the_build_as_its_declaration_says():
-    declared = {a.lower() for a in build.dockerfile_args()}
+    declared = {a.lower() for a in buildplan.dockerfile_args()}
     for name, spec in FIELDS.items():
         if spec.metadata["build"] == "arg":
             assert name in declared, f"{name} is declared build='arg' but is no Dockerfile ARG"
         else:  # tool or none: never an ARG the tool would pass on by the same name
             assert name not in declared, f"{name} is a Dockerfile ARG: declare it build='arg'"
-    assert build.SECRETS == ("git_https_password", "git_ssh_private_key")
+    assert buildplan.SECRETS == ("git_https_password", "git_ssh_private_key")
 
 
 def test_unset_settings_stay_unset_and_set_ones_are_passed():
@@ -65,13 +66,13 @@ def test_cache_from_and_attestations():
     argv = plan(settings(CACHE_FROM="127.0.0.1:5000/x:latest"))
     assert argv[argv.index("--cache-from") + 1] == "127.0.0.1:5000/x:latest"
     both = settings(CACHE_FROM="r/x:latest-dev, r/x:latest, r/x:latest-dev_main_ci-arm64")
-    for target, refs in (("run", ["r/x:latest"]),
-                         ("dev", ["r/x:latest-dev", "r/x:latest-dev_main_ci-arm64"])):
+    for target, sources in (("run", ["r/x:latest"]),
+                            ("dev", ["r/x:latest-dev", "r/x:latest-dev_main_ci-arm64"])):
         argv = plan(both, target=target)
-        assert [argv[i + 1] for i, a in enumerate(argv) if a == "--cache-from"] == refs
+        assert [argv[i + 1] for i, a in enumerate(argv) if a == "--cache-from"] == sources
         assert argv.count("--cache-to") == 1
     # one kind only: every target imports it
-    assert build.cache_sources(["r/x:latest"], "dev") == ["r/x:latest"]
+    assert buildplan.cache_sources(["r/x:latest"], "dev") == ["r/x:latest"]
     argv = plan(settings(CACHE_FROM="127.0.0.1:5000/x:latest"))
     assert "--provenance=false" in argv and "--sbom=true" not in argv
     # BUILDX_ATTESTATIONS=true: provenance and SBOM of the dev and run images (as docker-ros's
@@ -108,11 +109,11 @@ def test_attestations_need_an_engine_that_keeps_them(monkeypatch):
 
 def test_image_refs_follow_docker_ros():
     s = settings(IMAGE="Reg/Img:v1")
-    assert build.image_ref(s, "run") == "reg/img:v1"
-    assert build.image_ref(s, "dev") == "reg/img:v1-dev"
-    assert build.image_ref(s, "slim") == "reg/img:v1-slim"
-    assert build.platform_ref("reg/img:v1", "arm64", ("amd64", "arm64")) == "reg/img:v1-arm64"
-    assert build.platform_ref("reg/img:v1", "amd64", ("amd64",)) == "reg/img:v1"
+    assert refs.image_ref(s, "run") == "reg/img:v1"
+    assert refs.image_ref(s, "dev") == "reg/img:v1-dev"
+    assert refs.image_ref(s, "slim") == "reg/img:v1-slim"
+    assert refs.platform_ref("reg/img:v1", "arm64", ("amd64", "arm64")) == "reg/img:v1-arm64"
+    assert refs.platform_ref("reg/img:v1", "amd64", ("amd64",)) == "reg/img:v1"
 
 
 def test_jobs_of_two_architectures_on_one_engine_build_under_names_of_their_own():
@@ -123,8 +124,8 @@ def test_jobs_of_two_architectures_on_one_engine_build_under_names_of_their_own(
     for target, name in (("run", "reg/img:v1"), ("dev", "reg/img:v1-dev"),
                          ("slim", "reg/img:v1-slim"), ("build-state", "reg/img:v1-build-state")):
         s = settings(IMAGE="reg/img:v1", PLATFORM="arm64", ENABLE_SINGLEARCH_PUSH="true")
-        assert build.target_ref(s, target, "arm64") == f"{name}-arm64"
-        plain = build.target_ref(settings(IMAGE="reg/img:v1", PLATFORM="arm64"), target, "arm64")
+        assert refs.target_ref(s, target, "arm64") == f"{name}-arm64"
+        plain = refs.target_ref(settings(IMAGE="reg/img:v1", PLATFORM="arm64"), target, "arm64")
         assert plain == (f"{name}-arm64" if target == "build-state" else name)
 
 
@@ -185,23 +186,24 @@ def test_ca_bundle_accepts_file_or_folder(tmp_path):
     (tmp_path / "certs").mkdir()
     (tmp_path / "certs" / "a.crt").write_text(pem)
     (tmp_path / "certs" / "README").write_text("not a cert")
-    bundle = build.ca_bundle(tmp_path / "certs", tmp_path / "out.pem")
+    bundle = buildcontext.ca_bundle(tmp_path / "certs", tmp_path / "out.pem")
     assert bundle.read_text().count("BEGIN CERTIFICATE") == 1
 
 
 def test_dockerignore_keeps_env_files_out_and_the_users_rules(tmp_path):
     (tmp_path / ".dockerignore").write_text("build/\n")
-    staged = build.stage_dockerfile(tmp_path, _mk(tmp_path))
+    staged = buildcontext.stage_dockerfile(tmp_path, _mk(tmp_path))
     ignore = (staged.parent / "Dockerfile.dockerignore").read_text().splitlines()
     assert ignore[0] == "build/" and ".env" in ignore and "**/.env" in ignore
     assert ".gitlab-ci-local" in ignore
     # what may hold credentials: git's config (a CI job token, a checkout's header)
     for name in (".git", "**/.git", ".gitlab-ci-local-variables.yml"):
         assert name in ignore, name
-    assert build.left_out(".git/config") and build.left_out("sub/.git")
-    assert build.left_out("docker-ros-test-results/junit/a.xml")  # the CI template's artifact
-    assert not build.left_out("pkg/.github/x.yml") and not build.left_out("pkg/a.gitignore")
-    assert staged.read_text() == build.with_run_base(build.DOCKERFILE.read_text())
+    assert buildcontext.left_out(".git/config") and buildcontext.left_out("sub/.git")
+    left_out = buildcontext.left_out
+    assert left_out("docker-ros-test-results/junit/a.xml")  # the CI template's artifact
+    assert not left_out("pkg/.github/x.yml") and not left_out("pkg/a.gitignore")
+    assert staged.read_text() == buildcontext.with_run_base(buildcontext.DOCKERFILE.read_text())
     assert (tmp_path / ".dockerignore").read_text() == "build/\n"
 
 
@@ -213,38 +215,38 @@ def _mk(tmp_path):
 
 def test_build_cache_is_per_repository_and_platform():
     a, b = settings(), settings(IMAGE="other/img")
-    assert build.cache_id(a, "amd64") == build.cache_id(a, "amd64")
-    assert len({build.cache_id(a, "amd64"), build.cache_id(a, "arm64"),
-                build.cache_id(b, "amd64")}) == 3
+    assert buildplan.cache_id(a, "amd64") == buildplan.cache_id(a, "amd64")
+    assert len({buildplan.cache_id(a, "amd64"), buildplan.cache_id(a, "arm64"),
+                buildplan.cache_id(b, "amd64")}) == 3
 
 
 def test_until_tag():
-    assert build.until_ref(settings(IMAGE="r/i:v1"), "rosdep") == "r/i:v1-until-rosdep"
+    assert refs.until_ref(settings(IMAGE="r/i:v1"), "rosdep") == "r/i:v1-until-rosdep"
 
 
 def test_bake_builds_the_targets_in_one_run_from_the_same_definitions():
     s = settings(GIT_HTTPS_PASSWORD="hunter2", BUILD_NETWORK="host", CACHE_FROM="r/x:latest")
-    secrets = build.plan_secrets(s, None)
-    specs = {t: build.definition(s, target=t, platform="arm64", tools_image="tools:x",
+    secrets = buildplan.plan_secrets(s, None)
+    specs = {t: buildplan.definition(s, target=t, platform="arm64", tools_image="tools:x",
                                  tag=f"img:{t}", secrets=secrets) for t in ("dev", "run")}
-    argv = build.plan_bake(specs, "/tmp/d.json")
+    argv = buildplan.plan_bake(specs, "/tmp/d.json")
     assert argv[:3] == ["docker", "buildx", "bake"] and argv[-2:] == ["dev", "run"]
-    text = build.bake_file(specs)
+    text = buildplan.bake_file(specs)
     assert "hunter2" not in text and "DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD" in text
     run = specs["run"]
     assert (run["target"], run["tags"], run["platforms"]) == ("run", ["img:run"], ["linux/arm64"])
     assert run["network"] == "host" and run["cache-from"] == ["r/x:latest"]
     # the single-target argv says the same as the bake target
-    one = build.build_argv(run)
+    one = buildplan.build_argv(run)
     assert one[one.index("--network") + 1] == "host" and "--load" in one
     assert [one[i + 1] for i, a in enumerate(one) if a == "--build-arg"] == [
         f"{k}={v}" for k, v in run["args"].items()]
     # BUILD_NETWORK needs a bake that knows `network` (0.17 and later, not Debian's 0.13);
     # with registry cache each image is the first build of its stages: one build per target
     net = settings(BUILD_NETWORK="host")
-    assert build.can_bake(net, True) and not build.can_bake(net, False)
-    assert build.can_bake(settings(), False) and not build.can_bake(s, True)
-    assert not build.can_bake(settings(CACHE_FROM="r/x:latest"), True)
+    assert buildplan.can_bake(net, True) and not buildplan.can_bake(net, False)
+    assert buildplan.can_bake(settings(), False) and not buildplan.can_bake(s, True)
+    assert not buildplan.can_bake(settings(CACHE_FROM="r/x:latest"), True)
 
 
 def test_bake_is_granted_our_folders_and_the_host_network_when_it_checks_entitlements(tmp_path):
@@ -254,14 +256,14 @@ def test_bake_is_granted_our_folders_and_the_host_network_when_it_checks_entitle
     # a buildx whose `bake --help` lists --allow (echo prints its arguments), and one without
     checks, old = ("echo", "--allow"), ("true",)
     host = settings(BUILD_NETWORK="host", BUILD_CONTEXT=str(context))
-    allow = build.bake_allow(checks, host, "/tmp/t")
+    allow = buildplan.bake_allow(checks, host, "/tmp/t")
     assert allow == ["fs.read=/tmp/t", f"fs.read={context.resolve()}", "network.host"]
-    assert build.plan_bake(specs, "/tmp/t/d.json", ["docker", "buildx"], allow)[2:6] == [
+    assert buildplan.plan_bake(specs, "/tmp/t/d.json", ["docker", "buildx"], allow)[2:6] == [
         "bake", "--allow=fs.read=/tmp/t", f"--allow=fs.read={context.resolve()}",
         "--allow=network.host"]
-    assert "network.host" not in build.bake_allow(checks, settings(BUILD_CONTEXT=str(context)),
+    assert "network.host" not in buildplan.bake_allow(checks, settings(BUILD_CONTEXT=str(context)),
                                                   "/tmp/t")
-    assert build.bake_allow(old, host, "/tmp/t") == []
+    assert buildplan.bake_allow(old, host, "/tmp/t") == []
 
 
 def test_a_failed_step_is_found_in_a_bake_log_too():
@@ -271,16 +273,16 @@ def test_a_failed_step_is_found_in_a_bake_log_too():
 
 
 def test_with_cache_from_the_run_image_installs_on_a_copy_of_base():
-    assert build.run_base(settings()) == "base"
-    assert build.run_base(settings(CACHE_FROM="r/img:1-dev,r/img:1")) == "base-run"
-    spec = build.definition(settings(CACHE_FROM="r/img:1"), target="run", platform="amd64",
+    assert buildplan.run_base(settings()) == "base"
+    assert buildplan.run_base(settings(CACHE_FROM="r/img:1-dev,r/img:1")) == "base-run"
+    spec = buildplan.definition(settings(CACHE_FROM="r/img:1"), target="run", platform="amd64",
                             tools_image="t", tag="x", secrets={})
     assert spec["args"]["DOCKER_ROS_RUN_BASE"] == "base-run"
 
 
 def test_base_run_is_base_with_one_env_first():
-    text = build.DOCKERFILE.read_text()
-    staged = build.with_run_base(text)
+    text = buildcontext.DOCKERFILE.read_text()
+    staged = buildcontext.with_run_base(text)
 
     def stage(dockerfile, name):
         start = dockerfile.index(f"FROM ${{BASE_IMAGE}} AS {name}\n")
@@ -294,7 +296,7 @@ def test_base_run_is_base_with_one_env_first():
 
 
 def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path):
-    from docker_ros.host.build import skeleton_files, source_stages
+    from docker_ros.host.buildcontext import skeleton_files, source_stages
 
     (tmp_path / "pkg" / "src").mkdir(parents=True)
     (tmp_path / "pkg" / "package.xml").write_text("<package/>")
@@ -383,22 +385,22 @@ def test_an_interrupted_buildx_is_told_from_a_failed_one():
 
 
 def test_each_platform_builds_from_its_own_base_image():
-    amd64, arm64 = build.LocalBase("amd64", False), build.LocalBase("arm64", False)
+    amd64, arm64 = refs.LocalBase("amd64", False), refs.LocalBase("arm64", False)
     both = {"b:1": amd64, "b:1-arm64": arm64}
-    assert build.choose_base("b:1", "amd64", both) == ("b:1", "")
-    base, why = build.choose_base("b:1", "arm64", both)
+    assert refs.choose_base("b:1", "amd64", both) == ("b:1", "")
+    base, why = refs.choose_base("b:1", "arm64", both)
     assert base == "b:1-arm64" and why.startswith("base image (arm64): b:1-arm64")
     # a name only a registry holds, or holds as a multi-arch list: BuildKit picks the platform
-    assert build.choose_base("reg/b:1", "arm64", {}) == ("reg/b:1", "")
-    pulled = {"reg/b:1": build.LocalBase("amd64", True)}
-    base, why = build.choose_base("reg/b:1", "arm64", pulled)
+    assert refs.choose_base("reg/b:1", "arm64", {}) == ("reg/b:1", "")
+    pulled = {"reg/b:1": refs.LocalBase("amd64", True)}
+    base, why = refs.choose_base("reg/b:1", "arm64", pulled)
     assert base == "reg/b:1" and "pulls its arm64 image from its registry" in why
 
 
 def test_a_local_base_of_another_architecture_is_never_used_for_a_platform():
-    local = {"b:1": build.LocalBase("amd64", False), "b:1-arm64": build.LocalBase("amd64", False)}
-    with pytest.raises(build.BuildError) as error:
-        build.choose_base("b:1", "arm64", local)
+    local = {"b:1": refs.LocalBase("amd64", False), "b:1-arm64": refs.LocalBase("amd64", False)}
+    with pytest.raises(errors.BuildError) as error:
+        refs.choose_base("b:1", "arm64", local)
     message = str(error.value)
     assert "BASE_IMAGE b:1 is a local amd64 image from no registry" in message
     assert "inv bootstrap-base-image --platform arm64" in message and "b:1-arm64" in message
@@ -407,26 +409,26 @@ def test_a_local_base_of_another_architecture_is_never_used_for_a_platform():
 def test_a_misspelt_base_image_names_the_local_image_it_misspells():
     tags = ["ros:noetic", "ros:humble", "docker-ros/ros1:bookworm",
             "docker-ros/ros1:bookworm-arm64", "docker-ros-tools:0123456789abcdef-amd64"]
-    assert build.closest_image("ros:notic", tags) == "ros:noetic"
-    assert build.closest_image("docker-ros/ros1:bookwrom", tags) == "docker-ros/ros1:bookworm"
+    assert refs.closest_image("ros:notic", tags) == "ros:noetic"
+    assert refs.closest_image("docker-ros/ros1:bookwrom", tags) == "docker-ros/ros1:bookworm"
     # another image of the same repository, or of another name, is not a typo of it
-    assert build.closest_image("ros:jazzy", tags) == ""
-    assert build.closest_image("rwthika/ros2:jazzy", tags) == ""
+    assert refs.closest_image("ros:jazzy", tags) == ""
+    assert refs.closest_image("rwthika/ros2:jazzy", tags) == ""
     # close, but in digits: another version or image, not a typo
-    assert build.closest_image("docker-ros/ros2:bookworm", tags) == ""
-    assert build.closest_image("ros:noetic-1", ["ros:noetic-2"]) == ""
+    assert refs.closest_image("docker-ros/ros2:bookworm", tags) == ""
+    assert refs.closest_image("ros:noetic-1", ["ros:noetic-2"]) == ""
     # the closest that is no other version
-    assert build.closest_image("docker-ros/ros1:bookwrm-arm64", tags) == (
+    assert refs.closest_image("docker-ros/ros1:bookwrm-arm64", tags) == (
         "docker-ros/ros1:bookworm-arm64")
-    assert build.closest_image("ros:noetic", []) == ""
+    assert refs.closest_image("ros:noetic", []) == ""
 
 
 def test_a_base_is_in_a_registry_only_under_a_name_it_was_pulled_or_pushed_as():
     digests = ["127.0.0.1:5000/other@sha256:1", "ros@sha256:2"]
-    assert build.from_registry("ros:noetic", digests)
-    assert build.from_registry("127.0.0.1:5000/other:tag", digests)
-    assert not build.from_registry("docker-ros/ros1:bookworm", digests)
-    assert not build.from_registry("127.0.0.1:5000/ros:noetic", digests)
+    assert refs.from_registry("ros:noetic", digests)
+    assert refs.from_registry("127.0.0.1:5000/other:tag", digests)
+    assert not refs.from_registry("docker-ros/ros1:bookworm", digests)
+    assert not refs.from_registry("127.0.0.1:5000/ros:noetic", digests)
 
 
 def layer_bytes(folder: Path) -> bytes:
@@ -445,7 +447,7 @@ def test_the_tools_tree_makes_the_same_layer_whenever_and_however_it_was_install
     for name, umask in (("one", 0o022), ("two", 0o002)):
         old = os.umask(umask)
         try:
-            build.tools_tree(tmp_path / name)
+            buildcontext.tools_tree(tmp_path / name)
         finally:
             os.umask(old)
         folder = tmp_path / name / "docker-ros"
@@ -453,19 +455,20 @@ def test_the_tools_tree_makes_the_same_layer_whenever_and_however_it_was_install
         trees.append(folder)
     assert layer_bytes(trees[0]) != layer_bytes(trees[1])  # the copies differ as installed
     for folder in trees:
-        build.reproducible(folder)
+        buildcontext.reproducible(folder)
     assert layer_bytes(trees[0]) == layer_bytes(trees[1])
     scripts = list(trees[0].rglob("*.sh"))
     assert scripts and all(p.stat().st_mode & 0o777 == 0o755 for p in scripts)
 
 
 def test_a_new_imports_image_replaces_the_repository_s_others_of_its_platform():
-    current = f"{build.IMPORTS_REPOSITORY}:bbbb-amd64"
-    tags = [current, f"{build.IMPORTS_REPOSITORY}:aaaa-amd64",
-            f"{build.IMPORTS_REPOSITORY}:aaaa-arm64", "my/own:aaaa-amd64"]
-    assert build.superseded_imports(tags, current) == [f"{build.IMPORTS_REPOSITORY}:aaaa-amd64"]
-    assert build.imports_owner(Path("a")) == build.imports_owner(Path("a").resolve())
-    assert build.imports_owner(Path("a")) != build.imports_owner(Path("b"))
+    current = f"{buildcontext.IMPORTS_REPOSITORY}:bbbb-amd64"
+    tags = [current, f"{buildcontext.IMPORTS_REPOSITORY}:aaaa-amd64",
+            f"{buildcontext.IMPORTS_REPOSITORY}:aaaa-arm64", "my/own:aaaa-amd64"]
+    assert buildcontext.superseded_imports(tags, current) == [
+        f"{buildcontext.IMPORTS_REPOSITORY}:aaaa-amd64"]
+    assert buildcontext.imports_owner(Path("a")) == buildcontext.imports_owner(Path("a").resolve())
+    assert buildcontext.imports_owner(Path("a")) != buildcontext.imports_owner(Path("b"))
 
 
 
@@ -492,7 +495,7 @@ def test_a_target_failing_after_another_was_built_alone_names_the_built_one(
     monkeypatch.setattr(build.builder, "cache_export", lambda chosen: "inline")
     monkeypatch.setattr(build.builder, "buildx_command", lambda chosen, name: ["buildx"])
     monkeypatch.setattr(build.builder, "own_buildkit", lambda chosen: False)
-    monkeypatch.setattr(build, "bake_allows", lambda buildx: False)
+    monkeypatch.setattr(buildplan, "bake_allows", lambda buildx: False)
     monkeypatch.setattr(build, "ensure_tools_image", lambda platform, buildx, **k: "tools:x")
     monkeypatch.setattr(build, "ensure_imports_image", lambda settings, platform, buildx, **k: "")
     monkeypatch.setattr(build, "tag_local_base", lambda settings, platform: None)
@@ -500,12 +503,12 @@ def test_a_target_failing_after_another_was_built_alone_names_the_built_one(
 
     def run_buildx(argv, targets, platform, **kw):
         if "run" in targets:
-            raise build.BuildError("building target 'run' (amd64) failed in step colcon: x",
+            raise errors.BuildError("building target 'run' (amd64) failed in step colcon: x",
                                    2, stage="build", step="colcon")
         return 1.0
 
     monkeypatch.setattr(build, "run_buildx", run_buildx)
-    with pytest.raises(build.BuildError) as failed:
+    with pytest.raises(errors.BuildError) as failed:
         build.build_images(s, targets={"dev": "img:t-dev", "run": "img:t"}, platform="amd64",
                            out=io.StringIO(), environ={})
     assert str(failed.value) == ("building target 'run' (amd64) failed in step colcon: x; "
@@ -535,7 +538,8 @@ def test_the_repository_s_other_imports_images_go_only_after_the_build(monkeypat
     (tmp_path / "pkg").mkdir()
     (tmp_path / "pkg" / "package.xml").write_text("<package/>")
     s = settings(BUILD_CONTEXT=str(tmp_path))
-    other = f"{build.IMPORTS_REPOSITORY}:0000000000000000-{build.imports_owner(tmp_path)[:8]}-amd64"
+    owner = buildcontext.imports_owner(tmp_path)[:8]
+    other = f"{buildcontext.IMPORTS_REPOSITORY}:0000000000000000-{owner}-amd64"
     images = {other}
     seen_in_build = []
     monkeypatch.setattr(build, "selected_builder", lambda settings: None)
@@ -544,7 +548,8 @@ def test_the_repository_s_other_imports_images_go_only_after_the_build(monkeypat
     monkeypatch.setattr(build.builder, "own_buildkit", lambda chosen: False)
     monkeypatch.setattr(build, "ensure_tools_image", lambda platform, buildx, **k: "tools:1")
     monkeypatch.setattr(build, "image_exists", lambda ref: ref in images)
-    monkeypatch.setattr(build, "scratch_image", lambda ctx, folder, ref, *a, **k: images.add(ref))
+    monkeypatch.setattr(buildcontext, "scratch_image",
+                        lambda ctx, folder, ref, *a, **k: images.add(ref))
     monkeypatch.setattr(build, "tag_local_base", lambda settings, platform: None)
     monkeypatch.setattr(build, "prepare_pin_secrets", lambda *a: ({}, {}))
     monkeypatch.setattr(build, "platform_base", lambda settings, platform: ("base:1", ""))
@@ -623,9 +628,9 @@ def test_a_platform_failing_after_another_names_what_that_one_built(monkeypatch,
                                "PLATFORM": "amd64,arm64"}, project_dir=tmp_path)
     monkeypatch.setattr(pipeline, "check_inputs", lambda settings, targets, required: None)
     monkeypatch.setattr(build, "check_engine", lambda settings: None)
-    monkeypatch.setattr(build, "platform_base", lambda settings, platform: ("base:1", ""))
+    monkeypatch.setattr(refs, "platform_base", lambda settings, platform: ("base:1", ""))
     monkeypatch.setattr(build, "summary_table", lambda built: "")
-    failure: BaseException = build.BuildError("building target 'run' (arm64) failed in step "
+    failure: BaseException = errors.BuildError("building target 'run' (arm64) failed in step "
                                               "colcon: x", 2, stage="build", step="colcon")
 
     def build_images(settings, *, targets, platform, **kw):
@@ -680,10 +685,10 @@ def test_a_layout_context_names_its_image_by_tag_and_digest(tmp_path: Path) -> N
     """The digest chooses the image; the tag keeps buildx 0.33.0 from making `<store>:@<digest>`
     of a digest alone (docker/buildx#3793)."""
     ref = "docker-ros-tools:0123abcd-amd64"
-    folder = build.layout_folder(tmp_path, ref)
+    folder = buildcontext.layout_folder(tmp_path, ref)
     folder.mkdir()
     (folder / "index.json").write_text(
         '{"schemaVersion": 2, "manifests": [{"digest": "sha256:' + "a" * 64 + '"}]}')
-    assert build.scratch_layout(tmp_path, ref) == (
+    assert buildcontext.scratch_layout(tmp_path, ref) == (
         f"oci-layout://{tmp_path}/docker-ros-tools_0123abcd-amd64:0123abcd-amd64@sha256:"
         + "a" * 64)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Dict
 
-from docker_ros.host import build, buildstate
+from docker_ros.host import buildcontext, buildplan, buildstate
 from docker_ros.host.buildstate import EMPTY, INPUTS_LABEL, SEED_LABEL, choose_seed
 
 PULLED = "reg:5000/g/p:latest-build-state-amd64"
@@ -70,15 +70,15 @@ def test_the_fingerprint_follows_files_modes_and_parts_but_not_the_seed(tmp_path
     parts = {"CMAKE_ARGS": "", buildstate.SEED_ARG: "reg/p:x", "platform": "amd64"}
 
     def fingerprint(**changed: str) -> str:
-        return buildstate.inputs_fingerprint(tmp_path, {**parts, **changed}, build.left_out)
+        return buildstate.inputs_fingerprint(tmp_path, {**parts, **changed}, buildcontext.left_out)
 
     first = fingerprint()
     assert fingerprint(**{buildstate.SEED_ARG: "y"}) == first
     assert fingerprint(platform="arm64") != first
     assert fingerprint(CMAKE_ARGS="-DX=1") != first
     (tmp_path / ".env").write_text("GIT_HTTPS_PASSWORD=x\n")  # never sent
-    (tmp_path / build.SCRATCH_FOLDER).mkdir()
-    (tmp_path / build.SCRATCH_FOLDER / "copy.cpp").write_text("int b;\n")
+    (tmp_path / buildcontext.SCRATCH_FOLDER).mkdir()
+    (tmp_path / buildcontext.SCRATCH_FOLDER / "copy.cpp").write_text("int b;\n")
     (tmp_path / ".git").mkdir()  # never sent either (a commit or fetch changes no build)
     (tmp_path / ".git" / "config").write_text("[remote]\n")
     (tmp_path / "pkg" / ".gitlab-ci-local-variables.yml").write_text("X: y\n")
@@ -95,12 +95,12 @@ def test_the_fingerprint_follows_files_modes_and_parts_but_not_the_seed(tmp_path
 
 
 def test_with_a_registry_cache_run_and_its_build_state_are_built_before_dev() -> None:
-    assert build.build_order(["dev", "run", "build-state"], registry_cache=True) == [
+    assert buildplan.build_order(["dev", "run", "build-state"], registry_cache=True) == [
         "run", "build-state", "dev"]
-    assert build.build_order(["dev", "run", "build-state"], registry_cache=False) == [
+    assert buildplan.build_order(["dev", "run", "build-state"], registry_cache=False) == [
         "dev", "run", "build-state"]
-    assert build.build_order(["dev"], registry_cache=True) == ["dev"]
-    assert build.build_order(["test-results"], registry_cache=True) == ["test-results"]
+    assert buildplan.build_order(["dev"], registry_cache=True) == ["dev"]
+    assert buildplan.build_order(["test-results"], registry_cache=True) == ["test-results"]
 
 
 def test_repository_of_a_reference() -> None:

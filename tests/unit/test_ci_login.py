@@ -13,7 +13,6 @@ import pytest
 from docker_ros.cli.tasks import logs_in_now
 from docker_ros.core.loading import load_settings
 from docker_ros.host import login
-from docker_ros.host.build import slim_platforms
 from docker_ros.host.login import (
     LOGGED_IN,
     LoginError,
@@ -23,6 +22,7 @@ from docker_ros.host.login import (
     private_config,
 )
 from docker_ros.host.push import plan_push, push_targets
+from docker_ros.host.refs import slim_platforms
 from tests.rosfixtures import free_port
 
 

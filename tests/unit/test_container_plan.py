@@ -13,7 +13,7 @@ import docker
 import pytest
 
 from docker_ros.core.loading import load_settings
-from docker_ros.host import build, buildlog, container
+from docker_ros.host import build, buildcontext, buildlog, buildplan, container
 from docker_ros.in_image.steps import BY_NAME, OPTIONS, STEPS, step_options
 
 STEP_CALL = r"python3 -m docker_ros\.in_image\.steps ([-a-z ]+?)\s*(?:&&|$)"
@@ -43,7 +43,7 @@ def one_per_step(words):
 
 def dockerfile_stages():
     """{stage: (parent, [step commands of its RUNs, in order])} read from the Dockerfile."""
-    text = build.DOCKERFILE.read_text().replace("\\\n", " ")
+    text = buildcontext.DOCKERFILE.read_text().replace("\\\n", " ")
     stages = {}
     current = None
     for line in text.splitlines():
@@ -167,7 +167,7 @@ def test_resume_takes_the_longest_matching_prefix():
 
 def test_environment_has_the_declared_settings_and_never_a_secret():
     s = settings(GIT_HTTPS_PASSWORD="hunter2", ROS_DISTRO="noetic")
-    env = container.step_environment(s, build.dockerfile_args())
+    env = container.step_environment(s, buildplan.dockerfile_args())
     assert env["ROS_DISTRO"] == "noetic" and env["PYTHONPATH"] == "/docker-ros/lib"
     assert "hunter2" not in repr(env) and "GIT_HTTPS_PASSWORD" not in env
     assert not set(env) & set(container.NOT_SETTINGS)
@@ -178,9 +178,9 @@ def test_step_modules_come_before_the_start_images_pythonpath():
     container's -e would replace the base image's entries, which hooks and colcon need."""
     s = settings(ROS_DISTRO="noetic")
     env = container.step_environment(
-        s, build.dockerfile_args(), ["PATH=/usr/bin", "PYTHONPATH=/opt/ros/noetic/lib/py"])
+        s, buildplan.dockerfile_args(), ["PATH=/usr/bin", "PYTHONPATH=/opt/ros/noetic/lib/py"])
     assert env["PYTHONPATH"] == "/docker-ros/lib:/opt/ros/noetic/lib/py"
-    empty = container.step_environment(s, build.dockerfile_args(), ["PYTHONPATH="])
+    empty = container.step_environment(s, buildplan.dockerfile_args(), ["PYTHONPATH="])
     assert empty["PYTHONPATH"] == "/docker-ros/lib"
 
 

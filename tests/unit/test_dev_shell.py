@@ -279,7 +279,7 @@ def test_a_build_for_the_shell_or_slim_makes_only_the_platforms_they_use(tmp_pat
     """PLATFORM=amd64,arm64: a dev shell needs this machine's dev image, slim slims this
     machine's run image; building the other platform too cost a QEMU build (or failed without
     QEMU). The one built keeps its tag among every platform (`-amd64`)."""
-    from docker_ros.host import build, pipeline
+    from docker_ros.host import build, pipeline, refs
     from docker_ros.host.build import BuiltImage
 
     here = pipeline.host_platform()
@@ -291,7 +291,7 @@ def test_a_build_for_the_shell_or_slim_makes_only_the_platforms_they_use(tmp_pat
         return [BuiltImage(t, ref, platform, 0.0) for t, ref in targets.items()]
 
     monkeypatch.setattr(build, "check_engine", lambda settings=None: None)
-    monkeypatch.setattr(build, "platform_base", lambda settings, platform: ("b:1", ""))
+    monkeypatch.setattr(refs, "platform_base", lambda settings, platform: ("b:1", ""))
     monkeypatch.setattr(build, "build_images", build_images)
     monkeypatch.setattr(build, "summary_table", lambda images: "")
     (tmp_path / "pkg").mkdir()

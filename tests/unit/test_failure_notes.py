@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core import errors
 from docker_ros.host import build
 from tests.docker.buildhelp import docker_ros, write_env
 
@@ -56,7 +57,7 @@ DEV_TAGGED = "#12 naming to docker.io/library/img:t-dev done"
 
 def failed_bake(log: list) -> str:
     argv = ["bash", "-c", f"printf '%s\\n' {' '.join(shlex.quote(line) for line in log)}; exit 1"]
-    with pytest.raises(build.BuildError) as failed:
+    with pytest.raises(errors.BuildError) as failed:
         build.run_buildx(argv, {"dev": "img:t-dev", "run": "img:t"}, "amd64", env=os.environ,
                          out=io.StringIO(), environ={})
     assert (failed.value.stage, failed.value.step) == ("build", "colcon")

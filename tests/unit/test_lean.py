@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from docker_ros.core.loading import load_settings
-from docker_ros.host.build import definition, run_resolution
+from docker_ros.host.buildplan import definition, run_resolution
 from docker_ros.in_image.runtime.lean import (
     canonical,
     dpkg_index,

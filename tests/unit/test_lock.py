@@ -117,11 +117,11 @@ def test_base_image_record_prefers_the_registry_digest_of_its_repository():
 
 def _plan(tmp_path: Path, target: str = "run", **environ):
     from docker_ros.core.loading import load_settings
-    from docker_ros.host import build
+    from docker_ros.host import buildplan
 
     s = load_settings(environ={"BASE_IMAGE": "reg:5000/ros:noetic", "BUILD_CONTEXT": str(tmp_path),
                                **environ}, project_dir=tmp_path)
-    return build.plan_build(s, target=target, platform="amd64", tools_image="tools:x",
+    return buildplan.plan_build(s, target=target, platform="amd64", tools_image="tools:x",
                             tag="img:t", secrets={})
 
 
@@ -274,13 +274,13 @@ def test_lock_status_says_whether_a_lock_is_in_use(tmp_path: Path):
 
 def test_a_locked_build_takes_the_lock_into_its_imports_even_with_a_hook(tmp_path: Path):
     from docker_ros.core.loading import load_settings
-    from docker_ros.host import build
+    from docker_ros.host import buildcontext
 
     (tmp_path / ".repos").write_text("repositories: {}\n")
     (tmp_path / lock.LOCK_FILE).write_text(lock.dump_lock({"format": 1, "targets": {}}))
 
     def imports(**environ):
-        return build.import_inputs(load_settings(environ=environ, project_dir=tmp_path),
+        return buildcontext.import_inputs(load_settings(environ=environ, project_dir=tmp_path),
                                    tmp_path)
 
     assert imports() == [".repos"]  # unlocked: the imports image is unchanged

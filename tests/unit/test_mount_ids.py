@@ -6,7 +6,7 @@ import re
 from pathlib import Path
 
 from docker_ros.core.loading import load_settings
-from docker_ros.host import build
+from docker_ros.host import buildcontext, buildplan
 
 
 def settings(**environ):
@@ -17,8 +17,8 @@ def settings(**environ):
 def staged(tmp_path: Path, s, platform: str) -> str:
     out = tmp_path / platform / s.image_name.replace("/", "_")
     out.mkdir(parents=True)
-    dockerfile = build.stage_dockerfile(tmp_path, out)
-    build.expand_mount_ids(dockerfile, build.mount_ids(s, platform))
+    dockerfile = buildcontext.stage_dockerfile(tmp_path, out)
+    buildplan.expand_mount_ids(dockerfile, buildplan.mount_ids(s, platform))
     return dockerfile.read_text()
 
 
@@ -30,7 +30,7 @@ def test_no_variable_is_left_in_any_mount_option(tmp_path):
     text = staged(tmp_path, settings(), "amd64")
     mounts = mount_options(text)
     assert mounts and not [m for m in mounts if "$" in m], mounts
-    assert f"id=docker-ros-build-{build.cache_id(settings(), 'amd64')}," in text
+    assert f"id=docker-ros-build-{buildplan.cache_id(settings(), 'amd64')}," in text
 
 
 def test_repositories_and_platforms_get_their_own_build_cache(tmp_path):
@@ -44,6 +44,6 @@ def test_repositories_and_platforms_get_their_own_build_cache(tmp_path):
 
 
 def test_the_shipped_dockerfile_is_not_modified(tmp_path):
-    before = build.DOCKERFILE.read_text()
+    before = buildcontext.DOCKERFILE.read_text()
     staged(tmp_path, settings(), "amd64")
-    assert build.DOCKERFILE.read_text() == before
+    assert buildcontext.DOCKERFILE.read_text() == before

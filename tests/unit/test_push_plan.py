@@ -4,9 +4,9 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.core.errors import BuildError
 from docker_ros.core.loading import load_settings
 from docker_ros.host import engine
-from docker_ros.host.build import BuildError
 from docker_ros.host.push import (
     also_ref,
     auth_config,

@@ -4,7 +4,7 @@ from the environment, and proves nothing leaks). Was an image build of its own."
 
 from pathlib import Path
 
-from docker_ros.host import build
+from docker_ros.host import buildplan
 from docker_ros.host.config import read_settings
 
 SERVER = "127.0.0.1:8080"
@@ -31,10 +31,10 @@ def test_the_https_password_from_the_environment_is_the_builds_secret(tmp_path: 
     assert from_env.source_of("git_https_password") == "environment"
     assert from_dotenv.source_of("git_https_password") == ".env"
     for settings in (from_env, from_dotenv):
-        assert build.secret_env(settings) == {"DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD": password}
-        assert build.plan_secrets(settings, None) == {
+        assert buildplan.secret_env(settings) == {"DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD": password}
+        assert buildplan.plan_secrets(settings, None) == {
             "GIT_HTTPS_PASSWORD": "env=DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD"}
     # the environment outranks .env (a CI's masked variable over a developer's file)
     both = settings_of(project(tmp_path / "both", GIT_HTTPS_PASSWORD="old"),
                        {"GIT_HTTPS_PASSWORD": password})
-    assert build.secret_env(both) == {"DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD": password}
+    assert buildplan.secret_env(both) == {"DOCKER_ROS_SECRET_GIT_HTTPS_PASSWORD": password}

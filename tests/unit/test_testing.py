@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from docker_ros.core.loading import load_settings
-from docker_ros.host import build
+from docker_ros.host import build, buildcontext, buildplan
 from docker_ros.in_image import testing
 from docker_ros.in_image.testing import Counts
 
@@ -169,14 +169,14 @@ def test_colcon_test_ignores_blacklisted_packages():
 def test_test_plan_exports_results_and_reruns_every_time():
     settings = load_settings(environ={"BASE_IMAGE": "base:1", "COMMAND": "x"},
                              project_dir=Path("/tmp/robot"))
-    argv = build.plan_build(settings, target="test-results", platform="amd64",
+    argv = buildplan.plan_build(settings, target="test-results", platform="amd64",
                             tools_image="tools:x", tag="t:1", secrets={},
                             output="type=local,dest=/tmp/out",
                             extra_build_args={"DOCKER_ROS_TEST_RUN": "42"})
     assert argv[argv.index("--output") + 1] == "type=local,dest=/tmp/out"
     assert "--load" not in argv and "--push" not in argv
     assert "DOCKER_ROS_TEST_RUN=42" in argv
-    dockerfile = build.DOCKERFILE.read_text()
+    dockerfile = buildcontext.DOCKERFILE.read_text()
     assert "FROM dev AS test" in dockerfile and "FROM scratch AS test-results" in dockerfile
     # the same build/ cache as the build stage, so a test after a build compiles nothing
     build_mounts = [line for line in dockerfile.splitlines()

@@ -22,6 +22,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 from invoke import Argument, Collection, Context, Exit, Task
 
 import docker_ros
+from docker_ros.core import errors
 from docker_ros.core.ci import (
     detect_pipeline,
     docker_tag_part,
@@ -42,7 +43,15 @@ from docker_ros.core.settings import (
     kind_of,
     settings_where,
 )
-from docker_ros.host import baseimage, build, container, devshell, engine
+from docker_ros.host import (
+    baseimage,
+    build,
+    buildcontext,
+    container,
+    devshell,
+    engine,
+    refs,
+)
 from docker_ros.host.config import config_table, input_problems, read_settings
 from docker_ros.host.lock import lock, lock_status
 from docker_ros.host.pipeline import (
@@ -351,11 +360,11 @@ def lock_task(c: Context, settings: Settings, *, check: bool, host: bool) -> Non
         require(settings, ["base_image"])  # (COMMAND is no input of what a build installs)
         try:
             build.check_engine()
-        except build.BuildError as exc:
+        except errors.BuildError as exc:
             raise TaskError(str(exc)) from None
     try:
         changes = lock(settings, check=check, host=host, out=sys.stdout)
-    except build.BuildError as exc:
+    except errors.BuildError as exc:
         raise TaskError(f"resolving the lock failed: {exc}") from None
     print("\n".join(changes) or "docker-ros.lock: up to date")
     print(f"lock: {time.monotonic() - started:.1f} s")
@@ -427,9 +436,9 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     if not dry_run:
         try:  # (the builder first: a docker context's engine holds the run image)
             build.check_engine(settings)
-        except build.BuildError as exc:
+        except errors.BuildError as exc:
             raise TaskError(str(exc)) from None
-    missing = [] if dry_run else [ref for ref in (build.target_ref(settings, "run", p)
+    missing = [] if dry_run else [ref for ref in (refs.target_ref(settings, "run", p)
                                                   for p in here)
                                   if not engine.local_or_pulled(ref)]
     if missing:  # (the platforms slimmed here only: another one may build under QEMU)
@@ -597,8 +606,8 @@ def bootstrap_base_image(
     tag = tag or baseimage.default_tag(flavor)
     with tempfile.TemporaryDirectory(prefix="docker-ros-ca-") as tmp:
         try:  # (ros1-ubuntu's pip behind a TLS-intercepting proxy)
-            bundle = build.extra_ca_bundle(settings, Path(tmp))
-        except build.BuildError as exc:
+            bundle = buildcontext.extra_ca_bundle(settings, Path(tmp))
+        except errors.BuildError as exc:
             raise TaskError(str(exc)) from None
         for platform in settings.platform:
             print(baseimage.bootstrap(flavor, tag=tag, mirror=mirror, platform=platform,
@@ -626,7 +635,7 @@ def example(c: Context, settings: Settings, *, seconds: int) -> None:
     # the engine that keeps the images BUILDER builds (a docker context's own), base included
     try:
         cli = container.docker_cli(settings)
-    except build.BuildError as exc:
+    except errors.BuildError as exc:
         raise TaskError(str(exc)) from None
     # Made once with debootstrap, then reused while its recipe is unchanged.
     baseimage.bootstrap("ros1", tag=settings.base_image, cli=cli,

@@ -1,6 +1,7 @@
 """docker-ros's CI tag rules: which pipeline we run in, and what that does to image tags.
 
-Standard library only: loading.py derives the settings defaults from here, and both ship into images.
+Standard library only: loading.py derives the settings defaults from here, and both ship into
+images.
 """
 
 from __future__ import annotations

@@ -27,8 +27,9 @@ from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, T
 
 import docker
 
+from docker_ros.core import errors
 from docker_ros.core.settings import Settings, env_name
-from docker_ros.host import build, builder, engine
+from docker_ros.host import build, buildcontext, builder, buildplan, engine, refs
 from docker_ros.in_image.runtime.workspace import StepError
 from docker_ros.in_image.steps import BY_NAME, PHASED, STEPS
 
@@ -124,7 +125,7 @@ def plan_step(settings: Settings, step: str, *, stage: str = "") -> Plan:
 
 def plan_until(settings: Settings, step: str) -> Plan:
     """`build --until <step>`: the exact build state right after the step (no mount)."""
-    tag = build.until_ref(settings, step)
+    tag = refs.until_ref(settings, step)
     if step in UNTIL_STAGE:
         return Plan(UNTIL_STAGE[step], (), False, tag, reuse_all=True)
     home = STAGES[STEP_STAGE[step]]
@@ -157,7 +158,7 @@ def step_environment(settings: Settings, declared: Sequence[str],
     """What the Dockerfile's RUNs see: the settings it declares as ARGs (secrets never), and the
     step modules on PYTHONPATH before the start image's own entries (image_env: its Config.Env;
     a container's -e replaces the image's value, the Dockerfile's RUNs prepend to it)."""
-    values = build.arg_values(settings)
+    values = buildplan.arg_values(settings)
     env = {n: values[n] for n in declared if n in values and n not in NOT_SETTINGS}
     inherited = [e.split("=", 1)[1] for e in image_env if e.startswith("PYTHONPATH=")]
     env["PYTHONPATH"] = ":".join([LIB] + [p for p in inherited[-1:] if p])
@@ -210,7 +211,7 @@ def tools_archive() -> bytes:
     """The step modules as a tar of docker-ros/lib/... for `put_archive` at /."""
     buffer = io.BytesIO()
     with tempfile.TemporaryDirectory(prefix="docker-ros-tools-") as tmp:
-        build.tools_tree(Path(tmp))
+        buildcontext.tools_tree(Path(tmp))
         with tarfile.open(fileobj=buffer, mode="w") as tar:
             tar.add(str(Path(tmp) / "docker-ros"), arcname="docker-ros")
     return buffer.getvalue()
@@ -220,7 +221,7 @@ def tools_archive() -> bytes:
 def secrets_dir(settings: Settings) -> Iterator[Optional[Path]]:
     """A private folder with the secrets as files, bind-mounted read-only at /run/secrets (as
     BuildKit secrets): never in the container's config, an image or a command line."""
-    values = {env_name(n): getattr(settings, n) for n in build.SECRETS if getattr(settings, n)}
+    values = {env_name(n): getattr(settings, n) for n in buildplan.SECRETS if getattr(settings, n)}
     if not values and not settings.extra_ca_certs:
         yield None
         return
@@ -229,7 +230,7 @@ def secrets_dir(settings: Settings) -> Iterator[Optional[Path]]:
             path = Path(tmp) / name
             path.touch(mode=0o600)
             path.write_text(value)
-        build.extra_ca_bundle(settings, Path(tmp), "EXTRA_CA_CERTS")
+        buildcontext.extra_ca_bundle(settings, Path(tmp), "EXTRA_CA_CERTS")
         yield Path(tmp)
 
 
@@ -378,7 +379,7 @@ def run_plan(
             build.build_image(dataclasses.replace(settings, buildx_attestations=False),
                               target=plan.start, platform=settings.platform[0], tag=stage_tag,
                               out=out)
-        except build.BuildError as exc:
+        except errors.BuildError as exc:
             if shell_on_failure and exc.stage in STAGES and exc.step:
                 # The state before the start failed to build: open the shell where that failed.
                 reproduce(settings, exc, out=out)
@@ -388,7 +389,7 @@ def run_plan(
             raise
         client = engine.client()
         start_id = str(client.images.get(stage_tag).id)
-        declared = [a for a in build.dockerfile_args() if a not in NOT_SETTINGS]
+        declared = [a for a in buildplan.dockerfile_args() if a not in NOT_SETTINGS]
         start_config = client.images.get(start_id).attrs["Config"] or {}
         env = step_environment(settings, declared, start_config.get("Env") or [])
         candidates = {ref: image_label(client, ref) for ref in
@@ -416,7 +417,7 @@ def run_plan(
     return plan.tag
 
 
-def reproduce(settings: Settings, error: build.BuildError, *, out: IO[str]) -> Optional[int]:
+def reproduce(settings: Settings, error: errors.BuildError, *, out: IO[str]) -> Optional[int]:
     """An image build failed in a step: run that stage's commands in a container of the state
     before it, up to the failed step, with a shell where it fails again. The step's exit code
     there (None: it did not fail again)."""

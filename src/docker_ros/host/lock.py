@@ -194,7 +194,8 @@ def image_entries(settings: Settings, platform: str, out: Any) -> Dict[str, Dict
     """The dev and run entries of one platform, resolved in the image's lock stages (their
     lock-results exported to a folder here: no image is built or tagged), with the base
     image's digest added."""
-    from docker_ros.host.build import build_images, platform_base
+    from docker_ros.host.build import build_images
+    from docker_ros.host.refs import platform_base
 
     unlocked = replace(settings, locked=False)  # resolve afresh, whatever the lock says
     with tempfile.TemporaryDirectory(prefix="docker-ros-lock-") as tmp:

@@ -26,11 +26,22 @@ from typing import (
     Tuple,
 )
 
+from docker_ros.core import errors
 from docker_ros.core.ci import missing_tasks
 from docker_ros.core.display import missing_required, require, required_for_build
 from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import Settings, SettingsError, env_name
-from docker_ros.host import build, builder, container, devshell, engine, slim
+from docker_ros.host import (
+    build,
+    buildcontext,
+    builder,
+    buildplan,
+    container,
+    devshell,
+    engine,
+    refs,
+    slim,
+)
 from docker_ros.host.build import BuiltImage
 from docker_ros.host.config import image_problems, input_problems
 from docker_ros.host.lock import lock_status
@@ -174,7 +185,7 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
     repository = f"{Path(settings.build_context).resolve()}:{container.TARGET_DIR}"
     mount = f" -v {repository}" if plan.sources else ""
     if dry_run:
-        argv = build.plan_shown(settings, shown_builder(settings), target=plan.start,
+        argv = buildplan.plan_shown(settings, shown_builder(settings), target=plan.start,
                                 platform=settings.platform[0],
                                 tag=container.tag_of(settings, "stage", plan.start))
         print("[dry-run] build:", format_argv(argv))
@@ -186,7 +197,7 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
     try:
         build.check_engine(settings)
         tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
-    except build.BuildError as exc:
+    except errors.BuildError as exc:
         raise TaskError(str(exc)) from None
     line = container.docker_run_line(tag, [repository] if plan.sources else [], ["bash"],
                                      tty=True, cli=container.docker_cli(settings))
@@ -216,7 +227,7 @@ def shown_builder(settings: Settings) -> builder.Builder:
     CACHE_TO or the environment picks one), a builder that cannot be is the dry run's error."""
     try:
         return build.selected_builder(settings)
-    except build.BuildError as exc:
+    except errors.BuildError as exc:
         raise TaskError(str(exc)) from None
 
 
@@ -235,38 +246,38 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
     if not dry_run:
         try:
             build.check_engine(settings)
-        except build.BuildError as exc:
+        except errors.BuildError as exc:
             raise TaskError(str(exc)) from None
     try:  # every platform's base before the first build (build_images says which)
         for platform in platforms:
-            (build.shown_base if dry_run else build.platform_base)(settings, platform)
-    except build.BuildError as exc:
+            (refs.shown_base if dry_run else refs.platform_base)(settings, platform)
+    except errors.BuildError as exc:
         raise TaskError(str(exc)) from None
     chosen = shown_builder(settings) if dry_run else None
     built: List[BuiltImage] = []
     for platform in platforms:
         # BUILD_STATE_FROM: the run image's build state too, for the next job's `push`
         kinds = ("dev", "run") + (("build-state",) if settings.build_state_from else ())
-        tags = {t: build.target_ref(settings, t, platform)
+        tags = {t: refs.target_ref(settings, t, platform)
                 for t in kinds if t in targets or (t == "build-state" and "run" in targets)}
         buildx = [] if chosen is None else builder.buildx_command(chosen, settings.builder or "")
-        allow = None if chosen is None else build.bake_grants(buildx, settings, "<temporary>")
+        allow = None if chosen is None else buildplan.bake_grants(buildx, settings, "<temporary>")
         if chosen is not None and allow is not None:
-            specs = {t: build.shown_definition(settings, chosen, target=t, platform=platform,
+            specs = {t: buildplan.shown_definition(settings, chosen, target=t, platform=platform,
                                                tag=tag) for t, tag in tags.items()}
             print("[dry-run] build:", format_argv(
-                build.plan_bake(specs, "<temporary>/docker-ros.bake.json", buildx, allow)))
-            print(f"[dry-run] with <temporary>/docker-ros.bake.json:\n{build.bake_file(specs)}",
+                buildplan.plan_bake(specs, "<temporary>/docker-ros.bake.json", buildx, allow)))
+            print(f"[dry-run] with <temporary>/docker-ros.bake.json:\n{buildplan.bake_file(specs)}",
                   end="")
         elif chosen is not None:
             for target, tag in tags.items():
-                argv = build.plan_shown(settings, chosen, target=target, platform=platform,
+                argv = buildplan.plan_shown(settings, chosen, target=target, platform=platform,
                                         tag=tag)
                 print("[dry-run] build:", format_argv(argv))
         else:
             try:
                 built += build.build_images(settings, targets=tags, platform=platform)
-            except build.BuildError as exc:
+            except errors.BuildError as exc:
                 # (naming what the platforms before this one built and tagged)
                 exc = build.with_built(build.with_sources(exc, settings), built)
                 code = reproduce_failure(settings, exc) if shell_on_failure else None
@@ -294,8 +305,8 @@ def check_slim_options(settings: Settings) -> None:
 
 
 def slimmed_here(settings: Settings, platform: str) -> bool:
-    """Whether platform's run image is slimmed here (build.slim_platforms); says when not."""
-    if platform in build.slim_platforms(settings.platform, host_platform()):
+    """Whether platform's run image is slimmed here (refs.slim_platforms); says when not."""
+    if platform in refs.slim_platforms(settings.platform, host_platform()):
         return True
     print(f"slim: {platform}: not slimmed on this {host_platform()} runner (slimming runs the "
           f"image; as docker-ros, a multi-arch job slims the runner's architecture only)",
@@ -338,7 +349,7 @@ def results_in_context(results: Path, context: Path, origin: str) -> Optional[st
     context = context.expanduser().resolve()
     if results != context and context not in results.parents:
         return None
-    if results != context and build.left_out(str(results.relative_to(context))):
+    if results != context and buildcontext.left_out(str(results.relative_to(context))):
         return None  # (our .dockerignore leaves it out: docker-ros-test-results, ...)
     return (f"docker-ros test: warning: {origin}: {results} is in the build context "
             f"({context}): the next build sees the results as changed sources (copied into the "
@@ -366,12 +377,12 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
         problem = testing.check_results_dir(dest)
         if problem:
             raise TaskError(f"{origin}: {problem}")
-        tag = build.target_ref(settings, "dev", platform) + "-test"
+        tag = refs.target_ref(settings, "dev", platform) + "-test"
         run = {"DOCKER_ROS_TEST_RUN": str(time.time_ns())}
         with tempfile.TemporaryDirectory(prefix="docker-ros-test-") as tmp:
             output = f"type=local,dest={tmp}"
             if dry_run:
-                argv = build.plan_shown(settings, shown_builder(settings),
+                argv = buildplan.plan_shown(settings, shown_builder(settings),
                                         target="test-results", platform=platform, tag=tag,
                                         output=output, extra_build_args=run)
                 print("[dry-run] test:", format_argv(argv))
@@ -382,7 +393,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
                 build.build_image(settings, target="test-results", platform=platform, tag=tag,
                                   output=output, extra_build_args=run)
                 outcome = testing.read_outcome(Path(tmp))
-            except (build.BuildError, FileNotFoundError) as exc:
+            except (errors.BuildError, FileNotFoundError) as exc:
                 raise TaskError(str(exc)) from None
             counts = testing.summarize(Path(tmp) / testing.JUNIT)
             cases = testing.failed_cases(Path(tmp) / testing.JUNIT)
@@ -402,7 +413,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
         raise TaskError("; ".join(failures) + "; see the output above")
 
 
-def reproduce_failure(settings: Settings, error: build.BuildError) -> Optional[int]:
+def reproduce_failure(settings: Settings, error: errors.BuildError) -> Optional[int]:
     """--shell-on-failure of an image build: the failed step again, in a container of the state
     before it, with the shell where it fails; the step's exit code there, if it failed."""
 
@@ -412,7 +423,7 @@ def reproduce_failure(settings: Settings, error: build.BuildError) -> Optional[i
         return None
     try:
         return container.reproduce(settings, error, out=sys.stdout)
-    except build.BuildError as exc:
+    except errors.BuildError as exc:
         print(f"docker-ros build: --shell-on-failure: {exc}")
         return None
 
@@ -441,7 +452,7 @@ def push_and_report(
         print(f"{action.__name__}: {warning}", file=sys.stderr, flush=True)
     try:
         pushed = action(settings, targets, dry_run=dry_run)
-    except build.BuildError as exc:
+    except errors.BuildError as exc:
         raise TaskError(str(exc)) from None
     for name in pushed:
         print(f"pushed {name}")
@@ -521,7 +532,7 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
     which prints the docker run command)."""
     here = host_platform()
     shell_platform = here if here in settings.platform else settings.platform[0]
-    ref = build.target_ref(settings, "dev", shell_platform)
+    ref = refs.target_ref(settings, "dev", shell_platform)
     try:
         devshell.check_shell_options(options.volumes, options.env)
         blacklisted = devshell.blacklisted_names(settings)
@@ -551,8 +562,9 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
             build_targets(settings, ("dev",), dry_run=False, only=[shell_platform])
         else:
             repository = Path(settings.build_context)
-            current = build.imports_digest(repository, build.imports_folders(settings, repository))
-            stale = build.stale_dev_image((image.get("Config") or {}).get("Labels") or {},
+            folders = buildcontext.imports_folders(settings, repository)
+            current = buildcontext.imports_digest(repository, folders)
+            stale = buildcontext.stale_dev_image((image.get("Config") or {}).get("Labels") or {},
                                           current, ref)
             if stale:
                 print(stale, file=sys.stderr, flush=True)
@@ -570,7 +582,7 @@ def check_shell_engine(settings: Settings) -> None:
     then have `docker run` look for it on a registry. Stop first, saying what to do."""
     try:
         chosen = build.selected_builder(settings)
-    except build.BuildError as exc:
+    except errors.BuildError as exc:
         raise TaskError(str(exc)) from None
     elsewhere = builder.images_host(chosen, engine.cli_host(os.environ))
     if elsewhere:

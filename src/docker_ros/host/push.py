@@ -8,10 +8,11 @@ import subprocess
 from typing import Any, Collection, Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.core.display import made_images, ref_host, registry_of, server_host
+from docker_ros.core.errors import BuildError
 from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import Settings, env_name
 from docker_ros.host import engine
-from docker_ros.host.build import BuildError, image_ref, slim_platforms, target_ref
+from docker_ros.host.refs import image_ref, slim_platforms, target_ref
 from docker_ros.host.slim import LABEL_SOURCE
 from docker_ros.in_image.runtime.workspace import format_argv
 

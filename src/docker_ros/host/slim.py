@@ -28,9 +28,11 @@ from docker.models.containers import Container
 
 from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import SLIM_BUILD_ARGS_DEFAULT, Settings
-from docker_ros.host.build import PACKAGE_DIR, image_size, target_ref
+from docker_ros.host.build import image_size
+from docker_ros.host.buildcontext import PACKAGE_DIR
 from docker_ros.host.engine import client, inspect_image, signals_held, tag
 from docker_ros.host.lock import LOCK_LABEL, lock_labels, lock_path
+from docker_ros.host.refs import target_ref
 
 TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
 EXCHANGE = "/docker-ros-slim"  # the tracer and its results inside the trace container
