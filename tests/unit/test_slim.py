@@ -16,7 +16,7 @@ import pytest
 
 from docker_ros.core.loading import load_settings
 from docker_ros.core.settings import SLIM_BUILD_ARGS_DEFAULT
-from docker_ros.host import slim
+from docker_ros.host import engine, slim
 from docker_ros.host.push import plan_push, push_targets
 from docker_ros.host.slim import (
     Probe,
@@ -452,8 +452,8 @@ def slimmed_on(monkeypatch: pytest.MonkeyPatch, images: dict,
     monkeypatch.setattr(slim, "image_size", lambda ref: 1)
     calls: List[Tuple[object, ...]] = []
     monkeypatch.setattr(slim, "tag", lambda image, ref: calls.append(("tag", image, ref)))
-    monkeypatch.setattr(slim, "remove_image",
-                        lambda ref, force=True: calls.append(("rmi", ref, force)))
+    monkeypatch.setattr(slim, "remove_quietly",
+                        lambda refs, force=False: calls.extend(("rmi", r, force) for r in refs))
     return calls
 
 
@@ -465,6 +465,7 @@ def test_ctrl_c_while_the_engine_starts_a_container_leaves_no_container(monkeypa
     # containers stayed too.
     fake = EngineAnsweringDuringCtrlC()
     monkeypatch.setattr(slim, "client", lambda: fake)
+    monkeypatch.setattr(engine, "client", lambda: fake)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         with pytest.raises(KeyboardInterrupt):

@@ -10,13 +10,15 @@ import functools
 import hashlib
 import json
 import os
+import shlex
 import signal
 import threading
 from pathlib import Path
-from typing import Any, Dict, Iterable, Iterator, List, Mapping, Optional
+from typing import Any, Dict, Iterable, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 import docker
 from docker.errors import APIError, DockerException, ImageNotFound, NotFound
+from docker.models.containers import Container
 from docker.utils import parse_repository_tag
 
 
@@ -148,11 +150,12 @@ def local_tags() -> List[str]:
     return []
 
 
-def remove_quietly(refs: Iterable[str]) -> None:
-    """Remove tags this tool made, as housekeeping: whatever the engine says is not an error."""
+def remove_quietly(refs: Iterable[str], *, force: bool = False) -> None:
+    """Remove tags (or images) this tool made, as housekeeping: whatever the engine says is not
+    an error."""
     for ref in refs:
         with contextlib.suppress(DockerException):
-            client().images.remove(ref, noprune=False)
+            client().images.remove(ref, force=force, noprune=False)
 
 
 def image_size(ref: str) -> int:
@@ -206,3 +209,48 @@ def remove_image(ref: str) -> None:
     """Remove a tag this tool made; a missing one is fine."""
     with contextlib.suppress(ImageNotFound, NotFound):
         client().images.remove(ref, noprune=False)
+
+
+# Containers (slim's trace, check and probes)
+@contextlib.contextmanager
+def engine_errors(doing: str) -> Iterator[None]:
+    """An Engine API error while `doing` something becomes an EngineError saying what and why."""
+    try:
+        yield
+    except DockerException as exc:
+        raise EngineError(f"{doing} failed: {getattr(exc, 'explanation', None) or exc}") from None
+
+
+def container(name: str) -> Container:
+    with engine_errors(f"inspecting container {name}"):
+        return client().containers.get(name)
+
+
+def remove_container(name: str) -> None:
+    with contextlib.suppress(DockerException):
+        client().containers.get(name).remove(force=True)
+
+
+def container_state(name: str) -> Tuple[bool, int]:
+    state = container(name).attrs["State"]
+    return bool(state["Running"]), int(state["ExitCode"])
+
+
+def logs(name: str) -> str:
+    with engine_errors(f"reading the logs of {name}"):
+        return bytes(container(name).logs(stdout=True, stderr=True)).decode(errors="replace")
+
+
+def run_once(image: str, argv: Sequence[str], env: Sequence[str]) -> Tuple[int, str]:
+    """`docker run --rm`: a container of image running argv; (exit status, its output)."""
+    with engine_errors(f"running {shlex.join(argv)[:100]} in {image}"):
+        once = None
+        try:
+            with signals_held():
+                once = client().containers.create(image, list(argv), environment=list(env))
+            once.start()
+            code = int(once.wait(timeout=300)["StatusCode"])
+            return code, bytes(once.logs(stdout=True, stderr=True)).decode(errors="replace")
+        finally:
+            if once is not None:
+                once.remove(force=True)

@@ -23,14 +23,23 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import IO, Any, Callable, Dict, Iterator, List, Mapping, Optional, Sequence, Set, Tuple
 
-from docker.errors import DockerException
-from docker.models.containers import Container
-
 from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import SLIM_BUILD_ARGS_DEFAULT, Settings
 from docker_ros.host.build import image_size
 from docker_ros.host.buildcontext import PACKAGE_DIR
-from docker_ros.host.engine import client, inspect_image, signals_held, tag
+from docker_ros.host.engine import (
+    client,
+    container,
+    container_state,
+    engine_errors,
+    inspect_image,
+    logs,
+    remove_container,
+    remove_quietly,
+    run_once,
+    signals_held,
+    tag,
+)
 from docker_ros.host.lock import LOCK_LABEL, lock_labels, lock_path
 from docker_ros.host.refs import target_ref
 
@@ -359,57 +368,6 @@ def compare_probes(reference: Probe, slim: Probe, options: SlimOptions) -> List[
     return diffs
 
 
-# ------------------------------------------------------------------------------ docker
-# Containers and images through the Engine API (docker SDK), as engine.py does.
-@contextlib.contextmanager
-def engine_errors(doing: str) -> Iterator[None]:
-    """An Engine API error while `doing` something becomes a SlimError saying what and why."""
-    try:
-        yield
-    except DockerException as exc:
-        raise SlimError(f"{doing} failed: {getattr(exc, 'explanation', None) or exc}") from None
-
-
-def container(name: str) -> Container:
-    with engine_errors(f"inspecting container {name}"):
-        return client().containers.get(name)
-
-
-def remove_container(name: str) -> None:
-    with contextlib.suppress(DockerException):
-        client().containers.get(name).remove(force=True)
-
-
-def remove_image(ref: str, *, force: bool = True) -> None:
-    with contextlib.suppress(DockerException):
-        client().images.remove(ref, force=force)
-
-
-def container_state(name: str) -> Tuple[bool, int]:
-    state = container(name).attrs["State"]
-    return bool(state["Running"]), int(state["ExitCode"])
-
-
-def logs(name: str) -> str:
-    with engine_errors(f"reading the logs of {name}"):
-        return bytes(container(name).logs(stdout=True, stderr=True)).decode(errors="replace")
-
-
-def run_once(image: str, argv: Sequence[str], env: Sequence[str]) -> Tuple[int, str]:
-    """`docker run --rm`: a container of image running argv; (exit status, its output)."""
-    with engine_errors(f"running {shlex.join(argv)[:100]} in {image}"):
-        once = None
-        try:
-            with signals_held():
-                once = client().containers.create(image, list(argv), environment=list(env))
-            once.start()
-            code = int(once.wait(timeout=300)["StatusCode"])
-            return code, bytes(once.logs(stdout=True, stderr=True)).decode(errors="replace")
-        finally:
-            if once is not None:
-                once.remove(force=True)
-
-
 Ending = Optional[Tuple[str, Optional[int]]]  # why a window ends, COMMAND's exit status
 
 
@@ -688,7 +646,7 @@ def made_and_checked(run_id: str, keep: Set[str], changes: Sequence[str], config
     try:
         diffs = compare_probes(reference, check(slim_id, config, options, reference), options)
     except BaseException:
-        remove_image(slim_id)
+        remove_quietly([slim_id], force=True)
         raise
     return slim_id, kept, total, checked_at - made_at, time.monotonic() - checked_at, diffs
 
@@ -704,12 +662,12 @@ def made_with_later_files(run_id: str, traced: Trace, changes: Sequence[str], co
     try:
         keep, _ = traced.finish()
     except BaseException:
-        remove_image(made[0])
+        remove_quietly([made[0]], force=True)
         raise
     if not keep - traced.keep:
         return made
     print(later_report(went_on, keep - traced.keep), flush=True)
-    remove_image(made[0])
+    remove_quietly([made[0]], force=True)
     return made_and_checked(run_id, keep, changes, config, options, traced.probe)
 
 
@@ -772,10 +730,10 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         slim_id, kept, total, made_seconds, check_seconds, diffs = made_with_later_files(
             run["Id"], traced, changes, config, options)
     if diffs:
-        remove_image(slim_id)
+        remove_quietly([slim_id], force=True)
         stale = " (removed the stale " + slim_ref + ")" if existing else ""
         if existing:
-            remove_image(slim_ref, force=False)
+            remove_quietly([slim_ref])
         raise SlimError(f"the slim image of {run_ref} does not behave like it, not tagged"
                         f"{stale}: " + "; ".join(diffs)
                         + ". Keep what is missing with --include-path in "
@@ -785,7 +743,7 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
     if existing and existing["Id"] != slim_id:
         # the slim image the tag left (a layer of its own, nothing shares it): gone unless
         # another tag or a container still uses it
-        remove_image(existing["Id"], force=False)
+        remove_quietly([existing["Id"]])
     print(size_report(run_ref, slim_ref, kept, total, made_seconds), flush=True)
     return SlimResult(slim_ref, platform, time.monotonic() - began, False)
 
