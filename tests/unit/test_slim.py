@@ -16,24 +16,24 @@ import pytest
 
 from docker_ros.core.loading import load_settings
 from docker_ros.core.settings import SLIM_BUILD_ARGS_DEFAULT
-from docker_ros.host import engine, slim
+from docker_ros.host import engine, slim, slimoptions, slimprobe
 from docker_ros.host.push import plan_push, push_targets
 from docker_ros.host.slim import (
+    filter_tar,
+    member_path,
+    plan_changes,
+    plan_trace_container,
+    trace_report,
+    tracer_spec,
+)
+from docker_ros.host.slimoptions import SlimError, SlimOptions, parse_slim_args
+from docker_ros.host.slimprobe import (
     Probe,
-    SlimError,
-    SlimOptions,
     check_ending,
     check_report,
     compare_probes,
     exec_prefix,
-    filter_tar,
-    member_path,
-    parse_slim_args,
-    plan_changes,
-    plan_trace_container,
     trace_ending,
-    trace_report,
-    tracer_spec,
     trouble_lines,
     watch,
 )
@@ -448,7 +448,7 @@ def slimmed_on(monkeypatch: pytest.MonkeyPatch, images: dict,
     the list of tags and image removals slim_image then asks for."""
     monkeypatch.setattr(slim, "inspect_image", images.get)
     monkeypatch.setattr(slim, "export_filtered", export)
-    monkeypatch.setattr(slim, "check", lambda *a: slim.Probe())
+    monkeypatch.setattr(slim, "check", lambda *a: slimprobe.Probe())
     monkeypatch.setattr(slim, "image_size", lambda ref: 1)
     calls: List[Tuple[object, ...]] = []
     monkeypatch.setattr(slim, "tag", lambda image, ref: calls.append(("tag", image, ref)))
@@ -470,12 +470,13 @@ def test_ctrl_c_while_the_engine_starts_a_container_leaves_no_container(monkeypa
     try:
         with pytest.raises(KeyboardInterrupt):
             if call == "trace":
-                with slim.tracing("sha256:run", {"Cmd": ["x"]}, slim.SlimOptions(), tmp_path):
+                options = slimoptions.SlimOptions()
+                with slim.tracing("sha256:run", {"Cmd": ["x"]}, options, tmp_path):
                     pass
             elif call == "check":
-                slim.check("sha256:slim", {}, slim.SlimOptions(), slim.Probe())
+                slim.check("sha256:slim", {}, slimoptions.SlimOptions(), slimprobe.Probe())
             elif call == "run_once":
-                slim.run_once("sha256:run", ["true"], [])
+                engine.run_once("sha256:run", ["true"], [])
             else:
                 slim.export_filtered("sha256:run", set(), [])
     finally:

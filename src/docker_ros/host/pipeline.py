@@ -41,6 +41,7 @@ from docker_ros.host import (
     engine,
     refs,
     slim,
+    slimoptions,
 )
 from docker_ros.host.build import BuiltImage
 from docker_ros.host.config import image_problems, input_problems
@@ -299,8 +300,8 @@ def check_slim_options(settings: Settings) -> None:
     stop_on({name: problem for name, problem in image_problems(settings, ("slim",)).items()
              if name.startswith("slim_")})
     try:
-        slim.slim_options(settings)
-    except slim.SlimError as exc:
+        slimoptions.slim_options(settings)
+    except slimoptions.SlimError as exc:
         raise TaskError(str(exc)) from None
 
 
@@ -318,7 +319,7 @@ def slim_one(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
 
     try:
         result = slim.slim_image(settings, platform, dry_run=dry_run)
-    except slim.SlimError as exc:
+    except slimoptions.SlimError as exc:
         raise TaskError(str(exc)) from None
     return BuiltImage("slim", result.ref, platform, result.seconds)
 

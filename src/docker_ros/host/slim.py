@@ -15,16 +15,15 @@ import io
 import json
 import os
 import re
-import shlex
 import tarfile
 import tempfile
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import IO, Any, Callable, Dict, Iterator, List, Mapping, Optional, Sequence, Set, Tuple
+from typing import IO, Any, Dict, Iterator, List, Mapping, Sequence, Set, Tuple
 
 from docker_ros.core.loading import host_platform
-from docker_ros.core.settings import SLIM_BUILD_ARGS_DEFAULT, Settings
+from docker_ros.core.settings import Settings
 from docker_ros.host.build import image_size
 from docker_ros.host.buildcontext import PACKAGE_DIR
 from docker_ros.host.engine import (
@@ -36,196 +35,37 @@ from docker_ros.host.engine import (
     logs,
     remove_container,
     remove_quietly,
-    run_once,
     signals_held,
     tag,
 )
 from docker_ros.host.lock import LOCK_LABEL, lock_labels, lock_path
 from docker_ros.host.refs import target_ref
+from docker_ros.host.slimoptions import (
+    DEFAULT_IGNORED,
+    DEFAULT_PATHS,
+    ESSENTIAL_EXECUTABLES,
+    ESSENTIAL_PATHS,
+    SlimError,
+    SlimOptions,
+    slim_options,
+)
+from docker_ros.host.slimprobe import (
+    Ending,
+    Probe,
+    check_ending,
+    check_report,
+    compare_probes,
+    run_probes,
+    trace_ending,
+    watch,
+    window_words,
+)
 
 TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
 EXCHANGE = "/docker-ros-slim"  # the tracer and its results inside the trace container
 LABEL_SOURCE = "io.docker-ros.slim.source"
 LABEL_FINGERPRINT = "io.docker-ros.slim.fingerprint"
-EXITED = re.compile(r"docker-ros slimtrace: command exited with status (-?\d+)")
-SETTLED = re.compile(r"docker-ros slimtrace: traced files settled after ([\d.]+) s")
 SNAPSHOT = re.compile(r"docker-ros slimtrace: keep set written, tracing on")
-SETTLE_SECONDS = 3.0  # --settle's default
-TRACER_LINE = re.compile(r"^docker-ros slimtrace: .*\n?", re.MULTILINE)
-# A DOCKER_UID/GID probe of the docker-ros entrypoint (as docker-ros's own SLIM_BUILD_ARGS do).
-PROBE_UID = "23456"
-PROBE_USER = "dockerslimprobe"
-
-# What every image keeps whatever the trace saw: user databases and what maps users, the
-# dynamic linker's configuration, CA certificates, the shells and the entrypoint.
-ESSENTIAL_PATHS = (
-    "/etc/passwd", "/etc/group", "/etc/shadow", "/etc/gshadow", "/etc/subuid", "/etc/subgid",
-    "/etc/nsswitch.conf", "/etc/login.defs", "/etc/default/useradd", "/etc/skel",
-    "/etc/pam.d", "/etc/security", "/etc/ld.so.conf", "/etc/ld.so.conf.d", "/etc/ld.so.cache",
-    "/etc/ssl/certs", "/etc/ca-certificates.conf", "/usr/share/ca-certificates",
-    "/usr/local/share/ca-certificates", "/etc/os-release", "/usr/lib/os-release",
-    "/etc/hosts", "/etc/hostname", "/etc/resolv.conf", "/etc/localtime", "/etc/environment",
-    "/etc/profile", "/etc/bash.bashrc", "/root/.bashrc", "/root/.profile", "/.dockerenv",
-    "/docker-ros/entrypoint.sh",
-    # Python finds its prefix by the landmark os.py, which it never opens (frozen since 3.11)
-    "/usr/lib/python3*/os.py", "/usr/local/lib/python3*/os.py",
-)
-ESSENTIAL_EXECUTABLES = (
-    "sh", "bash", "env", "tini", "setpriv", "useradd", "groupadd", "getent", "chpasswd", "id",
-    "cut",
-)
-INITS = ("tini", "tini-static", "docker-init", "dumb-init")
-# Output lines that mean something went wrong; those in the slim run but not the run image's
-# (digits, hex and UUIDs normalized) fail the check: a node may die while roslaunch runs on.
-TROUBLE = re.compile(
-    r"error|traceback|exception|not found|no such file|cannot |can't|could not|has died|"
-    r"segmentation fault|core dumped|permission denied|fatal",
-    re.IGNORECASE,
-)
-
-# docker-slim options: ours (value kind) and those that do not apply here.
-OPTIONS = {
-    "--include-path": "path", "--preserve-path": "path", "--exclude-pattern": "path",
-    "--include-bin": "path", "--include-exe": "path", "--continue-after": "seconds",
-    "--settle": "seconds", "--env": "env", "--exec": "text", "--expect": "text",
-}
-IGNORED_WITH_VALUE = frozenset({
-    "--sensor-ipc-mode", "--sensor-ipc-endpoint", "--http-probe-cmd", "--http-probe-cmd-file",
-    "--http-probe-ports", "--http-probe-retry-count", "--http-probe-retry-wait",
-    "--http-probe-start-wait", "--http-probe-concurrency", "--http-probe-apispec",
-    "--http-probe-apispec-file", "--http-probe-exec", "--http-probe-exec-file",
-    "--publish-port", "--image-build-engine", "--image-build-arch", "--report",
-    "--copy-meta-artifacts", "--state-path", "--new-label",
-})
-IGNORED_FLAGS = frozenset({
-    "--show-clogs", "--show-blogs", "--http-probe", "--http-probe-off", "--http-probe-full",
-    "--include-shell", "--include-cert-all", "--include-cert-bundles-only", "--keep-perms",
-    "--include-new", "--remove-file-artifacts", "--keep-tmp-artifacts", "--obfuscate-metadata",
-    "--include-oslibs-net", "--publish-exposed-ports", "--continue-after-signal",
-})
-
-
-class SlimError(Exception):
-    """Slimming failed: what, which image or option, what to do."""
-
-
-@dataclass(frozen=True)
-class SlimOptions:
-    include: Tuple[str, ...] = ()
-    exclude: Tuple[str, ...] = ()
-    executables: Tuple[str, ...] = ()
-    binaries: Tuple[str, ...] = ()  # --include-bin (also in include)
-    paths: Tuple[Tuple[str, str], ...] = ()  # (--include-path or --preserve-path, path)
-    continue_after: float = 10.0  # the longest window
-    settle: float = SETTLE_SECONDS  # the window ends this long after the last new file
-    env: Tuple[str, ...] = ()
-    execs: Tuple[str, ...] = ()
-    expect: Tuple[str, ...] = ()
-    ignored: Tuple[str, ...] = ()
-
-
-def parse_slim_args(text: str, additional: str = "") -> SlimOptions:
-    """SLIM_BUILD_ARGS (text) + ADDITIONAL_SLIM_BUILD_ARGS (additional), docker-slim syntax ->
-    options; an error names the variable the bad option is in."""
-    tokens: List[Tuple[str, str]] = []  # (variable, word)
-    for variable, words in (("SLIM_BUILD_ARGS", text), ("ADDITIONAL_SLIM_BUILD_ARGS", additional)):
-        try:
-            tokens += [(variable, word) for word in shlex.split(words)]
-        except ValueError as exc:
-            raise SlimError(f"{variable}: {exc}") from None
-    given: Dict[str, List[Tuple[str, str]]] = {name: [] for name in OPTIONS}
-    ignored: List[str] = []
-    unknown: List[Tuple[str, str]] = []
-    after_unknown = -1
-    index = 0
-    while index < len(tokens):
-        variable, token = tokens[index]
-        index += 1
-        name, equals, value = token.partition("=")
-        if name in OPTIONS or name in IGNORED_WITH_VALUE:
-            if not equals:
-                if index >= len(tokens):
-                    raise SlimError(f"{variable}: {name} needs a value")
-                value = tokens[index][1]
-                index += 1
-            if name in OPTIONS:
-                given[name].append((variable, value))
-            elif name not in ignored:
-                ignored.append(name)
-        elif name in IGNORED_FLAGS:
-            if name not in ignored:
-                ignored.append(name)
-        elif name in ("--target", "--tag"):
-            raise SlimError(f"{variable}: {name} is set by docker-ros (IMAGE_NAME/IMAGE_TAG,"
-                            " SLIM_IMAGE_NAME/SLIM_IMAGE_TAG); remove it")
-        elif token.startswith("-") or after_unknown != index - 1:
-            unknown.append((variable, token))
-            after_unknown = index  # the next word, if no option, is the unknown option's value
-    if unknown:
-        raise SlimError(
-            "/".join(dict.fromkeys(v for v, _ in unknown)) + ": unknown option(s) "
-            + ", ".join(t for _, t in unknown) + "; supported: " + ", ".join(OPTIONS)
-            + " (see the docs' guide, Slim images)")
-    continue_after = seconds_option("--continue-after", given["--continue-after"], 10.0)
-    settle = seconds_option("--settle", given["--settle"], SETTLE_SECONDS)
-    for variable, pair in given["--env"]:
-        if "=" not in pair:
-            raise SlimError(f"{variable}: --env {pair!r}: use NAME=VALUE")
-    values = {name: [value for _, value in pairs] for name, pairs in given.items()}
-    return SlimOptions(
-        include=tuple(values["--include-path"] + values["--preserve-path"]
-                      + values["--include-bin"]),
-        exclude=tuple(values["--exclude-pattern"]),
-        executables=tuple(values["--include-exe"]),
-        binaries=tuple(values["--include-bin"]),
-        paths=tuple((option, value) for option in ("--include-path", "--preserve-path")
-                    for value in values[option]),
-        continue_after=continue_after,
-        settle=settle,
-        env=tuple(values["--env"]),
-        execs=tuple(values["--exec"]),
-        expect=tuple(values["--expect"]),
-        ignored=tuple(ignored),
-    )
-
-
-def seconds_option(name: str, given: Sequence[Tuple[str, str]], default: float) -> float:
-    """The last value of a seconds option (docker-slim: the last one wins); given: (variable,
-    value) pairs."""
-    seconds = default
-    for variable, raw in given:
-        try:
-            seconds = float(raw)
-        except ValueError:
-            seconds = -1.0
-        if not seconds >= 0:  # (negative, or not a number at all: NaN too)
-            raise SlimError(f"{variable}: {name}={raw!r}: give a number of seconds, 0 or more"
-                            " (docker-slim's enter/signal/probe modes do not apply)")
-    return seconds
-
-
-# The paths docker-ros's default SLIM_BUILD_ARGS keeps when they are there: its /opt/ros is
-# missing from Debian's ROS images (ROS in /usr), and that must not stop the defaults.
-DEFAULT_PATHS = frozenset(path for _, path in parse_slim_args(SLIM_BUILD_ARGS_DEFAULT).paths)
-# docker-slim options of that default that do not apply here: not worth a line on every slim
-DEFAULT_IGNORED = frozenset(parse_slim_args(SLIM_BUILD_ARGS_DEFAULT).ignored)
-
-
-def slim_options(settings: Settings) -> SlimOptions:
-    return parse_slim_args(settings.slim_build_args, settings.additional_slim_build_args)
-
-
-# ------------------------------------------------------------------------------ pure plans
-def exec_prefix(entrypoint: Sequence[str]) -> List[str]:
-    """The entrypoint without its init (a `docker exec` process is not PID 1)."""
-    items = list(entrypoint)
-    if items and os.path.basename(items[0]) in INITS:
-        items = items[items.index("--") + 1:] if "--" in items else items[1:]
-    return items
-
-
-def maps_users(entrypoint: Sequence[str]) -> bool:
-    return any(item.endswith("docker-ros/entrypoint.sh") for item in entrypoint)
 
 
 def plan_trace_container(run_id: str, config: Mapping, options: SlimOptions,
@@ -299,146 +139,6 @@ def member_path(name: str) -> str:
     """A tar member name of `docker export` as an absolute path."""
     name = name[2:] if name.startswith("./") else name.lstrip("/")
     return "/" + name.rstrip("/")
-
-
-# ------------------------------------------------------------------------------ the check
-@dataclass
-class Probe:
-    """How an image behaved: COMMAND's exit status (None: still running at the end of the
-    window), the execs' exit status and output, the DOCKER_UID probe's, and the output; how
-    long the window lasted and why it ended ("exited", "settled" or "window")."""
-
-    exit_code: Optional[int] = None
-    execs: List[Tuple[str, int, str]] = field(default_factory=list)
-    user: Optional[Tuple[int, str]] = None
-    output: str = ""
-    watched: float = 0.0
-    ended: str = "window"
-
-    def all_output(self) -> str:
-        return self.output + "".join(out for _, _, out in self.execs)
-
-
-# a line a program logged at level INFO or DEBUG is no error, whatever it says (roslaunch's
-# processes race to make ~/.ros/log/latest: "INFO: cannot create a symlink to latest log
-# directory: [Errno 17] File exists", in either image, by chance)
-INFORMATIONAL = re.compile(r"^\s*\[?\s*(INFO|DEBUG)\b")
-# terminal colours and titles (roslaunch prints its errors in red): not part of the message
-ANSI = re.compile(r"\x1b(?:\[[0-9;?]*[A-Za-z]|\][^\x07]*\x07)")
-
-
-def trouble_lines(output: str) -> Set[str]:
-    lines = set()
-    for line in ANSI.sub("", output).splitlines():
-        if TROUBLE.search(line) and not INFORMATIONAL.match(line):
-            line = re.sub(r"[0-9a-f]{8}(-[0-9a-f]{4}){3}-[0-9a-f]{12}", "<uuid>", line.strip())
-            lines.add(re.sub(r"0x[0-9a-fA-F]+|\d+", "N", line))
-    return lines
-
-
-def describe_exit(code: Optional[int], seconds: float) -> str:
-    return f"still running after {seconds:g} s" if code is None else f"exited with {code}"
-
-
-def compare_probes(reference: Probe, slim: Probe, options: SlimOptions) -> List[str]:
-    """What the slim image did differently from the run image (empty: it passed)."""
-    diffs = []
-    if reference.exit_code != slim.exit_code:
-        diffs.append(f"COMMAND {describe_exit(reference.exit_code, reference.watched)} in the "
-                     f"run image but {describe_exit(slim.exit_code, slim.watched)} in the slim "
-                     "image")
-    for (command, code, _), (_, slim_code, slim_out) in zip(reference.execs, slim.execs):
-        if code != slim_code:
-            last = slim_out.strip().splitlines()[-1:] or ["no output"]
-            diffs.append(f"--exec {command!r} exited with {code} in the run image but "
-                         f"{slim_code} in the slim image ({last[0]})")
-    if reference.user != slim.user and slim.user is not None:
-        diffs.append(f"DOCKER_UID={PROBE_UID} user mapping: run image gave {reference.user}, "
-                     f"slim image {slim.user}")
-    for text in options.expect:
-        if text not in reference.all_output():
-            diffs.append(f"--expect {text!r} is not in the run image's output either: "
-                         "check the expectation or --continue-after")
-        elif text not in slim.all_output():
-            diffs.append(f"--expect {text!r} is in the run image's output, not the slim one's")
-    new = sorted(trouble_lines(slim.all_output()) - trouble_lines(reference.all_output()))
-    if new:
-        diffs.append("the slim image printed errors the run image did not: "
-                     + " | ".join(new[:5]))
-    return diffs
-
-
-Ending = Optional[Tuple[str, Optional[int]]]  # why a window ends, COMMAND's exit status
-
-
-def expected_seen(expect: Sequence[str], output: str) -> bool:
-    return all(text in output for text in expect)
-
-
-def trace_ending(log: str, running: bool, code: int, expect: Sequence[str]) -> Ending:
-    """Why the trace window ends now (None: it goes on): COMMAND exited, or the traced files
-    settled (the tracer's SETTLED line) with every --expect text printed."""
-    found = EXITED.search(log)
-    if found:
-        return ("exited", int(found.group(1)))
-    if not running:
-        raise SlimError(f"the tracer stopped early (exit code {code}): " + log.strip()[-500:])
-    if SETTLED.search(log) and expected_seen(expect, log):
-        return ("settled", None)
-    return None
-
-
-def check_ending(elapsed: float, running: bool, code: int, reference: Probe,
-                 output: Callable[[], str], expect: Sequence[str]) -> Ending:
-    """Why the check window ends now: COMMAND exited, or the slim image ran as long as the
-    run image was watched (and printed every --expect text)."""
-    if not running:
-        return ("exited", code)
-    if reference.ended != "exited" and elapsed >= reference.watched and (
-            not expect or expected_seen(expect, output())):
-        return (reference.ended, None)
-    return None
-
-
-def watch(poll: Callable[[float], Ending], limit: float) -> Tuple[str, Optional[int], float]:
-    """Poll with the seconds since the start until it says why the window ends, at most limit
-    seconds: (why, COMMAND's exit status or None, seconds watched)."""
-    began = time.monotonic()
-    while True:
-        elapsed = time.monotonic() - began
-        ended = poll(elapsed)
-        if ended is not None:
-            return ended[0], ended[1], elapsed
-        if elapsed >= limit:
-            return "window", None, elapsed
-        time.sleep(0.3)
-
-
-def run_probes(name: str, image: str, config: Mapping, options: SlimOptions,
-               poll: Callable[[float], Ending], limit: float, alive: Callable[[], bool]) -> Probe:
-    """Watch a started container for the window, then run the execs and the user probe:
-    in it while it runs, else in a fresh container of the image."""
-    probe = Probe()
-    probe.ended, probe.exit_code, probe.watched = watch(poll, limit)
-    prefix = exec_prefix(config.get("Entrypoint") or [])
-
-    def in_image(env: Sequence[str], argv: Sequence[str]) -> Tuple[int, str]:
-        if not alive():
-            return run_once(image, argv, env)
-        with engine_errors(f"running {shlex.join(argv)[:100]} in {name}"):
-            code, out = container(name).exec_run([*prefix, *argv], environment=list(env))
-        return int(code), bytes(out).decode(errors="replace")
-
-    for command in options.execs:
-        code, out = in_image(options.env, ["bash", "-c", command])
-        probe.execs.append((command, code, out))
-    if maps_users(config.get("Entrypoint") or []):
-        user_env = [f"DOCKER_UID={PROBE_UID}", f"DOCKER_GID={PROBE_UID}",
-                    f"DOCKER_USER={PROBE_USER}"]
-        code, out = in_image(user_env, ["id", "-u"])
-        probe.user = (code, out.strip().splitlines()[-1] if out.strip() else "")
-    probe.output = TRACER_LINE.sub("", logs(name))
-    return probe
 
 
 class Trace:
@@ -748,17 +448,6 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
     return SlimResult(slim_ref, platform, time.monotonic() - began, False)
 
 
-def window_words(probe: Probe, options: SlimOptions) -> str:
-    """How long COMMAND was watched, and why not longer."""
-    if probe.ended == "exited":
-        return f"COMMAND exited with {probe.exit_code} after {probe.watched:.1f} s"
-    if probe.ended == "settled":
-        expected = " and every --expect text was printed" if options.expect else ""
-        return (f"COMMAND watched {probe.watched:.1f} s, until no new file was opened for "
-                f"{options.settle:g} s{expected}")
-    return f"COMMAND watched {probe.watched:.1f} s (--continue-after)"
-
-
 def trace_report(seconds: float, reference: Probe, figures: Mapping, options: SlimOptions
                  ) -> str:
     """The trace in one line: its time, the window, what the tracer saw."""
@@ -775,13 +464,6 @@ def later_report(seconds: float, added: Set[str]) -> str:
     return (f"slim: COMMAND went on for {seconds:.1f} s after the window (while the slim image "
             f"was made and checked) and used {more} ({example}): made and checked again with "
             "them")
-
-
-def check_report(seconds: float, reference: Probe, options: SlimOptions) -> str:
-    """The functional check in one line."""
-    behaviour = describe_exit(reference.exit_code, round(reference.watched, 1))
-    return (f"slim: functional check {seconds:.1f} s passed (COMMAND {behaviour} in both; "
-            f"{len(options.execs)} exec(s), {len(options.expect)} expectation(s))")
 
 
 def size_report(run_ref: str, slim_ref: str, kept: int, total: int, seconds: float) -> str:
