@@ -23,7 +23,7 @@ from typing import List, Mapping, Optional
 import pytest
 
 from docker_ros.host import engine
-from docker_ros.in_image.runtime.lock import LOCK_FILE, local_base_tag
+from docker_ros.in_image.runtime.lockfile import LOCK_FILE, local_base_tag
 from tests import engines
 from tests.ci.cihelp import (
     REPO,

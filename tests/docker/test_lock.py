@@ -52,14 +52,9 @@ from typing import Dict, Iterator, Tuple
 import pytest
 
 from docker_ros.host import engine
-from docker_ros.in_image.runtime.lock import (
-    LOCK_FILE,
-    apt_preferences,
-    dump_lock,
-    host_platform,
-    local_base_tag,
-    lock_digest,
-)
+from docker_ros.in_image.runtime.lock import host_platform
+from docker_ros.in_image.runtime.lockapt import apt_preferences
+from docker_ros.in_image.runtime.lockfile import LOCK_FILE, dump_lock, local_base_tag, lock_digest
 from tests.docker.buildhelp import (
     docker_ros,
     dpkg_versions,

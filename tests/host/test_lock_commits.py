@@ -5,12 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.in_image.runtime.lock import (
-    dump_repos,
-    host_platform,
-    pin_repos,
-    repository_commits,
-)
+from docker_ros.in_image.runtime.lock import host_platform, repository_commits
+from docker_ros.in_image.runtime.lockfile import dump_repos, pin_repos
 from docker_ros.in_image.runtime.workspace import Workspace
 
 pytestmark = pytest.mark.host
@@ -59,7 +55,8 @@ def test_commits_of_nested_checkouts_and_pinned_import(tmp_path: Path):
 
 def test_locked_clone_step_imports_the_locked_commit_and_unlocked_the_new(tmp_path: Path):
     from docker_ros.core.loading import load_settings
-    from docker_ros.in_image.runtime.lock import LOCK_FILE, dump_lock, host_platform
+    from docker_ros.in_image.runtime.lock import host_platform
+    from docker_ros.in_image.runtime.lockfile import LOCK_FILE, dump_lock
     from docker_ros.in_image.runtime.workspace import StepError, Workspace
     from docker_ros.in_image.steps import clone
 
@@ -88,7 +85,7 @@ def test_locked_clone_step_imports_the_locked_commit_and_unlocked_the_new(tmp_pa
 
 
 def test_apt_closure_lists_the_package_and_what_apt_pulls_in():
-    from docker_ros.in_image.runtime.lock import apt_closure
+    from docker_ros.in_image.runtime.lockapt import apt_closure
 
     closure = apt_closure(["cmatrix"])
     assert "cmatrix" in closure and all(version for version in closure.values())
@@ -101,7 +98,7 @@ def test_lock_host_writes_checks_and_then_holds_the_locked_build(project, tmp_pa
     import json
 
     from docker_ros.host.lock import lock
-    from docker_ros.in_image.runtime.lock import LOCK_FILE, LockError
+    from docker_ros.in_image.runtime.lockfile import LOCK_FILE, LockError
     from docker_ros.in_image.runtime.workspace import StepError
     from docker_ros.in_image.steps import clone, debs
     from tests.rosfixtures import make_git_repo, write_repos

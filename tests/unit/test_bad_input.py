@@ -24,6 +24,7 @@ from docker_ros.host.config import (
     sourced_ros_overrides,
 )
 from docker_ros.host.pipeline import TaskError, check_slim_options, host_workspace
+from docker_ros.in_image.runtime import pipinstall
 from docker_ros.in_image.runtime.files import path_problem
 from docker_ros.in_image.runtime.packages import (
     Package,
@@ -32,7 +33,7 @@ from docker_ros.in_image.runtime.packages import (
 )
 from docker_ros.in_image.runtime.process import script_hint
 from docker_ros.in_image.runtime.workspace import read_user_text
-from docker_ros.in_image.steps import clone, pip
+from docker_ros.in_image.steps import clone
 
 TAG_RULE = ": up to 128 letters, digits, _ . and -, not starting with . or -"
 NAME_RULE = (
@@ -273,8 +274,8 @@ def test_pip_tls_failure_is_recognised_with_the_hint() -> None:
             "status=None)) after connection broken by 'SSLError(SSLCertVerificationError(1, "
             "'[SSL: CERTIFICATE_VERIFY_FAILED] certificate verify failed: unable to get local "
             "issuer certificate (_ssl.c:1006)'))': /simple/tomli-w/")
-    assert "set EXTRA_CA_CERTS" in pip.tls_failure(line)
-    assert pip.tls_failure("Collecting tomli-w") == ""
+    assert "set EXTRA_CA_CERTS" in pipinstall.tls_failure(line)
+    assert pipinstall.tls_failure("Collecting tomli-w") == ""
 
 
 # pip 23's output for a requirement whose metadata cannot be made (its setup.py raises), and
@@ -326,10 +327,10 @@ def test_a_pip_requirement_that_fails_to_build_is_named_with_its_error() -> None
     """pip's last line for a package it cannot build says `hint: See above for details.`
     (before: the whole cause in the message); the message names the requirement and the
     build's own error line."""
-    assert pip.pip_reason(PIP_METADATA_FAILURE) == (
+    assert pipinstall.pip_reason(PIP_METADATA_FAILURE) == (
         "Encountered error while generating package metadata (./badmeta); the build's output "
         "says: RuntimeError: boom: this package needs libfoo")
-    assert pip.pip_reason(PIP_WHEEL_FAILURE) == (
+    assert pipinstall.pip_reason(PIP_WHEEL_FAILURE) == (
         "Could not build wheels for badbuild, which is required to install "
         "pyproject.toml-based projects; the build's output says: nope.c:2:10: fatal error: "
         "nosuch.h: No such file or directory")
@@ -341,12 +342,13 @@ def test_a_pip_requirement_that_fails_to_build_is_named_with_its_error() -> None
                 "error: metadata-generation-failed",
                 "× Encountered error while generating package metadata.",
                 "hint: See above for details."]
-    assert pip.pip_reason(psycopg2) == (
+    assert pipinstall.pip_reason(psycopg2) == (
         "Encountered error while generating package metadata (psycopg2==2.9.9); the build's "
         "output says: Error: pg_config executable not found.")
-    assert pip.pip_reason(["Collecting nosuch==9", "ERROR: No matching distribution found for "
-                           "nosuch==9"]) == "No matching distribution found for nosuch==9"
-    assert pip.pip_reason([]) == "no output"
+    assert pipinstall.pip_reason(["Collecting nosuch==9", "ERROR: No matching distribution "
+                                  "found for nosuch==9"]) == (
+        "No matching distribution found for nosuch==9")
+    assert pipinstall.pip_reason([]) == "no output"
 
 
 def test_crlf_scripts_get_a_hint() -> None:

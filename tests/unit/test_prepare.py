@@ -101,14 +101,14 @@ def test_a_locked_prepare_installs_under_the_pins_and_stops_on_a_difference(
     """held_to_lock around an install: the pins are apt's preferences meanwhile and gone after;
     what was installed is compared with them from the state before (real apt behaviour under
     the pins: tests/docker/test_lock.py)."""
-    from docker_ros.in_image.runtime import lock, prepare
+    from docker_ros.in_image.runtime import lockapt, prepare
     from docker_ros.in_image.runtime.workspace import StepError
 
     status = tmp_path / "status"
     preferences = tmp_path / "preferences.d" / "docker-ros-lock"
     pins = tmp_path / "pins"
     pins.mkdir()
-    (pins / "base.pref").write_text(lock.apt_preferences({"tini": "1"}))
+    (pins / "base.pref").write_text(lockapt.apt_preferences({"tini": "1"}))
     monkeypatch.setattr(prepare, "LOCK_PINS", pins)
     monkeypatch.setattr(prepare, "BEFORE_PREPARE", tmp_path / "absent")
     monkeypatch.setattr(prepare, "DPKG_STATUS", status)
@@ -120,7 +120,7 @@ def test_a_locked_prepare_installs_under_the_pins_and_stops_on_a_difference(
         with prepare.held_to_lock(types, dry_run=False):
             assert preferences.is_file() == held
             if held:
-                assert lock.parse_apt_preferences(preferences.read_text()) == {"tini": "1"}
+                assert lockapt.parse_apt_preferences(preferences.read_text()) == {"tini": "1"}
             status.write_text(f"Package: tini\nStatus: install ok installed\nVersion: {version}\n")
 
     installing("1")
@@ -135,7 +135,7 @@ def test_a_locked_prepare_installs_under_the_pins_and_stops_on_a_difference(
     installing("2", types="all", held=False)
     (pins / "dev.pref").write_text("")
     installing("2", types="all", held=False)
-    (pins / "dev.pref").write_text(lock.apt_preferences({}))
+    (pins / "dev.pref").write_text(lockapt.apt_preferences({}))
     with pytest.raises(StepError, match=r"tini 2 \(not in docker-ros.lock\)"):
         status.write_text("")
         with prepare.held_to_lock("all", dry_run=False):

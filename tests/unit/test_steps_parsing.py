@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 
 from docker_ros.core.loading import load_settings
+from docker_ros.in_image.runtime import pipinstall
 from docker_ros.in_image.runtime.files import read_list_file
-from docker_ros.in_image.runtime.lock import dump_repos
+from docker_ros.in_image.runtime.lockfile import dump_repos
 from docker_ros.in_image.runtime.packages import Package
 from docker_ros.in_image.runtime.repos import interpreters, read_repos, repos_problem
 from docker_ros.in_image.runtime.requirements import nested_file, read_requirement_file
@@ -21,7 +22,7 @@ from docker_ros.in_image.runtime.rosenv import (
     sourced_env,
 )
 from docker_ros.in_image.runtime.workspace import StepError, Workspace, phases
-from docker_ros.in_image.steps import clone, colcon, debs, pip, rosdep
+from docker_ros.in_image.steps import clone, colcon, debs, rosdep
 
 
 def test_read_list_file_comments_blanks_and_spaces(tmp_path):
@@ -214,7 +215,7 @@ def test_missing_nested_file_and_cycles_name_file_and_line(tmp_path):
 
 
 def test_requirement_files_for_pip(tmp_path):
-    path = pip.requirement_files(tmp_path, ["a>=1", "--no-index"], ["a<2"])
+    path = pipinstall.requirement_files(tmp_path, ["a>=1", "--no-index"], ["a<2"])
     assert path.read_text() == "-c constraints.txt\na>=1\n--no-index\n"
     assert (tmp_path / "constraints.txt").read_text() == "a<2\n"
 
@@ -244,24 +245,24 @@ def test_requirement_files_for_pip(tmp_path):
     ],
 )
 def test_pep668_flags(probe, root, flags):
-    assert pip.install_flags(probe, root=root) == flags
+    assert pipinstall.install_flags(probe, root=root) == flags
 
 
 def test_pip_install_argv_and_versions():
-    argv = pip.pip_install_argv("python3", ["a>=1"], ["--break-system-packages"])
+    argv = pipinstall.pip_install_argv("python3", ["a>=1"], ["--break-system-packages"])
     assert argv == ["python3", "-m", "pip", "install", "--break-system-packages", "a>=1"]
-    assert pip.version_tuple("23.0.1") == (23, 0, 1)
-    assert pip.version_tuple("24.1b1") == (24, 1)
-    assert pip.version_tuple(None) == ()
+    assert pipinstall.version_tuple("23.0.1") == (23, 0, 1)
+    assert pipinstall.version_tuple("24.1b1") == (24, 1)
+    assert pipinstall.version_tuple(None) == ()
 
 
 def test_probe_of_this_interpreter():
     import sys
 
-    data = pip.probe_python(sys.executable, step="pip")
+    data = pipinstall.probe_python(sys.executable, step="pip")
     assert set(data) == {"externally_managed", "in_venv", "pip"}
-    assert pip.python_command({"DOCKER_ROS_PYTHON": "/x/python"}) == "/x/python"
-    assert pip.python_command({}) == "python3"
+    assert pipinstall.python_command({"DOCKER_ROS_PYTHON": "/x/python"}) == "/x/python"
+    assert pipinstall.python_command({}) == "python3"
 
 
 # --- clone ---

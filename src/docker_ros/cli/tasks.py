@@ -73,7 +73,7 @@ from docker_ros.host.pipeline import (
     slimmed_here,
 )
 from docker_ros.host.push import manifest, official_only_names, push, push_targets
-from docker_ros.in_image.runtime.lock import LockError
+from docker_ros.in_image.runtime.lockfile import LockError
 from docker_ros.in_image.runtime.workspace import StepError, setup_logging
 from docker_ros.in_image.steps import BY_NAME, STEPS
 

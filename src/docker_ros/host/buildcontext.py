@@ -20,7 +20,7 @@ from docker_ros.host import engine
 from docker_ros.host.engine import image_exists
 from docker_ros.in_image.runtime.files import walk
 from docker_ros.in_image.runtime.inputs import resolve_inputs
-from docker_ros.in_image.runtime.lock import LOCK_FILE
+from docker_ros.in_image.runtime.lockfile import LOCK_FILE
 from docker_ros.in_image.runtime.workspace import StepError, Workspace
 
 PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent

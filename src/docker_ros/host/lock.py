@@ -13,26 +13,24 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple
 from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import Settings
 from docker_ros.host import engine
-from docker_ros.in_image.runtime.lock import (
+from docker_ros.in_image.runtime.lock import recorded_inputs, repository_commits
+from docker_ros.in_image.runtime.lockapt import apt_closure, apt_preferences
+from docker_ros.in_image.runtime.lockfile import (
     FORMAT,
     HOST_TARGET,
     LOCK_FILE,
     LOCKED_ENV,
     LockError,
-    apt_closure,
-    apt_preferences,
     base_image_ref,
     dump_lock,
     image_repository,
     load_lock,
     lock_digest,
     locked_target,
-    pip_report,
-    recorded_inputs,
-    repository_commits,
     stale_inputs,
     target_key,
 )
+from docker_ros.in_image.runtime.lockpip import pip_report
 from docker_ros.in_image.runtime.workspace import Workspace
 
 

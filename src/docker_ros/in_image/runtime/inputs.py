@@ -11,7 +11,7 @@ from typing import List
 
 from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.files import find_special_files, repository_path, walk
-from docker_ros.in_image.runtime.lock import LOCK_FILE, is_locked
+from docker_ros.in_image.runtime.lockfile import LOCK_FILE, is_locked
 from docker_ros.in_image.runtime.packages import package_search_dirs
 from docker_ros.in_image.runtime.requirements import read_requirement_file
 from docker_ros.in_image.runtime.workspace import IGNORE_MARKERS, Workspace, image_main

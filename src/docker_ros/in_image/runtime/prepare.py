@@ -11,7 +11,7 @@ from typing import Dict, Iterator, List, Mapping, Optional, Sequence
 
 from docker_ros.core.settings import Settings, explicitly_set
 from docker_ros.in_image.runtime.apt import DPKG_STATUS, apt_env, install_options
-from docker_ros.in_image.runtime.lock import (
+from docker_ros.in_image.runtime.lockapt import (
     LOCK_PREFERENCES,
     apt_sources,
     parse_apt_preferences,

@@ -25,7 +25,8 @@ from docker_ros.in_image.runtime.files import (
     remove_tree,
     repository_path,
 )
-from docker_ros.in_image.runtime.lock import active_entry, pinned_repos_file
+from docker_ros.in_image.runtime.lock import pinned_repos_file
+from docker_ros.in_image.runtime.lockfile import active_entry
 from docker_ros.in_image.runtime.process import hook_context, is_root, run, run_script, run_tee
 from docker_ros.in_image.runtime.repos import read_repos
 from docker_ros.in_image.runtime.rosenv import SECRETS_DIR, read_secret

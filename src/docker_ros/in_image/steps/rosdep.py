@@ -26,6 +26,7 @@ from docker_ros.in_image.runtime.packages import (
     select_keys,
     underlay_packages,
 )
+from docker_ros.in_image.runtime.pipinstall import pip_install
 from docker_ros.in_image.runtime.process import hook_context, privileged, probe, run
 from docker_ros.in_image.runtime.rosdeprules import (
     cached_sources,
@@ -44,7 +45,6 @@ from docker_ros.in_image.runtime.workspace import (
     step_log,
 )
 from docker_ros.in_image.steps.blacklist import blacklisted_packages
-from docker_ros.in_image.steps.pip import pip_install
 
 STEP = "rosdep"
 STATE_FILE = "rosdep.json"
