@@ -1,7 +1,9 @@
 """In-image half of `docker-ros slim`: trace what a command opens, then compute the keep set.
 
 Runs inside a container of the run image (standard library only, Python 3.8), bind-mounted by
-the host side (docker_ros.host.slim) together with an exchange folder:
+the host side (docker_ros.host.slim) together with an exchange folder. It is one file, over the
+600 lines other modules keep to, because it runs alone: the run image has no docker_ros package
+to import from, so the host copies in this file only.
 
     python3 slimtrace.py --out DIR -- ENTRYPOINT... CMD...
 
