@@ -516,7 +516,7 @@ def test_a_target_failing_after_another_was_built_alone_names_the_built_one(
     assert (failed.value.returncode, failed.value.stage, failed.value.step) == (
         2, "build", "colcon")
 
-    class Terminated(KeyboardInterrupt):  # (as tasks.Terminated: SIGTERM keeps its type)
+    class Terminated(KeyboardInterrupt):  # (as settingstask.Terminated: SIGTERM keeps its type)
         pass
 
     def ctrl_c(argv, targets, platform, **kw):

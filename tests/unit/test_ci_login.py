@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.cli.tasks import logs_in_now
+from docker_ros.cli.settingstask import logs_in_now
 from docker_ros.core.loading import load_settings
 from docker_ros.host import login
 from docker_ros.host.login import (

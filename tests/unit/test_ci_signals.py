@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.cli import tasks
+from docker_ros.cli import settingstask
 from docker_ros.host.pipeline import let_end
 
 # A task stand-in: on SIGTERM it "cleans up" (writes the file) and exits 143, as tasks do.
@@ -53,9 +53,9 @@ def test_a_task_that_got_the_signal_too_is_left_to_end(tmp_path: Path) -> None:
 def test_a_second_sigterm_does_not_cut_the_clean_up_short() -> None:
     previous = signal.getsignal(signal.SIGTERM)
     try:
-        signal.signal(signal.SIGTERM, tasks.terminated)
-        with pytest.raises(tasks.Terminated):
-            tasks.terminated(signal.SIGTERM, None)
+        signal.signal(signal.SIGTERM, settingstask.terminated)
+        with pytest.raises(settingstask.Terminated):
+            settingstask.terminated(signal.SIGTERM, None)
         assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
     finally:
         signal.signal(signal.SIGTERM, previous)

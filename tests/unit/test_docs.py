@@ -17,7 +17,8 @@ from invoke import Program
 from invoke.parser import ParseError, Parser, ParserContext
 
 from docker_ros.cli import reference
-from docker_ros.cli.tasks import COMPOSITE_HELP, ns, setting_help
+from docker_ros.cli.settingstask import setting_help
+from docker_ros.cli.tasks import COMPOSITE_HELP, ns
 from docker_ros.core.display import default_doc
 from docker_ros.core.settings import FIELDS, env_name, is_secret
 from docker_ros.in_image.steps import STEPS

@@ -8,40 +8,41 @@ Errors users can fix end as one line and a non-zero exit.
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import os
-import signal
 import subprocess
 import sys
 import tempfile
-import textwrap
 import time
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+from typing import List
 
-from invoke import Argument, Collection, Context, Exit, Task
+from invoke import Collection, Context, Exit, Task
 
 import docker_ros
+from docker_ros.cli.settingstask import (
+    DRY_RUN,
+    HOST,
+    HOST_SETTINGS,
+    IMAGE_SETTINGS,
+    IN_CONTAINER,
+    PUSH_SETTINGS,
+    SHELL_ON_FAILURE,
+    Flag,
+    settings_task,
+)
 from docker_ros.core import errors
 from docker_ros.core.ci import (
     detect_pipeline,
     docker_tag_part,
-    error_annotation,
     image_references,
     plan_ci_job,
     slim_skipped,
 )
-from docker_ros.core.display import default_doc, made_images, require, required_for_build
-from docker_ros.core.loading import has_bare_set, host_platform, parse_set
+from docker_ros.core.display import made_images, require, required_for_build
+from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import (
     FIELDS,
     Settings,
-    SettingsError,
-    env_name,
-    flag_name,
-    is_secret,
-    kind_of,
-    settings_where,
 )
 from docker_ros.host import (
     baseimage,
@@ -56,12 +57,10 @@ from docker_ros.host.config import config_table, input_problems, read_settings
 from docker_ros.host.lock import lock, lock_status
 from docker_ros.host.pipeline import (
     TaskError,
-    TaskFailed,
     build_targets,
     build_until,
     check_slim_options,
     composite_flow,
-    logged_in_job,
     push_and_report,
     require_tasks,
     run_ci_plan,
@@ -73,230 +72,9 @@ from docker_ros.host.pipeline import (
     slimmed_here,
 )
 from docker_ros.host.push import manifest, official_only_names, push, push_targets
-from docker_ros.in_image.runtime.lockfile import LockError
-from docker_ros.in_image.runtime.workspace import StepError, setup_logging
 from docker_ros.in_image.steps import BY_NAME, STEPS
 
-Flag = Tuple[str, object, str]  # name, default, help
-DRY_RUN: Flag = ("dry_run", False, "Print exactly what would be done; change nothing")
 DOTENV: Flag = ("dotenv", "", "Write docker-ros's _IMAGE_* image names to this dotenv file")
-HOST: Flag = ("host", False, "Run the steps directly on this machine instead of in an image")
-IN_CONTAINER: Flag = (
-    "in_container", False,
-    "Run in a container of the image state just before the step (built up to there), the "
-    "repository mounted when the step reads sources; tag the result <IMAGE>-after-<step>",
-)
-SHELL_ON_FAILURE: Flag = (
-    "shell_on_failure", False,
-    "When a step fails, open a shell in the state just before the failed command (no "
-    "terminal: tag that state <IMAGE>-failed-<step> and print how to enter it)",
-)
-
-
-# Settings every image, host-step or pushing task takes as flags (their declarations' `flags`);
-# any other setting: --set NAME=VALUE.
-IMAGE_SETTINGS = settings_where("flags", "image")
-HOST_SETTINGS = settings_where("flags", "host")
-PUSH_SETTINGS = settings_where("flags", "push")
-SET: Flag = ("set", None, "Any setting, as NAME=VALUE (repeatable), e.g. --set ENABLE_SLIM=false")
-# Secrets are never flags (a command line is visible to every process on the machine); every
-# task still parses them, to say so (and where they go) instead of invoke's "No idea what".
-SECRETS = settings_where("secret", True)
-
-
-def secret_flag_refusal(task: str, given: Sequence[str]) -> str:
-    """The message for secrets given as flags ('' when none was)."""
-    if not given:
-        return ""
-    names = ", ".join(env_name(n) for n in given)
-    return (f"docker-ros {task}: {' and '.join(flag_name(n) for n in given)}: a secret is never "
-            f"a flag (a command line is visible to every process on this machine); set {names}"
-            " in the environment or in the project's .env file")
-
-
-class SettingsTask(Task):
-    """A Task with chosen short flags (e.g. dev-shell's -c) although auto_shortflags is off:
-    automatic ones would differ between tasks, as every setting is a flag of every task."""
-
-    def __init__(self, *args: Any, shortflags: Mapping[str, str], **kwargs: Any) -> None:
-        self.shortflags = shortflags
-        super().__init__(*args, **kwargs)
-
-    def arg_opts(self, name: str, default: str, taken_names: Any) -> Dict[str, Any]:
-        opts = super().arg_opts(name, default, taken_names)
-        if name in self.shortflags:
-            opts["names"].append(self.shortflags[name])
-        return opts
-
-    def get_arguments(self, ignore_unknown_help: Optional[bool] = None) -> List[Argument]:
-        """A repeatable flag with an optional value (--set) starts without a raw value, so that
-        invoke gives a bare one True (invoke would drop it silently): parse_set refuses it."""
-        args = super().get_arguments(ignore_unknown_help)
-        for arg in args:
-            if arg.kind is list and arg.optional:
-                arg.raw_value = None
-        return args
-
-
-def settings_task(
-    name: str,
-    help: str,
-    flags: Sequence[Flag] = (),
-    uses: Sequence[str] = (),
-    shortflags: Mapping[str, str] = {},
-    lenient: bool = False,
-    logs_in: Union[bool, str] = False,
-    login_required: bool = False,
-    helps: Mapping[str, str] = {},
-) -> Callable[..., Task]:
-    """Make an invoke Task whose flags are the task's own, one per setting it uses, and
-    --set NAME=VALUE for any other setting (the full reference: the docs' configuration
-    reference and `inv config`);
-    a flag whose default is a list may be given several times. `lenient`: invalid values
-    reach the task in Settings.problems instead of stopping it. `logs_in`: a task that reaches
-    a registry (a private BASE_IMAGE, CACHE_FROM/CACHE_TO, pushes) runs logged in with
-    REGISTRY_USER/REGISTRY_PASSWORD when they are set, in a DOCKER_CONFIG of its own, removed
-    at its end (see logs_in_now); a failed login stops only a task that `login_required`
-    (pushes), others go on with a warning (they may need no registry). `helps`: a setting's
-    flag help where this task needs another than the declaration's."""
-
-    def decorate(func: Callable[..., Any]) -> Task:
-        own = [f[0] for f in flags]
-        settings_flags = [n for n in dict.fromkeys(uses) if n not in own and not is_secret(n)]
-
-        def body(c: Context, **kwargs: Any) -> Any:
-            setup_logging()
-            hear_interrupts()
-            refused = secret_flag_refusal(name, [n for n in SECRETS if kwargs.pop(n) is not None])
-            if refused:
-                raise Exit(refused, code=2)
-            if invoke_dry(c):
-                # invoke's -R/--dry means "do not act": our dry run, or a refusal, never ignored.
-                if "dry_run" not in kwargs:
-                    raise Exit(f"docker-ros {name}: has no dry run; invoke's -R/--dry is only "
-                               "accepted by tasks with --dry-run", code=2)
-                kwargs["dry_run"] = True
-            try:
-                # A named flag beats a --set of the same setting.
-                given = list(kwargs.pop("set") or ())
-                # (a flag after a bare --set may have been taken as its value: refused already)
-                if has_bare_set(sys.argv[1:]) and not any(
-                        item is True or str(item).startswith("-") for item in given):
-                    given.append(True)
-                overrides: Dict[str, object] = dict(parse_set(given))
-                overrides.update({n: kwargs.pop(n) for n in settings_flags
-                                  if kwargs[n] is not None})
-                for n in settings_flags:
-                    kwargs.pop(n, None)
-                near = [k for k in c.config if k != "docker_ros" and
-                        str(k).lower().replace("-", "_") in ("docker_ros", "dockerros")]
-                if near:  # (its settings would be ignored without a word)
-                    raise SettingsError(f"invoke configuration: `{near[0]}:` is not read; the "
-                                        "settings go under `docker_ros:`")
-                cfg = c.config.get("docker_ros", None) or {}
-                if not isinstance(cfg, Mapping):
-                    raise SettingsError(f"invoke configuration: `docker_ros:` is {cfg!r}: "
-                                        "give it the settings as NAME: value lines")
-                settings = read_settings(dict(cfg), overrides, lenient=lenient, command=name)
-                if not logs_in_now(logs_in, kwargs):
-                    return func(c, settings, **kwargs)
-                with logged_in_job(settings, f"docker-ros {name}", required=login_required,
-                                   dry_run=bool(kwargs.get("dry_run"))):
-                    return func(c, settings, **kwargs)
-            except KeyboardInterrupt as exc:
-                # (a build's names what BuildKit had tagged before the Ctrl-C: build.noted)
-                detail = f" ({exc})" if str(exc) else ""
-                if isinstance(exc, Terminated):
-                    raise Exit(f"docker-ros {name}: terminated (SIGTERM){detail}",
-                               code=143) from None
-                raise Exit(f"docker-ros {name}: interrupted{detail}", code=130) from None
-            except (SettingsError, StepError, TaskError, LockError, engine.EngineError) as exc:
-                code = getattr(exc, "returncode", 1) or 1
-                where = exc.step if isinstance(exc, StepError) else name
-                text = exc.message if isinstance(exc, StepError) else str(exc)
-                annotation = error_annotation(os.environ, f"docker-ros {where}", text)
-                if annotation and not isinstance(exc, TaskFailed):  # (the task's is there)
-                    print(annotation, flush=True)
-                raise Exit(f"docker-ros {where}: {text}", code=code) from None
-
-        keyword = inspect.Parameter.KEYWORD_ONLY
-        params = [inspect.Parameter("c", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
-        params += [inspect.Parameter(n, keyword, default=d) for n, d, _ in [*flags, SET]]
-        # Secrets get no flag: a command line is visible to every process on the machine.
-        params += [inspect.Parameter(n, keyword, default=None) for n in settings_flags]
-        params += [inspect.Parameter(n, keyword, default=None) for n in SECRETS]
-        body.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
-        # First paragraph: the one line of `--list` (at most 76 characters, a test checks);
-        # the others wrapped for 80 columns.
-        first, *rest = help.split("\n\n")
-        body.__doc__ = "\n\n".join([first, *(textwrap.fill(part, 76) for part in rest)])
-        body.__name__ = name.replace("-", "_")
-        help_map: Dict[str, str] = {n: h for n, _, h in [*flags, SET]}
-        for n in settings_flags:
-            help_map[n] = helps.get(n) or setting_help(n)
-        for n in SECRETS:
-            help_map[n] = f"Refused (a secret): set {env_name(n)} in the env or .env"
-        repeatable = ["set"] + [n for n, d, _ in flags if isinstance(d, list)]
-        # `--enable-slim` alone means true; `--enable-slim=false` (or a value after it) too.
-        # A bare --set gets True that way (invoke drops an empty one): parse_set refuses it.
-        optional = [n for n in settings_flags if kind_of(n) == "bool"] + list(SECRETS) + ["set"]
-        return SettingsTask(body, name=name, help=help_map, auto_shortflags=False,
-                            iterable=repeatable, optional=optional, shortflags=shortflags)
-
-    return decorate
-
-
-def logs_in_now(logs_in: Union[bool, str], flags: Mapping[str, object]) -> bool:
-    """Whether a task logs in: `logs_in` True (not with --host, on this machine), or the name
-    of the flag that makes it reach a registry (a step's --in-container)."""
-    if isinstance(logs_in, str):
-        return bool(flags.get(logs_in))
-    return logs_in and not flags.get("host")
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (a cancelled CI job, `timeout`, `kill`), handled as Ctrl-C is: what the task
-    made (a login's DOCKER_CONFIG, a key file, temporary folders) is removed on the way out."""
-
-
-def terminated(signum: int, frame: Any) -> None:
-    # Once: a second SIGTERM (the job's runner and `docker-ros ci` may both send one) must not
-    # cut short the clean-up the first one started.
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    raise Terminated
-
-
-def hear_interrupts() -> None:
-    """Ctrl-C raises KeyboardInterrupt (exit 130, "interrupted") even when we started with
-    SIGINT ignored, as a background job of a script does: buildx and docker (Go) stop on it
-    anyway, and their failure must not be reported as a failed build. SIGTERM raises
-    Terminated (exit 143), whose way out runs the same clean-ups."""
-    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, terminated)
-
-
-def setting_help(name: str) -> str:
-    """A setting's flag help: its description and default (the flag names the variable).
-    A default with a word too long for the help column (which invoke would break) is left to
-    `inv config`."""
-    default = default_doc(name).replace("`", "").replace("*", "")
-    text = str(FIELDS[name].metadata["help"])
-    # (the defaults of the CI integrations are not this machine's: the reference lists them)
-    if (not default or max(len(word) for word in default.split()) > 26
-            or default.startswith("GitHub Action:")):
-        return text
-    if default.startswith("required"):  # no default: a value must be given
-        return f"{text} ({default})"
-    return f"{text} (default: {default})"
-
-
-def invoke_dry(c: Context) -> bool:
-    """invoke's core flag -R/--dry (config run.dry)."""
-    try:
-        return bool(c.config.run.dry)
-    except AttributeError:
-        return False
 
 
 def make_step_task(step: str) -> Task:

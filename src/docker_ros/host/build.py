@@ -46,7 +46,7 @@ from docker_ros.host.refs import platform_base
 
 
 def noted(interruption: KeyboardInterrupt, tagged: Sequence[str]) -> KeyboardInterrupt:
-    """A Ctrl-C (or SIGTERM: tasks.Terminated) after which images of the build stay tagged
+    """A Ctrl-C (or SIGTERM: settingstask.Terminated) after which images of the build stay tagged
     (BuildKit had finished them): its message names them (`'dev' was built: x:1-dev`)."""
     notes = [*tagged, *([str(interruption)] if str(interruption) else [])]
     interruption.args = ("; ".join(notes),) if notes else ()
@@ -109,7 +109,7 @@ def check_engine(settings: Optional[Settings] = None) -> None:
 def selected_builder(settings: Settings) -> builder.Builder:
     """The builder of this run (BUILDER, BUILDX_BUILDER or the current one), inspected once.
     (buildx exports a registry cache with the CLI's credentials: the task's login, see
-    cli.tasks.settings_task.)"""
+    cli.settingstask.settings_task.)"""
     try:
         return builder.selected(settings.builder or "", bool(settings.cache_to),
                                 settings.buildx_attestations)
