@@ -19,7 +19,7 @@ from typing import Dict, List, Optional, Sequence
 
 import docker
 
-from docker_ros.host.build import image_exists  # noqa: F401  (re-exported for the tests)
+from docker_ros.host.engine import image_exists  # noqa: F401  (re-exported for the tests)
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "example"

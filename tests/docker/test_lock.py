@@ -51,8 +51,8 @@ from typing import Dict, Iterator, Tuple
 
 import pytest
 
+from docker_ros.core.loading import host_platform
 from docker_ros.host import engine
-from docker_ros.in_image.runtime.lock import host_platform
 from docker_ros.in_image.runtime.lockapt import apt_preferences
 from docker_ros.in_image.runtime.lockfile import LOCK_FILE, dump_lock, local_base_tag, lock_digest
 from tests.docker.buildhelp import (

@@ -5,7 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from docker_ros.in_image.runtime.lock import host_platform, repository_commits
+from docker_ros.core.loading import host_platform
+from docker_ros.in_image.runtime.lock import repository_commits
 from docker_ros.in_image.runtime.lockfile import dump_repos, pin_repos
 from docker_ros.in_image.runtime.workspace import Workspace
 
@@ -54,8 +55,7 @@ def test_commits_of_nested_checkouts_and_pinned_import(tmp_path: Path):
 
 
 def test_locked_clone_step_imports_the_locked_commit_and_unlocked_the_new(tmp_path: Path):
-    from docker_ros.core.loading import load_settings
-    from docker_ros.in_image.runtime.lock import host_platform
+    from docker_ros.core.loading import host_platform, load_settings
     from docker_ros.in_image.runtime.lockfile import LOCK_FILE, dump_lock
     from docker_ros.in_image.runtime.workspace import StepError, Workspace
     from docker_ros.in_image.steps import clone

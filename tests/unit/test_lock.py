@@ -260,7 +260,7 @@ def test_entry_changes_name_each_difference_by_entry():
 
 def test_lock_status_says_whether_a_lock_is_in_use(tmp_path: Path):
     from docker_ros.core.loading import load_settings
-    from docker_ros.host.lock import lock_status
+    from docker_ros.host.lockpins import lock_status
 
     def status(**environ):
         return lock_status(load_settings(environ={"BUILD_CONTEXT": str(tmp_path), **environ},
@@ -361,7 +361,7 @@ def test_an_install_otherwise_than_the_lock_names_each_difference():
 def test_the_prepare_pins_are_the_run_and_dev_entries_and_an_old_lock_is_refused(
         tmp_path: Path):
     from docker_ros.core.loading import load_settings
-    from docker_ros.host.lock import prepare_pins
+    from docker_ros.host.lockpins import prepare_pins
 
     entries = {"run/amd64": {"prepare": {"tini": "1"}},
                "dev/amd64": {"prepare": {"tini": "1", "g++": "2"}}}

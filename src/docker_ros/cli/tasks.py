@@ -54,7 +54,8 @@ from docker_ros.host import (
     refs,
 )
 from docker_ros.host.config import config_table, input_problems, read_settings
-from docker_ros.host.lock import lock, lock_status
+from docker_ros.host.lock import lock
+from docker_ros.host.lockpins import lock_status
 from docker_ros.host.pipeline import (
     TaskError,
     build_targets,

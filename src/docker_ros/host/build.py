@@ -41,7 +41,7 @@ from docker_ros.host.buildplan import (
     secret_env,
 )
 from docker_ros.host.engine import image_exists, image_size
-from docker_ros.host.lock import prepare_pin_secrets, tag_local_base
+from docker_ros.host.lockpins import prepare_pin_secrets, tag_local_base
 from docker_ros.host.refs import platform_base
 
 

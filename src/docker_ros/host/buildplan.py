@@ -24,7 +24,7 @@ from docker_ros.host.buildcontext import (
     source_stages,
 )
 from docker_ros.host.config import rmw_chosen
-from docker_ros.host.lock import lock_labels, locked_build_args
+from docker_ros.host.lockpins import lock_labels, locked_build_args
 from docker_ros.host.refs import shown_base
 
 SECRETS = build_secrets()

@@ -45,7 +45,7 @@ from docker_ros.host import (
 )
 from docker_ros.host.build import BuiltImage
 from docker_ros.host.config import image_problems, input_problems
-from docker_ros.host.lock import lock_status
+from docker_ros.host.lockpins import lock_status
 from docker_ros.host.login import LoginError, job_login, plan_login
 from docker_ros.host.push import plan_outputs, registry_warning, write_outputs
 from docker_ros.in_image import testing

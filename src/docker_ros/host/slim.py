@@ -24,13 +24,13 @@ from typing import IO, Any, Dict, Iterator, List, Mapping, Sequence, Set, Tuple
 
 from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import Settings
-from docker_ros.host.build import image_size
 from docker_ros.host.buildcontext import PACKAGE_DIR
 from docker_ros.host.engine import (
     client,
     container,
     container_state,
     engine_errors,
+    image_size,
     inspect_image,
     logs,
     remove_container,
@@ -38,7 +38,7 @@ from docker_ros.host.engine import (
     signals_held,
     tag,
 )
-from docker_ros.host.lock import LOCK_LABEL, lock_labels, lock_path
+from docker_ros.host.lockpins import LOCK_LABEL, lock_labels, lock_path
 from docker_ros.host.refs import target_ref
 from docker_ros.host.slimoptions import (
     DEFAULT_IGNORED,

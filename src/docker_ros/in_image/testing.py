@@ -17,6 +17,19 @@ import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 from typing import Dict, Iterable, Iterator, List, NamedTuple, Optional, Sequence, Tuple
 
+from docker_ros.core.loading import load_settings
+from docker_ros.in_image.runtime.process import run_tee
+from docker_ros.in_image.runtime.rosenv import ros_setup_files, sourced_env
+from docker_ros.in_image.runtime.workspace import (
+    DEFAULT_WORKSPACE,
+    StepError,
+    Workspace,
+    image_main,
+)
+from docker_ros.in_image.steps import colcon
+from docker_ros.in_image.steps.blacklist import blacklisted_packages
+from docker_ros.in_image.steps.colcon import SEE_ABOVE
+
 LOG = logging.getLogger(__name__)
 STEP = "test"
 MARKER = ".docker-ros-test-results"  # a results folder we made (and may replace)
@@ -135,8 +148,6 @@ def failed_cases(root: Path) -> List[str]:
     """`<package>: <test> (<first line of the failure's message>)` of each failed test case in
     the JUnit reports below root (the package: the report's first folder, as colcon's build/
     has them; left out when the test's name starts with it, as colcon's pytest names them)."""
-    from docker_ros.in_image.runtime.workspace import DEFAULT_WORKSPACE
-
     found = []
     for path, cases in junit_reports(root):
         parts = path.relative_to(root).parts
@@ -191,8 +202,6 @@ def verdict(outcome: Dict[str, int], counts: Counts, cases: Sequence[str] = (),
     """None when everything passed, else what failed (one line): the failed test cases
     (failed_cases), the packages whose tests failed without a failed case
     (package_test_failures) or the colcon step's error (BUILD_ERROR) named."""
-    from docker_ros.in_image.steps.colcon import SEE_ABOVE
-
     if outcome.get("colcon_build", 0) != 0:
         # (the task's message says it once at its end)
         cause = build_error[:-len(SEE_ABOVE)] if build_error.endswith(SEE_ABOVE) else build_error
@@ -236,13 +245,6 @@ def copy_results(ws_root: Path, destination: Path, *, junit: bool = True) -> Non
 def run_in_image(ws_root: Path, destination: Path, environ: Dict[str, str]) -> Dict[str, int]:
     """colcon build (as the build stage: same arguments, same build/ cache), colcon test,
     colcon test-result; returns and records the exit codes, never raises for a failed test."""
-    from docker_ros.core.loading import load_settings
-    from docker_ros.in_image.runtime.process import run_tee
-    from docker_ros.in_image.runtime.rosenv import ros_setup_files, sourced_env
-    from docker_ros.in_image.runtime.workspace import StepError, Workspace
-    from docker_ros.in_image.steps import colcon
-    from docker_ros.in_image.steps.blacklist import blacklisted_packages
-
     ws = Workspace(ws_root)
     settings = load_settings(environ=environ, project_dir=Path(ws.target))
     destination.mkdir(parents=True, exist_ok=True)
@@ -310,8 +312,6 @@ def install_results(exported: Path, results: Path) -> None:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    from docker_ros.in_image.runtime.workspace import image_main
-
     return image_main(sys.argv[1:] if argv is None else argv, module="testing", step=STEP,
                       description="colcon build, test and test-result in the workspace; exit "
                       "codes, JUnit XML and logs go to DESTINATION (settings from the "

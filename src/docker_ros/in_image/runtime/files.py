@@ -9,7 +9,7 @@ import shutil
 from pathlib import Path
 from typing import Callable, Iterator, List, Optional, Sequence, Tuple
 
-from docker_ros.core.settings import Settings
+from docker_ros.core.settings import FIELDS, Settings, explicitly_set
 from docker_ros.in_image.runtime.workspace import (
     LOG,
     SKIP_DIRS,
@@ -93,8 +93,6 @@ def find_special_files(
     """docker-ros's file discovery for path setting `name`: the configured file in the
     repository, and when its recursive setting is on, every file of the same name (or matching
     `pattern`) anywhere in the workspace. A file the user set explicitly must exist."""
-    from docker_ros.core.settings import FIELDS, explicitly_set
-
     ws.require_sources(step)
     relative_path = str(getattr(settings, name))
     switch = FIELDS[name].metadata["recursive"]

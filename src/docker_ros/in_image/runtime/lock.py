@@ -29,7 +29,7 @@ from docker_ros.in_image.runtime.lockfile import (
     stale_inputs,
 )
 from docker_ros.in_image.runtime.lockpip import check_pip_available, pip_constraints, pip_report
-from docker_ros.in_image.runtime.workspace import StepError, Workspace
+from docker_ros.in_image.runtime.workspace import StepError, Workspace, entry_parser, image_main
 
 
 def locked_arguments(
@@ -201,8 +201,6 @@ def check_resolution(ws: Workspace, settings: Settings) -> None:
 def main(argv: List[str]) -> int:
     """`python3 -m docker_ros.in_image.runtime.lock check` (resolve stage) or `... resolve OUT
     TYPES UPSTREAM BARE` (the lock stages: OUT/<target>.json)."""
-    from docker_ros.in_image.runtime.workspace import entry_parser, image_main
-
     if argv[:1] not in (["check"], ["resolve"]):  # --help, or no command: say which there are
         parser = entry_parser("runtime.lock", "LOCKED builds: check a resolution against "
                               "docker-ros.lock, or write an image's lock entry.")

@@ -69,7 +69,7 @@ def condition_context(
 
 def catkin_pkg(step: str) -> Any:
     """catkin_pkg (its package module loaded), or a StepError saying how to get it."""
-    try:
+    try:  # catkin_pkg is no standard library: rosdep's, where it is installed
         import catkin_pkg.package
     except ImportError:
         raise StepError(step, "the Python module catkin_pkg (part of rosdep) is missing; on the "

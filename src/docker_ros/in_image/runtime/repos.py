@@ -65,7 +65,7 @@ def read_repos(path: Path, *, step: str, shown: str = "") -> Repos:
     if is_empty(text):
         return {}
     problems: List[str] = []
-    try:
+    try:  # vcstool is no standard library: where it is installed (the host extra, images' tools)
         from vcstool.commands.import_ import get_repositories
     except ImportError:
         repos = _read_elsewhere(Path(path), step=step, shown=shown)

@@ -5,6 +5,7 @@ Standard library at import time (runs in images); YAML is read with PyYAML, whic
 and the host has with invoke, imported when a file is checked."""
 
 import hashlib
+import importlib
 import os
 import pickle
 from pathlib import Path
@@ -18,8 +19,6 @@ CACHE = Path("rosdep") / "sources.cache"  # below ROS_HOME
 
 def yaml_module() -> Any:
     """PyYAML (rosdep's), else invoke's (the host's docker-ros has invoke), else None."""
-    import importlib
-
     for name in ("yaml", "invoke.util"):
         try:
             module = importlib.import_module(name)

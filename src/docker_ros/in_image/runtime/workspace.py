@@ -12,6 +12,9 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
 
+from docker_ros.core.loading import load_settings
+from docker_ros.core.settings import SettingsError
+
 LOG = logging.getLogger("docker_ros")
 
 
@@ -214,9 +217,6 @@ def image_main(argv: Sequence[str], *, module: str, step: str, description: str,
     argv (entry_parser), loads the settings from the environment (unless settings is False:
     action then gets None), runs action(workspace, settings, values); errors as one
     `docker-ros <step>:` line and exit code 1."""
-    from docker_ros.core.loading import load_settings
-    from docker_ros.core.settings import SettingsError
-
     parser = entry_parser(module, description)
     for name in arguments:
         parser.add_argument(name.lower(), metavar=name)

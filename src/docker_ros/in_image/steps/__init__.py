@@ -2,11 +2,11 @@
 
 import importlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, Dict, Mapping, Tuple
+from typing import Callable, Dict, Mapping, Tuple
 
-if TYPE_CHECKING:  # the settings type only; nothing outside the standard library at run time
-    from docker_ros.core.settings import Settings
-    from docker_ros.in_image.runtime.workspace import Workspace
+from docker_ros.core.settings import Settings
+from docker_ros.in_image.runtime.workspace import StepError, Workspace
+
 
 @dataclass(frozen=True)
 class Option:
@@ -106,8 +106,8 @@ def step_main(name: str) -> "Callable[..., None]":
 
 def run_step(
     name: str,
-    ws: "Workspace",
-    settings: "Settings",
+    ws: Workspace,
+    settings: Settings,
     *,
     phase: str = "all",
     dry_run: bool = False,
@@ -115,7 +115,5 @@ def run_step(
 ) -> None:
     """Run one step by name: `<its module>.main(ws, settings, ...)`."""
     if name not in BY_NAME:
-        from docker_ros.in_image.runtime.workspace import StepError
-
         raise StepError(name, f"unknown step {name!r}; steps: {', '.join(STEPS)}")
     step_main(name)(ws, settings, phase=phase, dry_run=dry_run, **options)
