@@ -16,6 +16,7 @@ from docker_ros.core.ci import (
     error_annotation,
 )
 from docker_ros.core.display import default_doc
+from docker_ros.core.errors import DockerRosError
 from docker_ros.core.loading import has_bare_set, parse_set
 from docker_ros.core.settings import (
     FIELDS,
@@ -26,16 +27,11 @@ from docker_ros.core.settings import (
     kind_of,
     settings_where,
 )
-from docker_ros.host import (
-    engine,
-)
 from docker_ros.host.config import read_settings
 from docker_ros.host.pipeline import (
-    TaskError,
     TaskFailed,
     logged_in_job,
 )
-from docker_ros.in_image.runtime.lockfile import LockError
 from docker_ros.in_image.runtime.workspace import StepError, setup_logging
 
 Flag = Tuple[str, object, str]  # name, default, help
@@ -170,8 +166,8 @@ def settings_task(
                     raise Exit(f"docker-ros {name}: terminated (SIGTERM){detail}",
                                code=143) from None
                 raise Exit(f"docker-ros {name}: interrupted{detail}", code=130) from None
-            except (SettingsError, StepError, TaskError, LockError, engine.EngineError) as exc:
-                code = getattr(exc, "returncode", 1) or 1
+            except DockerRosError as exc:  # (the one place that reports them)
+                code = exc.exit_code
                 where = exc.step if isinstance(exc, StepError) else name
                 text = exc.message if isinstance(exc, StepError) else str(exc)
                 annotation = error_annotation(os.environ, f"docker-ros {where}", text)

@@ -137,10 +137,7 @@ def lock_task(c: Context, settings: Settings, *, check: bool, host: bool) -> Non
     started = time.monotonic()
     if not host:
         require(settings, ["base_image"])  # (COMMAND is no input of what a build installs)
-        try:
-            build.check_engine()
-        except errors.BuildError as exc:
-            raise TaskError(str(exc)) from None
+        build.check_engine()
     try:
         changes = lock(settings, check=check, host=host, out=sys.stdout)
     except errors.BuildError as exc:
@@ -213,10 +210,8 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     check_slim_options(settings)
     here = [p for p in settings.platform if slimmed_here(settings, p)]
     if not dry_run:
-        try:  # (the builder first: a docker context's engine holds the run image)
-            build.check_engine(settings)
-        except errors.BuildError as exc:
-            raise TaskError(str(exc)) from None
+        # (the builder first: a docker context's engine holds the run image)
+        build.check_engine(settings)
     missing = [] if dry_run else [ref for ref in (refs.target_ref(settings, "run", p)
                                                   for p in here)
                                   if not engine.local_or_pulled(ref)]
@@ -384,10 +379,8 @@ def bootstrap_base_image(
         raise TaskError(f"--flavor {flavor!r}: use one of {', '.join(baseimage.FLAVORS)}")
     tag = tag or baseimage.default_tag(flavor)
     with tempfile.TemporaryDirectory(prefix="docker-ros-ca-") as tmp:
-        try:  # (ros1-ubuntu's pip behind a TLS-intercepting proxy)
-            bundle = buildcontext.extra_ca_bundle(settings, Path(tmp))
-        except errors.BuildError as exc:
-            raise TaskError(str(exc)) from None
+        # (ros1-ubuntu's pip behind a TLS-intercepting proxy)
+        bundle = buildcontext.extra_ca_bundle(settings, Path(tmp))
         for platform in settings.platform:
             print(baseimage.bootstrap(flavor, tag=tag, mirror=mirror, platform=platform,
                                       force=force, ca_bundle=bundle))
@@ -412,10 +405,7 @@ def example(c: Context, settings: Settings, *, seconds: int) -> None:
     settings = read_settings({}, {**given, "build_context": str(project)}, project_dir=project)
     assert settings.base_image
     # the engine that keeps the images BUILDER builds (a docker context's own), base included
-    try:
-        cli = container.docker_cli(settings)
-    except errors.BuildError as exc:
-        raise TaskError(str(exc)) from None
+    cli = container.docker_cli(settings)
     # Made once with debootstrap, then reused while its recipe is unchanged.
     baseimage.bootstrap("ros1", tag=settings.base_image, cli=cli,
                         network=settings.build_network or "")

@@ -7,6 +7,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, List, Mapping, Optional, Tuple, Union
 
+from docker_ros.core.errors import DockerRosError
+
 # docker-ros's (the probe runs as a user the entrypoint creates; its files are left out)
 SLIM_BUILD_ARGS_DEFAULT = (
     "--sensor-ipc-mode proxy --continue-after=30 --show-clogs --http-probe=false"
@@ -33,7 +35,7 @@ RECURSIVE_HELP = "Enable recursive discovery of files named as the {}, anywhere 
 Value = Union[str, bool, Tuple[str, ...], None]
 
 
-class SettingsError(ValueError):
+class SettingsError(DockerRosError, ValueError):
     """One or more configuration values are invalid or missing (message lists all of them)."""
 
 

@@ -10,6 +10,7 @@ import subprocess
 from dataclasses import dataclass
 from typing import List, Mapping, Optional, Tuple
 
+from docker_ros.core.errors import DockerRosError
 from docker_ros.host import engine
 
 # Drivers whose BuildKit is not an engine's own: --load copies the image into the CLI's engine.
@@ -17,7 +18,7 @@ CONTAINER_DRIVERS = ("docker-container", "remote", "kubernetes")
 CONTAINERD_STORE = "io.containerd.snapshotter"
 
 
-class BuilderError(Exception):
+class BuilderError(DockerRosError):
     """The builder cannot be found or used: which one and what to do."""
 
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
+from docker_ros.core.errors import DockerRosError
 from docker_ros.core.settings import FALSE_WORDS, TRUE_WORDS, Settings
 from docker_ros.in_image.runtime.files import read_list_file
 from docker_ros.in_image.runtime.workspace import StepError
@@ -26,7 +27,7 @@ COLCON_SELECTING_VERBS = ("build", "test", "list", "graph")
 FAMILY_WILD = 0xFFFF  # an X authority entry valid for any host name (the container's too)
 
 
-class DevShellError(Exception):
+class DevShellError(DockerRosError):
     """A dev-shell option that cannot work (one line for the user)."""
 
 

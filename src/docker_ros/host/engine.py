@@ -21,8 +21,10 @@ from docker.errors import APIError, DockerException, ImageNotFound, NotFound
 from docker.models.containers import Container
 from docker.utils import parse_repository_tag
 
+from docker_ros.core.errors import DockerRosError
 
-class EngineError(Exception):
+
+class EngineError(DockerRosError):
     """The engine refused or failed: what, and docker's reason."""
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Dict, Iterator, List, Mapping, MutableMapping, Optional
 
 from docker_ros.core.display import registry_of, server_host
+from docker_ros.core.errors import DockerRosError
 from docker_ros.core.settings import Settings
 from docker_ros.host.engine import docker_config_dir
 
@@ -30,7 +31,7 @@ OPTIONAL_LOGIN_SECONDS = 20.0
 DOCKER_HUB_INDEX = "https://index.docker.io/v1/"  # where docker files a Docker Hub login
 
 
-class LoginError(Exception):
+class LoginError(DockerRosError):
     """`docker login` refused the credentials or could not reach the registry."""
 
 

@@ -29,6 +29,7 @@ from typing import (
 from docker_ros.core import errors
 from docker_ros.core.ci import missing_tasks
 from docker_ros.core.display import missing_required, require, required_for_build
+from docker_ros.core.errors import DockerRosError
 from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import Settings, SettingsError, env_name
 from docker_ros.host import (
@@ -46,7 +47,7 @@ from docker_ros.host import (
 from docker_ros.host.build import BuiltImage
 from docker_ros.host.config import image_problems, input_problems
 from docker_ros.host.lockpins import lock_status
-from docker_ros.host.login import LoginError, job_login, plan_login
+from docker_ros.host.login import job_login, plan_login
 from docker_ros.host.push import plan_outputs, registry_warning, write_outputs
 from docker_ros.in_image import testing
 from docker_ros.in_image.runtime.workspace import STATE_DIR_NAME, Workspace, format_argv
@@ -55,13 +56,14 @@ from docker_ros.in_image.steps import BY_NAME, STEPS, run_step
 DEV_STEPS = tuple(s for s in STEPS if BY_NAME[s].stage in ("source", "dependencies-dev"))
 
 
-class TaskError(Exception):
+class TaskError(DockerRosError):
     """An expected failure outside the steps (bad repository layout, failed build...), and the
     task's exit code."""
 
     def __init__(self, message: str, returncode: int = 1) -> None:
         super().__init__(message)
         self.returncode = returncode
+        self.exit_code = returncode or 1
 
 
 class TaskFailed(TaskError):
@@ -195,11 +197,8 @@ def run_in_container(settings: Settings, plan: Any, *, dry_run: bool,
             print("[dry-run]   " + container.shown(command))
         print(f"[dry-run] commit and tag {plan.tag}")
         return plan.tag
-    try:
-        build.check_engine(settings)
-        tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
-    except errors.BuildError as exc:
-        raise TaskError(str(exc)) from None
+    build.check_engine(settings)
+    tag = container.run_plan(settings, plan, shell_on_failure=shell_on_failure)
     line = container.docker_run_line(tag, [repository] if plan.sources else [], ["bash"],
                                      tty=True, cli=container.docker_cli(settings))
     print(f"tagged {tag}\n  enter it: {line}")
@@ -226,10 +225,7 @@ def composite_flow(settings: Settings, name: str, *, host: bool, dry_run: bool, 
 def shown_builder(settings: Settings) -> builder.Builder:
     """The builder a dry run shows the builds in: inspected as a build would (when BUILDER,
     CACHE_TO or the environment picks one), a builder that cannot be is the dry run's error."""
-    try:
-        return build.selected_builder(settings)
-    except errors.BuildError as exc:
-        raise TaskError(str(exc)) from None
+    return build.selected_builder(settings)
 
 
 def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
@@ -245,15 +241,10 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
         check_slim_options(settings)
     assert settings.base_image
     if not dry_run:
-        try:
-            build.check_engine(settings)
-        except errors.BuildError as exc:
-            raise TaskError(str(exc)) from None
-    try:  # every platform's base before the first build (build_images says which)
-        for platform in platforms:
-            (refs.shown_base if dry_run else refs.platform_base)(settings, platform)
-    except errors.BuildError as exc:
-        raise TaskError(str(exc)) from None
+        build.check_engine(settings)
+    # every platform's base before the first build (build_images says which)
+    for platform in platforms:
+        (refs.shown_base if dry_run else refs.platform_base)(settings, platform)
     chosen = shown_builder(settings) if dry_run else None
     built: List[BuiltImage] = []
     for platform in platforms:
@@ -299,10 +290,7 @@ def check_slim_options(settings: Settings) -> None:
     before anything is built."""
     stop_on({name: problem for name, problem in image_problems(settings, ("slim",)).items()
              if name.startswith("slim_")})
-    try:
-        slimoptions.slim_options(settings)
-    except slimoptions.SlimError as exc:
-        raise TaskError(str(exc)) from None
+    slimoptions.slim_options(settings)
 
 
 def slimmed_here(settings: Settings, platform: str) -> bool:
@@ -317,10 +305,7 @@ def slimmed_here(settings: Settings, platform: str) -> bool:
 
 def slim_one(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
 
-    try:
-        result = slim.slim_image(settings, platform, dry_run=dry_run)
-    except slimoptions.SlimError as exc:
-        raise TaskError(str(exc)) from None
+    result = slim.slim_image(settings, platform, dry_run=dry_run)
     return BuiltImage("slim", result.ref, platform, result.seconds)
 
 
@@ -394,7 +379,7 @@ def run_test_stage(settings: Settings, *, results_dir: str, dry_run: bool) -> No
                 build.build_image(settings, target="test-results", platform=platform, tag=tag,
                                   output=output, extra_build_args=run)
                 outcome = testing.read_outcome(Path(tmp))
-            except (errors.BuildError, FileNotFoundError) as exc:
+            except FileNotFoundError as exc:
                 raise TaskError(str(exc)) from None
             counts = testing.summarize(Path(tmp) / testing.JUNIT)
             cases = testing.failed_cases(Path(tmp) / testing.JUNIT)
@@ -451,10 +436,7 @@ def push_and_report(
     warning = registry_warning(settings, targets)
     if warning:
         print(f"{action.__name__}: {warning}", file=sys.stderr, flush=True)
-    try:
-        pushed = action(settings, targets, dry_run=dry_run)
-    except errors.BuildError as exc:
-        raise TaskError(str(exc)) from None
+    pushed = action(settings, targets, dry_run=dry_run)
     for name in pushed:
         print(f"pushed {name}")
     if pushed:
@@ -475,11 +457,8 @@ def logged_in_job(settings: Settings, label: str, *, dry_run: bool,
                   "task-private DOCKER_CONFIG)")
         yield
         return
-    try:
-        with job_login(settings, os.environ, label=label, required=required):
-            yield
-    except LoginError as exc:
-        raise TaskError(str(exc)) from None
+    with job_login(settings, os.environ, label=label, required=required):
+        yield
 
 
 def require_tasks(plan: Sequence[Sequence[str]], task_names: Collection[str]) -> None:
@@ -534,15 +513,12 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
     here = host_platform()
     shell_platform = here if here in settings.platform else settings.platform[0]
     ref = refs.target_ref(settings, "dev", shell_platform)
-    try:
-        devshell.check_shell_options(options.volumes, options.env)
-        blacklisted = devshell.blacklisted_names(settings)
-        display = os.environ.get("DISPLAY", "")
-        display = display if devshell.select_x11(x11, display) else ""
-        runtimes = devshell.docker_runtimes() if options.gpus == "auto" else []
-        gpus = devshell.select_gpus(options.gpus, runtimes)
-    except devshell.DevShellError as exc:
-        raise TaskError(str(exc)) from None
+    devshell.check_shell_options(options.volumes, options.env)
+    blacklisted = devshell.blacklisted_names(settings)
+    display = os.environ.get("DISPLAY", "")
+    display = display if devshell.select_x11(x11, display) else ""
+    runtimes = devshell.docker_runtimes() if options.gpus == "auto" else []
+    gpus = devshell.select_gpus(options.gpus, runtimes)
     user = devshell.HostUser(os.getuid(), os.getgid(), getpass.getuser(),
                              tty=sys.stdin.isatty() and sys.stdout.isatty())
     with tempfile.TemporaryDirectory(prefix="docker-ros-dev-shell-") as tmp:
@@ -581,10 +557,7 @@ def check_shell_engine(settings: Settings) -> None:
     """The dev shell's `docker run` uses the CLI's engine: a BUILDER whose engine keeps the
     images elsewhere (a docker context's docker driver) would build the dev image there and
     then have `docker run` look for it on a registry. Stop first, saying what to do."""
-    try:
-        chosen = build.selected_builder(settings)
-    except errors.BuildError as exc:
-        raise TaskError(str(exc)) from None
+    chosen = build.selected_builder(settings)
     elsewhere = builder.images_host(chosen, engine.cli_host(os.environ))
     if elsewhere:
         raise TaskError(

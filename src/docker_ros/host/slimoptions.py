@@ -6,6 +6,7 @@ import shlex
 from dataclasses import dataclass
 from typing import Dict, List, Sequence, Tuple
 
+from docker_ros.core.errors import DockerRosError
 from docker_ros.core.settings import SLIM_BUILD_ARGS_DEFAULT, Settings
 
 SETTLE_SECONDS = 3.0  # --settle's default
@@ -51,7 +52,7 @@ IGNORED_FLAGS = frozenset({
 })
 
 
-class SlimError(Exception):
+class SlimError(DockerRosError):
     """Slimming failed: what, which image or option, what to do."""
 
 

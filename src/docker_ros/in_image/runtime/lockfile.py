@@ -24,6 +24,7 @@ import os
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
+from docker_ros.core.errors import DockerRosError
 from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.workspace import StepError, Workspace
@@ -36,7 +37,7 @@ LOCKED_ENV = "DOCKER_ROS_LOCKED"
 HOST_TARGET = "host"  # the entry host steps honour (`inv lock --host`)
 
 
-class LockError(Exception):
+class LockError(DockerRosError):
     """The lock is missing, unreadable, stale, or names what the sources no longer have."""
 
 

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
 
+from docker_ros.core.errors import DockerRosError
 from docker_ros.core.loading import load_settings
 from docker_ros.core.settings import SettingsError
 
@@ -35,7 +36,7 @@ IGNORE_MARKERS = ("COLCON_IGNORE", "CATKIN_IGNORE", "AMENT_IGNORE")
 PHASES = ("collect", "apply", "all")
 
 
-class StepError(Exception):
+class StepError(DockerRosError):
     """An expected failure of a step: printed as one line, exit code 1 (or the command's)."""
 
     def __init__(self, step: str, message: str, returncode: int = 1) -> None:
@@ -43,6 +44,7 @@ class StepError(Exception):
         self.step = step
         self.message = message
         self.returncode = returncode
+        self.exit_code = returncode or 1
 
 
 def read_user_text(path: "os.PathLike[str] | str", error: Callable[[str], Exception],
