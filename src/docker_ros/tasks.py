@@ -1,10 +1,13 @@
 """What a project's one-line tasks.py imports (`from docker_ros.tasks import ns`): the invoke
-collection, declared in docker_ros.cli.tasks (and, for `inv`, one line instead of a traceback
-for an invoke.yaml that is not YAML)."""
+collection, declared in docker_ros.cli.tasks (and, for `inv`, which reads the project's
+invoke.yaml after importing tasks.py, one line instead of a traceback for a file it would fail
+on)."""
 
-from docker_ros.cli.program import one_line_for_invoke_errors
+from pathlib import Path
+
+from docker_ros.cli.program import stop_on_config_problems, tasks_folder
 from docker_ros.cli.tasks import ns
 
-one_line_for_invoke_errors()
+stop_on_config_problems(tasks_folder(Path.cwd()), base=False, full_paths=True)
 
 __all__ = ["ns"]

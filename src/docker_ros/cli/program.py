@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import os
 import sys
-import traceback
 from pathlib import Path
-from typing import Any, List, Optional
+from typing import List, Optional
 
-from invoke import Exit, Program
+from invoke import Program
 from invoke.config import yaml  # (the YAML module invoke reads its files with)
-from invoke.exceptions import AmbiguousEnvVar
 
 from docker_ros import __version__
 from docker_ros.cli.tasks import ns
@@ -25,13 +24,22 @@ class DockerRosProgram(Program):
     def parse_collection(self) -> None:
         super().parse_collection()
         self.config.set_project_location(os.getcwd())
-        try:
-            self.config.load_project()
-        except Exception as exc:
-            problem = invoke_file_problem(exc, "invoke.yaml")
-            if problem is None:
-                raise
-            raise Exit(problem, code=2) from None
+        self.config.load_project()
+
+
+# invoke's configuration files (its documentation, "The configuration hierarchy"): system,
+# user and project (beside tasks.py), each the first of .yaml, .yml and .json found.
+CONFIG_SUFFIXES = (".yaml", ".yml", ".json")
+
+
+def config_files(project: Path, *, base: bool = True) -> List[Path]:
+    """The configuration files invoke reads (with base: the system's and the user's too)."""
+    prefixes = [Path("/etc/invoke"), Path.home() / ".invoke"] if base else []
+    found = []
+    for prefix in [*prefixes, project / "invoke"]:
+        found += [path for path in (prefix.with_suffix(s) for s in CONFIG_SUFFIXES)
+                  if path.is_file()][:1]
+    return found
 
 
 def yaml_problem(exc: Exception, name: str) -> str:
@@ -42,74 +50,52 @@ def yaml_problem(exc: Exception, name: str) -> str:
     return f"docker-ros: {name}{line} is not valid YAML: {problem}: fix or remove it"
 
 
-def invoke_file_problem(exc: BaseException, name: str = "") -> Optional[str]:
-    """One line for an exception raised while invoke loads or merges a configuration file
-    (None for any other): not YAML, not UTF-8, a top level that is no mapping (invoke's
-    merge_dicts fails on it). `name`: the file as shown, else the one invoke was reading."""
-    frames = [frame for frame, _ in traceback.walk_tb(exc.__traceback__)
-              if Path(frame.f_code.co_filename).parts[-2:] == ("invoke", "config.py")]
-    if not frames:
+def config_file_problem(path: Path, shown: str) -> Optional[str]:
+    """One line for an invoke configuration file invoke would fail on with a traceback (None
+    when it loads): not UTF-8, not YAML, a top level that is no mapping, or a key under
+    docker_ros: given twice in two cases (one environment variable to invoke). `shown`: the
+    file as the UTF-8 and YAML messages name it."""
+    try:
+        text = read_user_text(path, ValueError, shown)
+    except ValueError as problem:
+        return f"docker-ros: {problem}"
+    try:
+        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        return yaml_problem(exc, shown)
+    except ValueError:  # (invoke's own message for JSON names the line)
         return None
-    paths = [frame.f_locals.get("path") for frame in frames
-             if frame.f_code.co_name in ("_load_yaml", "_load_json", "_merge_file")]
-    name = name or str(paths[-1] if paths else "") or "invoke.yaml"
-    if isinstance(exc, yaml.YAMLError):
-        where = getattr(exc, "problem_mark", None)
-        return yaml_problem(exc, name if paths else getattr(where, "name", "") or name)
-    if isinstance(exc, UnicodeDecodeError):
-        try:
-            read_user_text(name, ValueError)
-        except ValueError as problem:
-            return f"docker-ros: {problem}"
-    if isinstance(exc, AmbiguousEnvVar):
-        # invoke's environment loader: two keys that are one name to it (image_tag, IMAGE_TAG)
-        var = str(exc).rpartition(" ")[2]
-        key = var.replace("DOCKER_ROS_", "", 1).lower() if var.startswith("DOCKER_ROS_") else var
-        return (f"docker-ros: {name}: {key} is given twice under docker_ros: (keys that differ "
-                "in case only, as image_tag and IMAGE_TAG, are one setting): keep one")
-    if isinstance(exc, AttributeError) and any(f.f_code.co_name == "_merge_file" for f in frames):
-        return f"docker-ros: {name}: the top level must be a mapping (key docker_ros:)"
+    if data is not None and not isinstance(data, dict):
+        return f"docker-ros: {path.name}: the top level must be a mapping (key docker_ros:)"
+    section = (data or {}).get("docker_ros")
+    keys = [str(key) for key in section] if isinstance(section, dict) else []
+    twice = [key for key in keys if [k.lower() for k in keys].count(key.lower()) > 1]
+    if twice:
+        return (f"docker-ros: {path.name}: {twice[0].lower()} is given twice under docker_ros: "
+                "(keys that differ in case only, as image_tag and IMAGE_TAG, are one setting): "
+                "keep one")
     return None
 
 
-def flag_value_problem(exc: BaseException) -> Optional[str]:
-    """One line for a flag value invoke's parser could not turn into the flag's type
-    (`--seconds abc`: a ValueError from its Argument.set_value); None for any other exception."""
-    task = ""
-    for frame, _ in traceback.walk_tb(exc.__traceback__):
-        where = Path(frame.f_code.co_filename).parts[-2:]
-        if where == ("parser", "parser.py"):  # (the parse machine: the task being parsed)
-            task = getattr(getattr(frame.f_locals.get("self"), "context", None), "name", task)
-        if where == ("parser", "argument.py") and frame.f_code.co_name == "set_value":
-            argument = frame.f_locals["self"]
-            kind = {int: "a whole number"}.get(argument.kind, argument.kind.__name__)
-            flag = "--" + str(argument.name).replace("_", "-")
-            label = f"docker-ros {task}" if task else "docker-ros"
-            return f"{label}: {flag} takes {kind}, not {frame.f_locals.get('value')!r}"
-    return None
-
-
-def one_line_for_invoke_errors() -> None:
-    """For `inv`, which parses the flags and reads invoke.yaml after importing tasks.py, outside
-    any code of ours (and for `docker-ros`): an invoke configuration file invoke cannot load
-    (invoke_file_problem) or a flag value of the wrong type (flag_value_problem) ends as one line
-    (exit code 2) instead of a traceback; every other exception keeps the hook it had."""
-    previous = sys.excepthook
-
-    def hook(kind: type, exc: BaseException, trace: Any) -> None:
-        problem = invoke_file_problem(exc) or flag_value_problem(exc)
+def stop_on_config_problems(project: Path, *, base: bool, full_paths: bool) -> None:
+    """Before invoke reads its configuration files: one that it would fail on ends the program
+    as one line (exit code 2) instead of invoke's traceback."""
+    for path in config_files(project, base=base):
+        problem = config_file_problem(path, str(path) if full_paths else path.name)
         if problem is not None:
             print(problem, file=sys.stderr, flush=True)
-            sys.stdout.flush()
-            os._exit(2)
-        previous(kind, exc, trace)
+            raise SystemExit(2)
 
-    sys.excepthook = hook
+
+def tasks_folder(start: Path) -> Path:
+    """Where `inv` finds tasks.py: start or the nearest folder above it that has one."""
+    return next((folder for folder in [start, *start.parents]
+                 if (folder / "tasks.py").is_file()), start)
 
 
 def main(argv: Optional[List[str]] = None) -> None:
     ns.loaded_from = os.getcwd()
-    one_line_for_invoke_errors()  # (invoke reads the environment layer when it executes)
+    stop_on_config_problems(Path.cwd(), base=True, full_paths=False)
     program = DockerRosProgram(namespace=ns, name="docker-ros", binary="docker-ros",
                                version=__version__)
     try:

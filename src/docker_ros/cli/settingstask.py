@@ -86,12 +86,37 @@ class SettingsTask(Task):
 
     def get_arguments(self, ignore_unknown_help: Optional[bool] = None) -> List[Argument]:
         """A repeatable flag with an optional value (--set) starts without a raw value, so that
-        invoke gives a bare one True (invoke would drop it silently): parse_set refuses it."""
+        invoke gives a bare one True (invoke would drop it silently): parse_set refuses it. A
+        whole-number flag refuses another value as one line (WholeNumberArgument)."""
         args = super().get_arguments(ignore_unknown_help)
         for arg in args:
             if arg.kind is list and arg.optional:
                 arg.raw_value = None
-        return args
+        return [WholeNumberArgument.of(arg, self.name) if arg.kind is int else arg
+                for arg in args]
+
+
+class WholeNumberArgument(Argument):
+    """An int flag whose value invoke's parser cannot convert (`--seconds abc`) ends the program
+    as one line, exit code 2 (invoke's Argument would raise a ValueError: a traceback)."""
+
+    task = ""
+
+    @classmethod
+    def of(cls, arg: Argument, task: str) -> WholeNumberArgument:
+        made = cls(names=arg.names, kind=arg.kind, default=arg.default, help=arg.help,
+                   positional=arg.positional, optional=arg.optional,
+                   incrementable=arg.incrementable, attr_name=arg.attr_name)
+        made.task = task
+        return made
+
+    def set_value(self, value: Any, cast: bool = True) -> None:
+        try:
+            super().set_value(value, cast)
+        except ValueError:
+            flag = "--" + str(self.name).replace("_", "-")
+            raise Exit(f"docker-ros {self.task}: {flag} takes a whole number, not {value!r}",
+                       code=2) from None
 
 
 def settings_task(
