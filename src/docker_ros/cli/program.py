@@ -12,6 +12,7 @@ from invoke import Program
 from invoke.config import yaml  # (the YAML module invoke reads its files with)
 
 from docker_ros import __version__
+from docker_ros.cli.settingstask import refuse_secret_flags
 from docker_ros.cli.tasks import ns
 from docker_ros.in_image.runtime.workspace import read_user_text
 
@@ -96,6 +97,7 @@ def tasks_folder(start: Path) -> Path:
 def main(argv: Optional[List[str]] = None) -> None:
     ns.loaded_from = os.getcwd()
     stop_on_config_problems(Path.cwd(), base=True, full_paths=False)
+    refuse_secret_flags(sys.argv[1:] if argv is None else argv, ns)
     program = DockerRosProgram(namespace=ns, name="docker-ros", binary="docker-ros",
                                version=__version__)
     try:

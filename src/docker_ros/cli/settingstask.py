@@ -10,7 +10,7 @@ import sys
 import textwrap
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
-from invoke import Argument, Context, Exit, Task
+from invoke import Argument, Collection, Context, Exit, Task
 
 from docker_ros.core.ci import (
     error_annotation,
@@ -55,8 +55,8 @@ IMAGE_SETTINGS = settings_where("flags", "image")
 HOST_SETTINGS = settings_where("flags", "host")
 PUSH_SETTINGS = settings_where("flags", "push")
 SET: Flag = ("set", None, "Any setting, as NAME=VALUE (repeatable), e.g. --set ENABLE_SLIM=false")
-# Secrets are never flags (a command line is visible to every process on the machine); every
-# task still parses them, to say so (and where they go) instead of invoke's "No idea what".
+# Secrets are never flags (a command line is visible to every process on the machine): none
+# is in --help, and one given is refused saying where it goes instead of invoke's "No idea what".
 SECRETS = settings_where("secret", True)
 
 
@@ -65,9 +65,50 @@ def secret_flag_refusal(task: str, given: Sequence[str]) -> str:
     if not given:
         return ""
     names = ", ".join(env_name(n) for n in given)
-    return (f"docker-ros {task}: {' and '.join(flag_name(n) for n in given)}: a secret is never "
+    label = f"docker-ros {task}" if task else "docker-ros"
+    return (f"{label}: {' and '.join(flag_name(n) for n in given)}: a secret is never "
             f"a flag (a command line is visible to every process on this machine); set {names}"
             " in the environment or in the project's .env file")
+
+
+def secret_flags_given(argv: Sequence[str], collection: Collection) -> Tuple[str, List[str]]:
+    """The secrets given as flags in a command line (argv after the program), and the task they
+    were given to: the last task name before them that is no flag's value."""
+    flags = {flag_name(n): n for n in SECRETS}
+    names = set(collection.task_names) | {a for v in collection.task_names.values() for a in v}
+    task, given, after_value_flag = "", [], False
+    for token in argv:
+        if token == "--":  # (what follows is a command's, not ours)
+            break
+        flag = token.split("=", 1)[0]
+        if flag in flags:
+            given.append(flags[flag])
+        elif token in names and not after_value_flag and not given:
+            task = token
+        after_value_flag = token.startswith("--") and "=" not in token and takes_value(
+            collection, task, token)
+    return task, list(dict.fromkeys(given))
+
+
+def takes_value(collection: Collection, task: str, flag: str) -> bool:
+    """Whether a flag of the task takes the next word as its value: neither a switch (a bool
+    default) nor one whose value is optional. (From the task's signature: invoke's
+    get_arguments would use up the task's help texts.)"""
+    if task not in collection.task_names:
+        return False
+    name = flag[2:].replace("-", "_")
+    parameter = inspect.signature(collection[task].body).parameters.get(name)
+    return (parameter is not None and name not in collection[task].optional
+            and not isinstance(parameter.default, bool))
+
+
+def refuse_secret_flags(argv: Sequence[str], collection: Collection) -> None:
+    """Before invoke parses the command line: a secret given as a flag ends the program with
+    secret_flag_refusal (exit code 2); the value is never shown."""
+    task, given = secret_flags_given(argv, collection)
+    if given:
+        print(secret_flag_refusal(task, given), file=sys.stderr, flush=True)
+        raise SystemExit(2)
 
 
 class SettingsTask(Task):
@@ -148,9 +189,6 @@ def settings_task(
         def body(c: Context, **kwargs: Any) -> Any:
             setup_logging()
             hear_interrupts()
-            refused = secret_flag_refusal(name, [n for n in SECRETS if kwargs.pop(n) is not None])
-            if refused:
-                raise Exit(refused, code=2)
             if invoke_dry(c):
                 # invoke's -R/--dry means "do not act": our dry run, or a refusal, never ignored.
                 if "dry_run" not in kwargs:
@@ -203,9 +241,9 @@ def settings_task(
         keyword = inspect.Parameter.KEYWORD_ONLY
         params = [inspect.Parameter("c", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
         params += [inspect.Parameter(n, keyword, default=d) for n, d, _ in [*flags, SET]]
-        # Secrets get no flag: a command line is visible to every process on the machine.
+        # Secrets get no flag: a command line is visible to every process on the machine
+        # (refuse_secret_flags says so before invoke parses one).
         params += [inspect.Parameter(n, keyword, default=None) for n in settings_flags]
-        params += [inspect.Parameter(n, keyword, default=None) for n in SECRETS]
         body.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
         # First paragraph: the one line of `--list` (at most 76 characters, a test checks);
         # the others wrapped for 80 columns.
@@ -215,12 +253,10 @@ def settings_task(
         help_map: Dict[str, str] = {n: h for n, _, h in [*flags, SET]}
         for n in settings_flags:
             help_map[n] = helps.get(n) or setting_help(n)
-        for n in SECRETS:
-            help_map[n] = f"Refused (a secret): set {env_name(n)} in the env or .env"
         repeatable = ["set"] + [n for n, d, _ in flags if isinstance(d, list)]
         # `--enable-slim` alone means true; `--enable-slim=false` (or a value after it) too.
         # A bare --set gets True that way (invoke drops an empty one): parse_set refuses it.
-        optional = [n for n in settings_flags if kind_of(n) == "bool"] + list(SECRETS) + ["set"]
+        optional = [n for n in settings_flags if kind_of(n) == "bool"] + ["set"]
         return SettingsTask(body, name=name, help=help_map, auto_shortflags=False,
                             iterable=repeatable, optional=optional, shortflags=shortflags)
 
