@@ -81,21 +81,11 @@ def left_out(rel: str) -> bool:
     return any(part in LEFT_OUT for part in parts) or parts[0] == SCRATCH_FOLDER
 
 
-def with_run_base(text: str) -> str:
-    """The Dockerfile with base-run: its base stage again, `ENV DOCKER_ROS_RUN_CHAIN=1` first, so
-    that no step of it is one of base's (see run_base and the Dockerfile's DOCKER_ROS_RUN_BASE).
-    Made here rather than written twice in the Dockerfile."""
-    start = text.index("FROM ${BASE_IMAGE} AS base\n")
-    end = text.index("\n# ----", start)
-    copy = text[start:end].replace(" AS base\n", " AS base-run\nENV DOCKER_ROS_RUN_CHAIN=1\n", 1)
-    return text[:end] + "\n\n" + copy + text[end:]
-
-
 def stage_dockerfile(context: Path, destination: Path) -> Path:
     """Our Dockerfile beside a Dockerfile.dockerignore (BuildKit reads it instead of the
     context's .dockerignore), so the user's repository is never modified."""
     dockerfile = destination / "Dockerfile"
-    dockerfile.write_text(with_run_base(DOCKERFILE.read_text()))
+    dockerfile.write_text(DOCKERFILE.read_text())
     (destination / "Dockerfile.dockerignore").write_text(dockerignore(context))
     return dockerfile
 
