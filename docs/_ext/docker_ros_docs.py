@@ -40,7 +40,7 @@ class MarkdownDirective(SphinxDirective):
 class SettingsReference(MarkdownDirective):
     def text(self) -> str:
         from docker_ros.cli import reference
-        from docker_ros.in_image import settings
+        from docker_ros.core import settings
 
         self.env.note_dependency(settings.__file__)
         return reference.table()
