@@ -35,7 +35,7 @@ CONFIG_SUFFIXES = (".yaml", ".yml", ".json")
 
 def config_files(project: Path, *, base: bool = True) -> List[Path]:
     """The configuration files invoke reads (with base: the system's and the user's too)."""
-    prefixes = [Path("/etc/invoke"), Path.home() / ".invoke"] if base else []
+    prefixes = [Path("/etc/invoke"), Path("~/.invoke").expanduser()] if base else []
     found = []
     for prefix in [*prefixes, project / "invoke"]:
         found += [path for path in (prefix.with_suffix(s) for s in CONFIG_SUFFIXES)
