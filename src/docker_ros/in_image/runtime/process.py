@@ -92,7 +92,8 @@ def probe(
 
 # The tools of the host-mode steps: the `host` extra of docker-ros (images get them in prepare).
 HOST_TOOLS = ("vcs", "rosdep", "colcon")
-HOST_EXTRA = "pip install 'docker-ros[host]'"
+# (not on PyPI: the extra is installed from where this project is, a checkout or its git URL)
+HOST_EXTRA = "pip install '<docker-ros checkout>[host]' (the host extra)"
 
 
 def tool_path(program: str, executable: Optional[str] = None) -> str:
