@@ -22,7 +22,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 from invoke import Argument, Collection, Context, Exit, Task
 
 import docker_ros
-from docker_ros.host import baseimage, build, container, devshell, engine
+from docker_ros.host import baseimage, build, container, devcontainer, devshell, engine
 from docker_ros.host.config import config_table, input_problems, read_settings
 from docker_ros.host.lock import lock, lock_status
 from docker_ros.host.pipeline import (
@@ -550,6 +550,44 @@ def dev_shell(
 
 
 @settings_task(
+    "devcontainer",
+    "Write .devcontainer/devcontainer.json for the dev image (as dev-shell runs it)\n\n"
+    "VS Code, Codespaces, DevPod and the devcontainer CLI then open the dev image with the "
+    "repository mounted, the host user mapped and ROS sourced. A second run keeps your own "
+    "edits; a file docker-ros did not write is left alone (--force merges into it).",
+    [
+        ("volume", [], "Extra mount HOST:CONTAINER[:ro] (repeatable)"),
+        ("env", [], "Environment variable NAME=VALUE, or NAME for the host's when the editor "
+         "opens it (repeatable)"),
+        ("network", "", "Container network, e.g. host (which also shares IPC, for DDS)"),
+        ("privileged", False, "Run privileged (all devices)"),
+        ("device", [], "Host device to add, e.g. /dev/ttyUSB0 (repeatable)"),
+        ("x11", "auto", "X11 forwarding (DISPLAY, /tmp/.X11-unix): auto = when DISPLAY is a "
+         "local display whose socket exists here; true; false"),
+        ("gpus", "auto", "GPUs: auto = all when the host has the nvidia runtime when the editor "
+         "opens it; none; or a docker run --gpus value (all, device=0, ...)"),
+        ("check", False, "Change nothing; exit 1 when the file is not up to date (for CI)"),
+        ("force", False, "Merge into a devcontainer.json docker-ros did not write"),
+        DRY_RUN,
+    ],
+    uses=IMAGE_SETTINGS,
+)
+def devcontainer_task(
+    c: Context, settings: Settings, *, volume: List[str], env: List[str], network: str,
+    privileged: bool, device: List[str], x11: str, gpus: str, check: bool, force: bool,
+    dry_run: bool,
+) -> None:
+    try:
+        code = devcontainer.run(settings, devshell.ShellOptions(
+            volumes=volume, env=env, network=network, privileged=privileged, devices=device),
+            x11=x11, gpus=gpus, check=check, force=force, dry_run=dry_run)
+    except devcontainer.DevcontainerError as exc:
+        raise TaskError(str(exc)) from None
+    if code:
+        raise Exit(code=code)
+
+
+@settings_task(
     "bootstrap-base-image",
     "Build a ROS base image from a Debian/Ubuntu mirror (debootstrap, no registry)",
     [
@@ -622,7 +660,7 @@ def collection() -> Collection:
     for step in STEPS:
         ns.add_task(make_step_task(step))
     for task in (config, dev, run, build_task, test_task, slim_task, push_task, manifest_task,
-                 ci_task, dev_shell, lock_task,
+                 ci_task, dev_shell, devcontainer_task, lock_task,
                  bootstrap_base_image, example):
         ns.add_task(task)
     return ns
