@@ -552,20 +552,16 @@ def dev_shell(
 @settings_task(
     "devcontainer",
     "Write .devcontainer/devcontainer.json for the dev image (as dev-shell runs it)\n\n"
-    "VS Code, Codespaces, DevPod and the devcontainer CLI then open the dev image with the "
-    "repository mounted, the host user mapped and ROS sourced. A second run keeps your own "
-    "edits; a file docker-ros did not write is left alone (--force merges into it).",
+    "A second run keeps your own edits (docs/devcontainer.md).",
     [
         ("volume", [], "Extra mount HOST:CONTAINER[:ro] (repeatable)"),
-        ("env", [], "Environment variable NAME=VALUE, or NAME for the host's when the editor "
-         "opens it (repeatable)"),
+        ("env", [], "Environment variable NAME=VALUE, or NAME for the host's (repeatable)"),
         ("network", "", "Container network, e.g. host (which also shares IPC, for DDS)"),
         ("privileged", False, "Run privileged (all devices)"),
         ("device", [], "Host device to add, e.g. /dev/ttyUSB0 (repeatable)"),
-        ("x11", "auto", "X11 forwarding (DISPLAY, /tmp/.X11-unix): auto = when DISPLAY is a "
-         "local display whose socket exists here; true; false"),
-        ("gpus", "auto", "GPUs: auto = all when the host has the nvidia runtime when the editor "
-         "opens it; none; or a docker run --gpus value (all, device=0, ...)"),
+        ("x11", "auto", "X11 forwarding: auto = when DISPLAY is a local display; true; false"),
+        ("gpus", "auto", "auto = all when the host has the nvidia runtime; none; or a --gpus "
+         "value"),
         ("check", False, "Change nothing; exit 1 when the file is not up to date (for CI)"),
         ("force", False, "Merge into a devcontainer.json docker-ros did not write"),
         DRY_RUN,
