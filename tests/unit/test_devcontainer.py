@@ -192,3 +192,13 @@ def test_bad_json_changes_nothing(tmp_path):
     with pytest.raises(DevcontainerError, match="is not valid JSON"):
         devcontainer.plan(settings(repo), config(repo))
     assert path.read_text() == '{"image": '
+
+
+def test_blacklisted_packages_are_named_for_colcon(tmp_path):
+    repo = ros_repo(tmp_path)
+    (repo / "docker").mkdir()
+    (repo / "docker" / "blacklisted-packages.txt").write_text("# no\nunwanted\n")
+    _made, notes = devcontainer.config_for(settings(repo), REF, ShellOptions(), user=USER,
+                                           display="", gpus="auto", image_present=False)
+    assert notes == ("colcon in the dev container builds the blacklisted packages too: give it "
+                     "--packages-ignore unwanted",)
