@@ -335,8 +335,10 @@ def config_for(settings: Settings, ref: str, options: devshell.ShellOptions, *,
     if cannot and not image_present:
         raise DevcontainerError(
             f"the dev image {ref} is not built, and docker-ros cannot build it: {cannot}")
-    notes: Tuple[str, ...] = ((f"the dev image {ref} is used as it is (no initializeCommand): docker-ros "
-                               f"cannot build it again ({cannot})",) if cannot else ())
+    notes: Tuple[str, ...] = ()
+    if cannot:
+        notes += (f"the dev image {ref} is used as it is (no initializeCommand): docker-ros "
+                  f"cannot build it again ({cannot})",)
     blacklisted = devshell.blacklisted_names(settings)
     if blacklisted:  # (dev-shell mounts colcon defaults made for the shell; a file outlives it)
         notes += (f"colcon in the dev container builds the blacklisted packages too: give it "
