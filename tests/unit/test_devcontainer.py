@@ -46,7 +46,8 @@ def test_image_workspace_user_and_ros_environment(tmp_path):
     assert made["containerEnv"] == {"DOCKER_UID": "4242", "DOCKER_GID": "4343",
                                     "DOCKER_USER": "alice", "NVIDIA_DRIVER_CAPABILITIES": "all"}
     assert made["remoteUser"] == "4242" and made["updateRemoteUserUID"] is False
-    assert made["overrideCommand"] is False and "--interactive" in made["runArgs"]
+    assert made["overrideCommand"] is False
+    assert made["runArgs"] == ["--tty", "--stop-signal=SIGHUP"]
     assert made["userEnvProbe"] == "loginInteractiveShell"
     vscode = made["customizations"]["vscode"]
     assert "ms-vscode.cpptools" in vscode["extensions"]
@@ -64,8 +65,8 @@ def test_same_options_as_dev_shell(tmp_path):
     made = config(repo, display=":1", gpus="device=0", network="host", privileged=True,
                   devices=("/dev/ttyUSB0",), env=("ROS_DOMAIN_ID=7", "TOKEN"),
                   volumes=(f"{repo}/data:/data:ro", "ccache:/ccache", "/abs:/abs"))
-    assert made["runArgs"] == ["--interactive", "--network=host", "--ipc=host", "--privileged",
-                               "--device=/dev/ttyUSB0", "--gpus=device=0"]
+    assert made["runArgs"] == ["--tty", "--stop-signal=SIGHUP", "--network=host", "--ipc=host",
+                               "--privileged", "--device=/dev/ttyUSB0", "--gpus=device=0"]
     assert made["mounts"] == [
         "source=${localWorkspaceFolder}/data,target=/data,type=bind,readonly",
         "source=ccache,target=/ccache,type=volume", "source=/abs,target=/abs,type=bind",

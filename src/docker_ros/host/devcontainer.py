@@ -7,7 +7,7 @@ with docker-ros (`docker-ros build --target dev`, from cache: seconds when nothi
 Opening the folder (or "Rebuild Container") so gets an image with the repository's current
 dependencies, where a bare `image` would silently keep a stale one. The host user is mapped by
 the image's entrypoint, as in dev-shell: the container runs the image's entry point
-(`overrideCommand: false`, kept alive by `--interactive`), the editor's processes run as the
+(`overrideCommand: false`, its `bash` kept waiting by `--tty`), the editor's processes run as the
 mapped UID (`remoteUser`), and a login-interactive shell's environment (/etc/bash.bashrc
 sources the entrypoint: ROS, the base image's and the workspace's setup) is every process's.
 
@@ -184,7 +184,9 @@ def generate(settings: Settings, ref: str, pairs: Sequence[Tuple[str, str]], *,
         config["initializeCommand"] = list(build)
     env: Dict[str, str] = {}
     mounts: List[str] = []
-    run_args = ["--interactive"]  # (keeps the image's `bash` waiting: its entry point runs)
+    # The image's `bash` (after its entry point) waits on a terminal and ends on a hangup:
+    # docker stop sends one (an interactive bash ignores SIGTERM).
+    run_args = ["--tty", "--stop-signal=SIGHUP"]
     for flag, value in pairs:
         if flag == "-v" and value == f"{repository}:{devshell.TARGET}":
             config["workspaceMount"] = f"source={HERE},target={devshell.TARGET},type=bind"
