@@ -107,6 +107,8 @@ def repo(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iter
 
 
 def test_up_starts_the_dev_image(repo: Path) -> None:
+    """`devcontainer up` (its initializeCommand built the dev image) runs the image the build
+    tagged."""
     (container,) = containers_of(repo)
     image = subprocess.run(["docker", "inspect", "-f", "{{.Image}}", container],
                            capture_output=True, text=True).stdout.strip()
@@ -116,6 +118,8 @@ def test_up_starts_the_dev_image(repo: Path) -> None:
 
 
 def test_exec_builds_the_workspace_as_the_host_user(repo: Path) -> None:
+    """`devcontainer exec` runs colcon as the image's colcon step does, as UID 4242, and a file
+    it makes in the mounted repository is 4242's on the host."""
     done = run_in(repo, f"{BUILD} && id -u && touch src/target/made-in-the-container")
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert done.stdout.split()[-1] == str(UID)
@@ -124,6 +128,8 @@ def test_exec_builds_the_workspace_as_the_host_user(repo: Path) -> None:
 
 
 def test_ros_and_the_workspace_are_on_path_without_sourcing(repo: Path) -> None:
+    """roscore, roslaunch and the built workspace's package are found by `exec` of a plain
+    command (no shell, nothing sourced by hand)."""
     built = run_in(repo, f"test -d /docker-ros/ws/install || {BUILD} >/dev/null")
     assert built.returncode == 0, built.stderr[-3000:]
     # (exec runs no shell of its own: the environment is the login shell's, probed)
@@ -137,6 +143,7 @@ def test_ros_and_the_workspace_are_on_path_without_sourcing(repo: Path) -> None:
 
 
 def test_talker_and_listener_hear_each_other(repo: Path) -> None:
+    """The example's launch file, run by `exec`: the listener hears the talker."""
     built = run_in(repo, f"test -d /docker-ros/ws/install || {BUILD} >/dev/null")
     assert built.returncode == 0, built.stderr[-3000:]
     script = ("roslaunch docker_ros_example talker_listener.launch > /tmp/launch.log 2>&1 & "
