@@ -203,3 +203,25 @@ def test_blacklisted_packages_are_named_for_colcon(tmp_path):
                                            display="", gpus="auto", image_present=False)
     assert notes == ("colcon in the dev container builds the blacklisted packages too: give it "
                      "--packages-ignore unwanted",)
+
+
+def test_run_dry_run_writes_nothing_and_check_says_whether_it_is_current(tmp_path, monkeypatch,
+                                                                         capsys):
+    repo = ros_repo(tmp_path)
+    monkeypatch.setattr(devcontainer.engine, "inspect_image", lambda ref: None)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    run = devcontainer.run
+    options = ShellOptions()
+    path = repo / ".devcontainer" / "devcontainer.json"
+    assert run(settings(repo), options, x11="auto", gpus="auto", check=False, force=False,
+               dry_run=True) == 0
+    assert not path.exists() and json.loads(capsys.readouterr().out)["image"]
+    assert run(settings(repo), options, x11="auto", gpus="auto", check=True, force=False,
+               dry_run=False) == 1
+    assert not path.exists() and "not up to date" in capsys.readouterr().out
+    run(settings(repo), options, x11="auto", gpus="auto", check=False, force=False,
+        dry_run=False)
+    assert run(settings(repo), options, x11="auto", gpus="auto", check=True, force=False,
+               dry_run=False) == 0
+    assert run(settings(repo), options, x11="auto", gpus="none", check=True, force=False,
+               dry_run=False) == 1
