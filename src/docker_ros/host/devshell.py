@@ -190,45 +190,58 @@ def host_path(spec: str, cwd: Path) -> str:
     return host + sep + rest
 
 
+def run_options(settings: Settings, options: ShellOptions, user: HostUser
+                ) -> List[Tuple[str, str]]:
+    """What `docker run` of the dev image gets besides the image and command, as (flag, value)
+    pairs in order ('' for a flag without value): repository at /docker-ros/ws/src/target, the
+    host user mapped by the entrypoint (root stays root), the shell's options. dev-shell's argv
+    and devcontainer.json are both made from them."""
+    repository = Path(settings.build_context).resolve()
+    pairs = [("-v", f"{repository}:{TARGET}")]
+    if user.uid != 0:
+        pairs += [("-e", f"DOCKER_UID={user.uid}"), ("-e", f"DOCKER_GID={user.gid}"),
+                  ("-e", f"DOCKER_USER={user.name}")]
+    if options.colcon_defaults:  # before --env: a COLCON_DEFAULTS_FILE of the user's wins
+        pairs += [("-e", f"COLCON_DEFAULTS_FILE={COLCON_DEFAULTS_IN_CONTAINER}"),
+                  ("-v", f"{options.colcon_defaults}:{COLCON_DEFAULTS_IN_CONTAINER}:ro")]
+    pairs += [("-v", host_path(volume, user.cwd)) for volume in options.volumes]
+    pairs += [("-e", variable) for variable in options.env]
+    if options.network:
+        pairs.append(("--network", options.network))
+        if options.network == "host":
+            # DDS shared-memory transports see the host's network as local: share IPC too.
+            pairs.append(("--ipc", "host"))
+    if options.privileged:
+        pairs.append(("--privileged", ""))
+    pairs += [("--device", device) for device in options.devices]
+    if options.x11_display:
+        pairs += [("-e", f"DISPLAY={options.x11_display}"), ("-e", "QT_X11_NO_MITSHM=1"),
+                  ("-v", f"{X11_SOCKETS}:{X11_SOCKETS}")]
+        if options.xauthority:
+            pairs += [("-e", f"XAUTHORITY={XAUTH_IN_CONTAINER}"),
+                      ("-v", f"{options.xauthority}:{XAUTH_IN_CONTAINER}:ro")]
+    if options.gpus:
+        pairs += [("--gpus", options.gpus), ("-e", "NVIDIA_DRIVER_CAPABILITIES=all")]
+    return pairs
+
+
 def dev_shell_argv(
     settings: Settings, ref: str, options: ShellOptions, user: HostUser
 ) -> List[str]:
-    """The `docker run` of the dev image: repository at /docker-ros/ws/src/target, the host
-    user mapped by the entrypoint (root stays root), the workspace sourced."""
-    repository = Path(settings.build_context).resolve()
+    """The `docker run` of the dev image: run_options, then bash (or `bash -c` the command)."""
     argv = ["docker", "run", "--rm", "-i"] + (["-t"] if user.tty else [])
     if options.name:
         argv += ["--name", options.name]
-    argv += ["-v", f"{repository}:{TARGET}"]
-    if user.uid != 0:
-        argv += ["-e", f"DOCKER_UID={user.uid}", "-e", f"DOCKER_GID={user.gid}",
-                 "-e", f"DOCKER_USER={user.name}"]
-    if options.colcon_defaults:  # before --env: a COLCON_DEFAULTS_FILE of the user's wins
-        argv += ["-e", f"COLCON_DEFAULTS_FILE={COLCON_DEFAULTS_IN_CONTAINER}",
-                 "-v", f"{options.colcon_defaults}:{COLCON_DEFAULTS_IN_CONTAINER}:ro"]
-    for volume in options.volumes:
-        argv += ["-v", host_path(volume, user.cwd)]
-    for variable in options.env:
-        argv += ["-e", variable]
-    if options.network:
-        argv += ["--network", options.network]
-        if options.network == "host":
-            # DDS shared-memory transports see the host's network as local: share IPC too.
-            argv += ["--ipc", "host"]
-    if options.privileged:
-        argv.append("--privileged")
-    for device in options.devices:
-        argv += ["--device", device]
-    if options.x11_display:
-        argv += ["-e", f"DISPLAY={options.x11_display}", "-e", "QT_X11_NO_MITSHM=1",
-                 "-v", f"{X11_SOCKETS}:{X11_SOCKETS}"]
-        if options.xauthority:
-            argv += ["-e", f"XAUTHORITY={XAUTH_IN_CONTAINER}",
-                     "-v", f"{options.xauthority}:{XAUTH_IN_CONTAINER}:ro"]
-    if options.gpus:
-        argv += ["--gpus", options.gpus, "-e", "NVIDIA_DRIVER_CAPABILITIES=all"]
+    for flag, value in run_options(settings, options, user):
+        argv += [flag, value] if value else [flag]
     argv.append(ref)
     return argv + (["bash", "-c", options.command] if options.command else ["bash"])
+
+
+def shell_platform(settings: Settings, here: str) -> str:
+    """The platform of the dev image a shell runs (here: this machine's): this machine's when
+    PLATFORM has it (another one may build under QEMU), else PLATFORM's first."""
+    return here if here in settings.platform else settings.platform[0]
 
 
 def blacklisted_names(settings: Settings) -> List[str]:

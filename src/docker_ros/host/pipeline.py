@@ -510,8 +510,7 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
     the host user; options.gpus as asked (auto: the nvidia runtime's), X11 as x11 asks (auto:
     a local DISPLAY whose socket exists). Returns the container's exit code (0 on a dry run,
     which prints the docker run command)."""
-    here = host_platform()
-    shell_platform = here if here in settings.platform else settings.platform[0]
+    shell_platform = devshell.shell_platform(settings, host_platform())
     ref = refs.target_ref(settings, "dev", shell_platform)
     devshell.check_shell_options(options.volumes, options.env)
     blacklisted = devshell.blacklisted_names(settings)
