@@ -1,0 +1,84 @@
+"""Faults of the machine, made for real: an engine whose data root fills up during a build. The
+last lines of output say what happened and what to do, nothing is tagged, and the same command
+works once the fault is gone."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import uuid
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+
+from tests import engines
+from tests.docker.buildhelp import docker_ros, write_env
+from tests.rosfixtures import make_package
+
+# The engine's file system: room for the base image (about 550 MB) and a build's layers;
+# filled up to leave LEFT, less than prepare's apt-get install needs (the fault of issue 47).
+DISK_SIZE = "2500M"
+LEFT = 100 * 1000 * 1000
+
+
+@pytest.fixture
+def small_disk() -> Iterator[Path]:
+    """A loop-mounted ext4 file system of DISK_SIZE (a sparse file), removed afterwards."""
+    name = f"docker-ros-test-disk-{uuid.uuid4().hex[:8]}"
+    image, mount = Path("/tmp") / f"{name}.img", Path("/tmp") / name
+    subprocess.run(["truncate", "-s", DISK_SIZE, str(image)], check=True)
+    try:
+        subprocess.run(["mkfs.ext4", "-q", "-F", "-m", "0", str(image)], check=True)
+        mount.mkdir()
+        subprocess.run(["mount", "-o", "loop", str(image), str(mount)], check=True)
+        try:
+            yield mount
+        finally:
+            subprocess.run(["umount", str(mount)], check=True)
+    finally:
+        if mount.is_dir():
+            mount.rmdir()
+        image.unlink()
+
+
+def fill(mount: Path, left: int) -> Path:
+    """A file taking all room on mount but `left` bytes."""
+    filler = mount / "filler"
+    subprocess.run(["fallocate", "-l", str(shutil.disk_usage(mount).free - left), str(filler)],
+                   check=True)
+    return filler
+
+
+def engine_has(host: str, ref: str) -> bool:
+    return subprocess.run(["docker", "image", "inspect", ref], env=engines.env_for(host),
+                          capture_output=True).returncode == 0
+
+
+def test_a_full_engine_disk_is_named_with_its_data_root_and_room(
+    ros1_base_image: str, small_disk: Path, tmp_path: Path
+) -> None:
+    if shutil.which("dockerd") is None:
+        pytest.fail("dockerd is not installed; run scripts/setup.sh")
+    image = "docker-ros-test/faults-disk:latest"
+    make_package(tmp_path / "pkg", "pkg")
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE=image, BUILD_NETWORK="host",
+              COMMAND="true")
+    data_root = small_disk / "docker"
+    with engines.private_engine([ros1_base_image], data_root=data_root) as host:
+        filler = fill(small_disk, LEFT)
+        failed = docker_ros(tmp_path, "build", "--target", "run", env={"DOCKER_HOST": host})
+        last = failed.stdout.strip().splitlines()[-4:]
+        assert failed.returncode != 0, failed.stdout[-4000:]
+        shown = "\n".join(last)
+        assert "the disk is full: the engine's data root " + str(data_root) in shown, shown
+        assert re.search(r"/docker \(\d+ (bytes|kB|MB) free\)", shown), shown
+        assert "docker system df" in shown and "docker-ros removes nothing" in shown, shown
+        assert "Traceback" not in failed.stdout
+        assert not engine_has(host, image)
+
+        filler.unlink()
+        rebuilt = docker_ros(tmp_path, "build", "--target", "run", env={"DOCKER_HOST": host})
+        assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
+        assert engine_has(host, image)
