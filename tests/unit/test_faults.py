@@ -8,7 +8,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import List
 
+import docker
 import pytest
+import requests
+import urllib3
 
 from docker_ros.host import faults as host_faults
 from docker_ros.in_image.runtime import faults
@@ -164,3 +167,27 @@ def test_a_host_steps_full_disk_names_where_it_writes(monkeypatch: pytest.Monkey
 def test_a_commands_output_still_reaches_the_user(capfd: pytest.CaptureFixture[str]) -> None:
     run(["sh", "-c", "echo out; echo err >&2"], step="custom")
     assert capfd.readouterr().out.splitlines()[-2:] == ["out", "err"]
+
+
+def test_an_engine_that_no_longer_listens_is_named_as_lost(tmp_path: Path) -> None:
+    """The Engine API's transport error for a socket nobody listens on (a stopped engine), as
+    the docker SDK raises it: no DockerException, and named in our words."""
+    gone = docker.DockerClient(base_url=f"unix://{tmp_path}/docker.sock", version="1.41")
+    with pytest.raises(Exception) as raised:
+        gone.images.get("x")
+    assert host_faults.lost_engine(raised.value)
+    assert host_faults.request_detail(raised.value) == "No such file or directory"
+    assert host_faults.engine_lost_line("push", "Response ended prematurely") == (
+        "the connection to the Docker engine was lost during push (Response ended "
+        "prematurely); an image is tagged or pushed only once it is complete, so rerunning is "
+        "safe once `docker info` answers")
+
+
+def test_a_response_cut_short_by_the_engine_is_named_by_its_reason() -> None:
+    """As the SDK raised it when the engine was killed while a container ran (measured)."""
+    cut = requests.exceptions.ChunkedEncodingError(
+        urllib3.exceptions.ProtocolError("Response ended prematurely"))
+    refused = requests.exceptions.ConnectionError(urllib3.exceptions.ProtocolError(
+        "Connection aborted.", ConnectionRefusedError(111, "Connection refused")))
+    assert host_faults.request_detail(cut) == "Response ended prematurely"
+    assert host_faults.request_detail(refused) == "Connection refused"

@@ -10,6 +10,7 @@ import shutil
 from typing import Callable, List, Optional, Sequence, Tuple
 
 from docker.errors import DockerException
+from requests.exceptions import RequestException
 
 from docker_ros.host import buildlog, engine
 from docker_ros.in_image.runtime import faults
@@ -64,3 +65,40 @@ def engine_data_root() -> DataRoot:
 def with_lines(message: str, shown: Sequence[str]) -> str:
     """message, then each of shown on a line of its own, indented."""
     return message + "".join(f"\n  {line}" for line in shown)
+
+
+def engine_lost_line(doing: str, detail: str) -> str:
+    """The message of an engine that went away while docker-ros was `doing` something (a
+    push, a slim run, a command in a container, a dev shell), as a lost build says it."""
+    return (f"the connection to the Docker engine was lost during {doing} ({detail}); an image "
+            "is tagged or pushed only once it is complete, so rerunning is safe once "
+            "`docker info` answers")
+
+
+def request_detail(exc: BaseException) -> str:
+    """What the Engine API's transport (requests) said when the engine went away: the
+    innermost reason, e.g. `Connection refused` or `Response ended prematurely`."""
+    text = str(exc)
+    found = re.findall(r"\w*Error\(\d+, '([^']+)'\)|ProtocolError\('([^']+)'", text)
+    reasons = [a or b for a, b in found]
+    return shorten_detail(reasons[-1] if reasons else text or type(exc).__name__)
+
+
+def shorten_detail(text: str) -> str:
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+def engine_answers() -> bool:
+    """Whether the engine answers now (a fresh client: the cached one pinged once, earlier)."""
+    engine.client.cache_clear()
+    try:
+        engine.client()
+    except engine.EngineError:
+        return False
+    return True
+
+
+def lost_engine(exc: BaseException) -> bool:
+    """Whether exc is the Engine API's transport failing (the SDK raises requests' errors, no
+    DockerException, when the engine stops mid-request or no longer listens)."""
+    return isinstance(exc, RequestException)
