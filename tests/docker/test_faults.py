@@ -1,21 +1,22 @@
-"""Faults of the machine, made for real: an engine whose data root fills up during a build. The
-last lines of output say what happened and what to do, nothing is tagged, and the same command
-works once the fault is gone."""
+"""Faults of the machine, made for real: an engine whose data root fills up during a build, a
+git server that is gone when the build clones from it. The last lines of output say what
+happened and what to do, nothing is tagged, and the same command works once the fault is gone."""
 
 from __future__ import annotations
 
 import re
 import shutil
 import subprocess
+import time
 import uuid
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Optional
 
 import pytest
 
 from tests import engines
 from tests.docker.buildhelp import docker_ros, write_env
-from tests.rosfixtures import make_package
+from tests.rosfixtures import free_port, make_git_repo, make_package, write_repos
 
 # The engine's file system: room for the base image (about 550 MB) and a build's layers;
 # filled up to leave LEFT, less than prepare's apt-get install needs (the fault of issue 47).
@@ -82,3 +83,50 @@ def test_a_full_engine_disk_is_named_with_its_data_root_and_room(
         rebuilt = docker_ros(tmp_path, "build", "--target", "run", env={"DOCKER_HOST": host})
         assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
         assert engine_has(host, image)
+
+
+def git_daemon(remotes: Path, port: int) -> subprocess.Popen:
+    """`git daemon` serving the bare repositories in remotes at git://127.0.0.1:port/."""
+    daemon = subprocess.Popen(["git", "daemon", "--reuseaddr", "--export-all",
+                               f"--base-path={remotes}", "--listen=127.0.0.1", f"--port={port}",
+                               str(remotes)])
+    deadline = time.monotonic() + 10
+    while subprocess.run(["git", "ls-remote", f"git://127.0.0.1:{port}/libs.git"],
+                         capture_output=True).returncode != 0:
+        assert time.monotonic() < deadline and daemon.poll() is None, "git daemon did not start"
+        time.sleep(0.2)
+    return daemon
+
+
+def test_a_git_server_that_is_gone_is_named_with_its_url(
+    ros1_base_image: str, tmp_path: Path
+) -> None:
+    image = f"docker-ros-test/faults-git:{uuid.uuid4().hex[:8]}"
+    make_package(tmp_path / "libs" / "up_a", "up_a")
+    remotes = tmp_path / "remotes"
+    make_git_repo(tmp_path / "libs", {}, bare_copy_to=remotes / "libs.git")
+    port = free_port()
+    url = f"git://127.0.0.1:{port}/libs.git"
+    repo = tmp_path / "repo"
+    make_package(repo / "app", "app")
+    write_repos(repo / ".repos", {"libs": {"url": url, "version": "main"}})
+    write_env(repo, BASE_IMAGE=ros1_base_image, IMAGE=image, BUILD_NETWORK="host",
+              COMMAND="up_a_node")
+    daemon: Optional[subprocess.Popen] = None
+    try:
+        failed = docker_ros(repo, "build", "--target", "run")  # (the server is not running)
+        assert failed.returncode != 0, failed.stdout[-4000:]
+        last = failed.stdout.strip().splitlines()[-1]
+        assert "failed in step clone" in last and f"'libs' ({url} @ main)" in last, last
+        assert "Connection refused" in last and "is the server running?" in last, last
+        assert not engine_has("unix:///var/run/docker.sock", image)
+
+        daemon = git_daemon(remotes, port)
+        rebuilt = docker_ros(repo, "build", "--target", "run")
+        assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
+        assert engine_has("unix:///var/run/docker.sock", image)
+    finally:
+        if daemon is not None:
+            daemon.terminate()
+            daemon.wait(timeout=30)
+        subprocess.run(["docker", "image", "rm", image], capture_output=True)

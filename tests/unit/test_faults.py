@@ -74,14 +74,15 @@ def test_a_full_disk_is_seen_in_any_tools_words(name: str, full: bool) -> None:
 
 @pytest.mark.parametrize("name, url, reason", [
     ("apt-refused.txt", "http://127.0.0.1:9/debian/dists/bookworm/InRelease",
-     "Connection refused"),
+     "Could not connect to 127.0.0.1:9: Connection refused"),
     ("apt-unresolvable.txt", "http://no-such-mirror.invalid/debian/dists/bookworm/InRelease",
      "Could not resolve 'no-such-mirror.invalid'"),
     ("apt-fetch-archive.txt", "http://deb.debian.org/debian/pool/main/c/curl/"
-     "curl_7.88.1-10%2bdeb12u15_amd64.deb", "Connection refused"),
+     "curl_7.88.1-10%2bdeb12u15_amd64.deb", "Could not connect to 127.0.0.1:9: Connection refused"),
     ("pip-refused.txt", "http://127.0.0.1:9/simple/catkin-pkg-nonexistent-xyz/",
      "Connection refused"),
-    ("git-refused.txt", "http://127.0.0.1:9/ros/missing.git/", "Couldn't connect to server"),
+    ("git-refused.txt", "http://127.0.0.1:9/ros/missing.git/",
+     "Failed to connect to 127.0.0.1 port 9: Couldn't connect to server"),
     ("git-daemon-refused.txt", "127.0.0.1", "Connection refused"),
     ("apt-full.txt", "", ""), ("gcc-error.txt", "", ""), ("pip-unresolvable.txt", "", ""),
 ])
@@ -124,7 +125,8 @@ def test_an_unreachable_mirror_in_a_build_is_named_with_its_url() -> None:
     lines = [f"#11 1.{n} {line}" for n, line in enumerate(sample("apt-refused.txt"))]
     shown = host_faults.build_lines(lines + ["#11 ERROR: exit code: 100"], lambda: ("", None))
     assert shown[-1].startswith("could not reach http://127.0.0.1:9/debian/dists/bookworm/"
-                                "InRelease (Connection refused): check that the server is up")
+                                "InRelease (Could not connect to 127.0.0.1:9: Connection refused): "
+                                "check that the server is up")
 
 
 def test_nothing_is_added_for_output_that_names_no_fault() -> None:
@@ -191,3 +193,11 @@ def test_a_response_cut_short_by_the_engine_is_named_by_its_reason() -> None:
         "Connection aborted.", ConnectionRefusedError(111, "Connection refused")))
     assert host_faults.request_detail(cut) == "Response ended prematurely"
     assert host_faults.request_detail(refused) == "Connection refused"
+
+
+def test_vcs_names_the_url_of_a_git_daemon_that_is_gone() -> None:
+    lines = ["=== src/upstream/libs (git) ===",
+             "Could not clone repository 'git://127.0.0.1:9418/libs.git': Cloning into '.'...",
+             "fatal: unable to connect to 127.0.0.1:",
+             "127.0.0.1[0: 127.0.0.1]: errno=Connection refused"]
+    assert faults.unreachable(lines) == ("git://127.0.0.1:9418/libs.git", "Connection refused")

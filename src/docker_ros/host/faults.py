@@ -29,19 +29,21 @@ def step_output(lines: Sequence[str]) -> List[str]:
             if not STEP_STATUS.match(line)]
 
 
-def build_lines(lines: Sequence[str], data_root: Callable[[], DataRoot]) -> List[str]:
-    """The lines a failed build's message adds (lines: BuildKit's plain log): the failing
-    tool's error lines, the URL it could not reach, and for a full disk (in a step or in
-    BuildKit's own export) the engine's data root and its room (data_root: read only then)."""
+def build_lines(lines: Sequence[str], data_root: Callable[[], DataRoot],
+                said: str = "") -> List[str]:
+    """The lines a failed build's message adds (lines: BuildKit's plain log; said: what the
+    message says already, e.g. the clone step's URL and reason): the failing tool's error
+    lines, the URL it could not reach, and for a full disk (in a step or in BuildKit's own
+    export) the engine's data root and its room (data_root: read only then)."""
     output = step_output(lines)
-    shown = faults.tool_lines(output)
+    shown = [line for line in faults.tool_lines(output) if line not in said]
     own = [line.strip() for line in lines if not line.startswith("#")
            and line.startswith("ERROR") and faults.disk_full([line])]
     if own and not any(faults.disk_full([s]) for s in shown):
         shown.append(faults.shorten(own[0]))
     url, reason = faults.unreachable(output)
-    if reason:
-        shown.append(faults.network_line(url or "a server", reason))
+    if "://" in url and url not in said:
+        shown.append(faults.network_line(url, reason))
     if faults.disk_full(output) or own:
         shown.append(faults.engine_disk_line(*data_root()))
     return shown

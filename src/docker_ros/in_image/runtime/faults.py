@@ -34,7 +34,8 @@ _PIP_FETCH = re.compile(r"Could not fetch URL (\S+?): (.*)")
 _PIP_RETRY = re.compile(r"after connection broken by '(.*)': (/\S*)$")
 _PIP_INDEX = re.compile(r"Looking in indexes: (\S+?),?$")
 _CURL = re.compile(r"curl: \(\d+\) (.*)")
-_REASON = re.compile(r"Could not resolve(?: host)?:? '?[^'\s)]+'?|Temporary failure resolving "
+_REASON = re.compile(r"Could not connect to [^\s(]+|Failed to connect to \S+ port \d+|"
+                     r"Could not resolve(?: host)?:? '?[^'\s)]+'?|Temporary failure resolving "
                      r"'[^']*'|Temporary failure in name resolution|Connection refused|"
                      r"Connection timed out|Network is unreachable|No route to host|"
                      r"Name or service not known|Connection reset by peer|"
@@ -109,9 +110,9 @@ def unreachable(lines: Sequence[str]) -> Tuple[str, str]:
             return found.group(1), reason_of(following)
         found = _VCS_CLONE.search(line)
         if found:
-            rest = [f.strip() for f in lines[number:number + 6] if _GIT_REMOTE.search(f)]
-            if rest:
-                return found.group(1), reason_of(rest[0][len("fatal: "):])
+            reason = clone_reason(lines[number:number + 6])
+            if reason:
+                return found.group(1), reason
         found = _PIP_RETRY.search(line)
         if found and index:
             return urljoin(index.rstrip("/") + "/", found.group(2)), reason_of(found.group(1))
@@ -121,11 +122,26 @@ def unreachable(lines: Sequence[str]) -> Tuple[str, str]:
     return "", ""
 
 
+def clone_reason(block: Sequence[str]) -> str:
+    """Why git could not reach the remote of a clone, from the lines vcstool shows of it (its
+    own `Could not clone repository` line first), '' when they say nothing of the remote."""
+    for line in block:
+        if _REASON.search(line):
+            return reason_of(line)
+        remote = _GIT_REMOTE.search(line)
+        if remote:
+            return reason_of(remote.group(0)[len("fatal: "):])
+    return ""
+
+
 def reason_of(text: str) -> str:
-    """The words of a network failure that say what happened (`Connection refused`), else
-    the text itself, shortened."""
-    found = _REASON.search(text)
-    return found.group(0) if found else shorten(text)[:120]
+    """The words of a network failure that say what happened (`Could not connect to
+    127.0.0.1:9: Connection refused`), else the text itself, shortened."""
+    found: List[str] = []
+    for match in _REASON.finditer(text):
+        if match.group(0) not in found:
+            found.append(match.group(0))
+    return ": ".join(found[:2]) if found else shorten(text)[:120]
 
 
 def network_line(url: str, reason: str) -> str:
