@@ -1,14 +1,19 @@
 """Faults of the machine, made for real: an engine whose data root fills up during a build, a
-git server that is gone when the build clones from it. The last lines of output say what
-happened and what to do, nothing is tagged, and the same command works once the fault is gone."""
+git server that is gone when the build clones from it, an apt proxy that is gone. The last
+lines of output say what happened and what to do, nothing is tagged, and the same command works
+once the fault is gone."""
 
 from __future__ import annotations
 
 import re
 import shutil
 import subprocess
+import threading
 import time
+import urllib.error
+import urllib.request
 import uuid
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Iterator, Optional
 
@@ -129,4 +134,61 @@ def test_a_git_server_that_is_gone_is_named_with_its_url(
         if daemon is not None:
             daemon.terminate()
             daemon.wait(timeout=30)
+        subprocess.run(["docker", "image", "rm", image], capture_output=True)
+
+
+class Forward(BaseHTTPRequestHandler):
+    """An HTTP proxy for apt: each GET of an absolute URL fetched from its server."""
+
+    def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+        try:
+            with urllib.request.urlopen(self.path, timeout=120) as upstream:
+                body, status = upstream.read(), upstream.status
+        except urllib.error.HTTPError as refused:
+            body, status = b"", refused.code
+        self.send_response(status)
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, *args: object) -> None:
+        pass
+
+
+def test_an_apt_proxy_that_is_gone_is_named_with_the_url_apt_could_not_fetch(
+    ros1_base_image: str, tmp_path: Path
+) -> None:
+    """A hook installs a package through an apt proxy (a mirror's stand-in) that is not
+    running: apt only warns about the lists it could not fetch, then fails to find the package;
+    the last lines name the URL and the proxy that refused."""
+    image = f"docker-ros-test/faults-apt:{uuid.uuid4().hex[:8]}"
+    port = free_port()
+    make_package(tmp_path / "app", "app")
+    proxy = f"-o Acquire::http::Proxy=http://127.0.0.1:{port}"
+    (tmp_path / "docker").mkdir()
+    (tmp_path / "docker" / "custom.sh").write_text(
+        f"apt-get {proxy} update\napt-get {proxy} install -y --no-install-recommends jq\n")
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE=image, BUILD_NETWORK="host",
+              COMMAND="jq --version")
+    server: Optional[ThreadingHTTPServer] = None
+    try:
+        failed = docker_ros(tmp_path, "build", "--target", "run")
+        assert failed.returncode != 0, failed.stdout[-4000:]
+        last = failed.stdout.strip().splitlines()[-3:]
+        print("\n".join(failed.stdout.strip().splitlines()[-6:]))
+        assert last[-1].startswith("  could not reach http://deb.debian.org/debian/dists/"
+                                   f"bookworm/InRelease (Could not connect to 127.0.0.1:{port}:"
+                                   " Connection refused)"), last
+        assert any(line.startswith("  E: ") for line in last), last
+        assert not engine_has("unix:///var/run/docker.sock", image)
+
+        server = ThreadingHTTPServer(("127.0.0.1", port), Forward)
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        rebuilt = docker_ros(tmp_path, "build", "--target", "run")
+        assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
+        assert engine_has("unix:///var/run/docker.sock", image)
+    finally:
+        if server is not None:
+            server.shutdown()
+            server.server_close()
         subprocess.run(["docker", "image", "rm", image], capture_output=True)
