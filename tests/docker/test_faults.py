@@ -15,7 +15,7 @@ import urllib.request
 import uuid
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Callable, Iterator, List, Optional
 
 import pytest
 
@@ -57,9 +57,38 @@ def fill(mount: Path, left: int) -> Path:
     return filler
 
 
-def engine_has(host: str, ref: str) -> bool:
-    return subprocess.run(["docker", "image", "inspect", ref], env=engines.env_for(host),
+def engine_has(host: Optional[str], ref: str) -> bool:
+    """Whether the engine at host (None: the shared one) has the image ref."""
+    return subprocess.run(["docker", "image", "inspect", ref],
+                          env=engines.env_for(host) if host else None,
                           capture_output=True).returncode == 0
+
+
+@pytest.fixture
+def own_image() -> Iterator[str]:
+    """A tag of this test's own on the shared engine, removed afterwards."""
+    image = f"docker-ros-test/faults:{uuid.uuid4().hex[:8]}"
+    yield image
+    subprocess.run(["docker", "image", "rm", image], capture_output=True)
+
+
+def fails_then_works(project: Path, image: str, restore: Callable[[], object],
+                     host: Optional[str] = None) -> List[str]:
+    """The run image of project built on the engine at host (None: the shared one): the build
+    fails and tags nothing; after restore() (the fault gone) the same build works. The failed
+    build's final message, its lines."""
+    env = {"DOCKER_HOST": host} if host else {}
+    failed = docker_ros(project, "build", "--target", "run", env=env)
+    assert failed.returncode != 0, failed.stdout[-4000:]
+    assert "Traceback" not in failed.stdout
+    assert not engine_has(host, image)
+    restore()
+    rebuilt = docker_ros(project, "build", "--target", "run", env=env)
+    assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
+    assert engine_has(host, image)
+    final = failed.stdout.strip().splitlines()
+    return final[max(i for i, line in enumerate(final)
+                     if line.startswith("docker-ros build: ")):]
 
 
 def test_a_full_engine_disk_is_named_with_its_data_root_and_room(
@@ -74,20 +103,14 @@ def test_a_full_engine_disk_is_named_with_its_data_root_and_room(
     data_root = small_disk / "docker"
     with engines.private_engine([ros1_base_image], data_root=data_root) as host:
         filler = fill(small_disk, LEFT)
-        failed = docker_ros(tmp_path, "build", "--target", "run", env={"DOCKER_HOST": host})
-        last = failed.stdout.strip().splitlines()[-4:]
-        assert failed.returncode != 0, failed.stdout[-4000:]
-        shown = "\n".join(last)
-        assert "the disk is full: the engine's data root " + str(data_root) in shown, shown
-        assert re.search(r"/docker \(\d+ (bytes|kB|MB) free\)", shown), shown
-        assert "docker system df" in shown and "docker-ros removes nothing" in shown, shown
-        assert "Traceback" not in failed.stdout
-        assert not engine_has(host, image)
-
-        filler.unlink()
-        rebuilt = docker_ros(tmp_path, "build", "--target", "run", env={"DOCKER_HOST": host})
-        assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
-        assert engine_has(host, image)
+        final = fails_then_works(tmp_path, image, filler.unlink, host)
+    print("\n".join(final))
+    assert "failed in step prepare: failed with exit code 100: apt-get " in final[0], final
+    assert "No space left on device" in final[1] or "enough free space" in final[1], final
+    disk = final[-1]
+    assert disk.startswith(f"  the disk is full: the engine's data root {data_root} ("), final
+    assert re.search(r"/docker \(\d+ (bytes|kB|MB) free\)", disk), disk
+    assert "docker system df" in disk and "docker-ros removes nothing" in disk, disk
 
 
 def git_daemon(remotes: Path, port: int) -> subprocess.Popen:
@@ -104,9 +127,8 @@ def git_daemon(remotes: Path, port: int) -> subprocess.Popen:
 
 
 def test_a_git_server_that_is_gone_is_named_with_its_url(
-    ros1_base_image: str, tmp_path: Path
+    ros1_base_image: str, own_image: str, tmp_path: Path
 ) -> None:
-    image = f"docker-ros-test/faults-git:{uuid.uuid4().hex[:8]}"
     make_package(tmp_path / "libs" / "up_a", "up_a")
     remotes = tmp_path / "remotes"
     make_git_repo(tmp_path / "libs", {}, bare_copy_to=remotes / "libs.git")
@@ -115,26 +137,19 @@ def test_a_git_server_that_is_gone_is_named_with_its_url(
     repo = tmp_path / "repo"
     make_package(repo / "app", "app")
     write_repos(repo / ".repos", {"libs": {"url": url, "version": "main"}})
-    write_env(repo, BASE_IMAGE=ros1_base_image, IMAGE=image, BUILD_NETWORK="host",
+    write_env(repo, BASE_IMAGE=ros1_base_image, IMAGE=own_image, BUILD_NETWORK="host",
               COMMAND="up_a_node")
-    daemon: Optional[subprocess.Popen] = None
-    try:
-        failed = docker_ros(repo, "build", "--target", "run")  # (the server is not running)
-        assert failed.returncode != 0, failed.stdout[-4000:]
-        last = failed.stdout.strip().splitlines()[-1]
-        assert "failed in step clone" in last and f"'libs' ({url} @ main)" in last, last
-        assert "Connection refused" in last and "is the server running?" in last, last
-        assert not engine_has("unix:///var/run/docker.sock", image)
-
-        daemon = git_daemon(remotes, port)
-        rebuilt = docker_ros(repo, "build", "--target", "run")
-        assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
-        assert engine_has("unix:///var/run/docker.sock", image)
+    daemons: List[subprocess.Popen] = []
+    try:  # (the server is not running at first)
+        final = fails_then_works(repo, own_image,
+                                 lambda: daemons.append(git_daemon(remotes, port)))
     finally:
-        if daemon is not None:
+        for daemon in daemons:
             daemon.terminate()
             daemon.wait(timeout=30)
-        subprocess.run(["docker", "image", "rm", image], capture_output=True)
+    print("\n".join(final))
+    assert "failed in step clone" in final[-1] and f"'libs' ({url} @ main)" in final[-1], final
+    assert "Connection refused" in final[-1] and "is the server running?" in final[-1], final
 
 
 class Forward(BaseHTTPRequestHandler):
@@ -155,40 +170,39 @@ class Forward(BaseHTTPRequestHandler):
         pass
 
 
+def forward(port: int) -> ThreadingHTTPServer:
+    """The Forward proxy serving at 127.0.0.1:port."""
+    server = ThreadingHTTPServer(("127.0.0.1", port), Forward)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server
+
+
 def test_an_apt_proxy_that_is_gone_is_named_with_the_url_apt_could_not_fetch(
-    ros1_base_image: str, tmp_path: Path
+    ros1_base_image: str, own_image: str, tmp_path: Path
 ) -> None:
     """A hook installs a package through an apt proxy (a mirror's stand-in) that is not
-    running: apt only warns about the lists it could not fetch, then fails to find the package;
-    the last lines name the URL and the proxy that refused."""
-    image = f"docker-ros-test/faults-apt:{uuid.uuid4().hex[:8]}"
+    running; the last lines name apt's errors, the URL it could not fetch and the proxy that
+    refused."""
     port = free_port()
     make_package(tmp_path / "app", "app")
-    proxy = f"-o Acquire::http::Proxy=http://127.0.0.1:{port}"
+    # (archives of its own: the build's apt cache mount may hold jq from the run that worked)
+    apt = (f"apt-get -o Acquire::http::Proxy=http://127.0.0.1:{port} "
+           "-o Dir::Cache::archives=/tmp/archives/")
     (tmp_path / "docker").mkdir()
     (tmp_path / "docker" / "custom.sh").write_text(
-        f"apt-get {proxy} update\napt-get {proxy} install -y --no-install-recommends jq\n")
-    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE=image, BUILD_NETWORK="host",
+        f"mkdir -p /tmp/archives/partial\n{apt} update\n"
+        f"{apt} install -y --no-install-recommends jq\nrm -rf /tmp/archives\n")
+    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE=own_image, BUILD_NETWORK="host",
               COMMAND="jq --version")
-    server: Optional[ThreadingHTTPServer] = None
-    try:
-        failed = docker_ros(tmp_path, "build", "--target", "run")
-        assert failed.returncode != 0, failed.stdout[-4000:]
-        last = failed.stdout.strip().splitlines()[-3:]
-        print("\n".join(failed.stdout.strip().splitlines()[-6:]))
-        assert last[-1].startswith("  could not reach http://deb.debian.org/debian/dists/"
-                                   f"bookworm/InRelease (Could not connect to 127.0.0.1:{port}:"
-                                   " Connection refused)"), last
-        assert any(line.startswith("  E: ") for line in last), last
-        assert not engine_has("unix:///var/run/docker.sock", image)
-
-        server = ThreadingHTTPServer(("127.0.0.1", port), Forward)
-        threading.Thread(target=server.serve_forever, daemon=True).start()
-        rebuilt = docker_ros(tmp_path, "build", "--target", "run")
-        assert rebuilt.returncode == 0, rebuilt.stdout[-4000:]
-        assert engine_has("unix:///var/run/docker.sock", image)
+    servers: List[ThreadingHTTPServer] = []
+    try:  # (the proxy is not running at first)
+        final = fails_then_works(tmp_path, own_image, lambda: servers.append(forward(port)))
     finally:
-        if server is not None:
+        for server in servers:
             server.shutdown()
             server.server_close()
-        subprocess.run(["docker", "image", "rm", image], capture_output=True)
+    print("\n".join(final))
+    assert "failed in step custom: " in final[0] and "exit code 100" in final[0], final
+    assert final[1].startswith("  E: "), final
+    assert final[-1].startswith("  could not reach http://deb.debian.org/debian/"), final
+    assert f"(Could not connect to 127.0.0.1:{port}: Connection refused)" in final[-1], final

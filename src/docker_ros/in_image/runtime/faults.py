@@ -49,9 +49,10 @@ def shorten(text: str) -> str:
 
 def tool_lines(lines: Sequence[str]) -> List[str]:
     """The failing tool's own error lines, in their order, each once, at most SHOWN_LINES:
-    apt's `E:` (and its warnings of a failed fetch), dpkg's error with the line after it,
-    pip's `ERROR:`, git's `fatal:`, the first compiler `error:` (file:line: ...), CMake's
-    error with the first line of its explanation, and a `No space left on device` anywhere."""
+    apt's `E:` and its warnings of a failure (of its failed fetches the first), dpkg's error
+    with the line after it, pip's `ERROR:`, git's `fatal:`, the first compiler `error:`
+    (file:line: ...), CMake's error with the first line of its explanation, and a `No space
+    left on device` anywhere."""
     found: List[str] = []
     compiler = False
     for index, raw in enumerate(lines):
@@ -69,6 +70,8 @@ def tool_lines(lines: Sequence[str]) -> List[str]:
             text = line
         elif NO_SPACE.search(line) and not any(NO_SPACE.search(f) for f in found):
             text = line
+        if "Failed to fetch " in text and any("Failed to fetch " in f for f in found):
+            continue  # (one per URL: the first says why, the others repeat it)
         if text and shorten(text) not in found:
             found.append(shorten(text))
     return prefer_errors(found)[:SHOWN_LINES]
