@@ -23,6 +23,8 @@ from tests import engines
 from tests.docker.buildhelp import docker_ros, write_env
 from tests.rosfixtures import free_port, make_git_repo, make_package, write_repos
 
+pytestmark = pytest.mark.docker
+
 # The engine's file system: room for the base image (about 550 MB) and a build's layers;
 # filled up to leave LEFT, less than prepare's apt-get install needs (the fault of issue 47).
 DISK_SIZE = "2500M"
@@ -94,6 +96,9 @@ def fails_then_works(project: Path, image: str, restore: Callable[[], object],
 def test_a_full_engine_disk_is_named_with_its_data_root_and_room(
     ros1_base_image: str, small_disk: Path, tmp_path: Path
 ) -> None:
+    """An engine whose data root has about 100 MB left (a loop-mounted file system filled
+    up): the build's last lines name the full disk, the engine's data root and its room, and
+    what to do; after the filler is removed the same build works."""
     if shutil.which("dockerd") is None:
         pytest.fail("dockerd is not installed; run scripts/setup.sh")
     image = "docker-ros-test/faults-disk:latest"
@@ -129,6 +134,9 @@ def git_daemon(remotes: Path, port: int) -> subprocess.Popen:
 def test_a_git_server_that_is_gone_is_named_with_its_url(
     ros1_base_image: str, own_image: str, tmp_path: Path
 ) -> None:
+    """A git daemon that is not running when the clone step imports from it: the last line
+    names the repository, its URL and the refused connection; once it serves, the same build
+    works."""
     make_package(tmp_path / "libs" / "up_a", "up_a")
     remotes = tmp_path / "remotes"
     make_git_repo(tmp_path / "libs", {}, bare_copy_to=remotes / "libs.git")
@@ -180,9 +188,9 @@ def forward(port: int) -> ThreadingHTTPServer:
 def test_an_apt_proxy_that_is_gone_is_named_with_the_url_apt_could_not_fetch(
     ros1_base_image: str, own_image: str, tmp_path: Path
 ) -> None:
-    """A hook installs a package through an apt proxy (a mirror's stand-in) that is not
-    running; the last lines name apt's errors, the URL it could not fetch and the proxy that
-    refused."""
+    """A hook that installs a package through an apt proxy (a mirror's stand-in) that is not
+    running: the last lines name apt's errors, the URL it could not fetch and the proxy that
+    refused; once the proxy serves, the same build works."""
     port = free_port()
     make_package(tmp_path / "app", "app")
     # (archives of its own: the build's apt cache mount may hold jq from the run that worked)
