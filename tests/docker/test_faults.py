@@ -1,18 +1,22 @@
 """Faults of the machine, made for real: an engine whose data root fills up during a build, a
-git server that is gone when the build clones from it, an apt proxy that is gone. The last
-lines of output say what happened and what to do, nothing is tagged, and the same command works
-once the fault is gone."""
+git server that is gone when the build clones from it, an apt proxy that is gone, the engine's
+socket gone during a dev shell. The last lines of output say what happened and what to do,
+nothing is tagged, and the same command works once the fault is gone."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
+import socket
 import subprocess
+import sys
 import threading
 import time
 import urllib.error
 import urllib.request
 import uuid
+from contextlib import suppress
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Callable, Iterator, List, Optional
@@ -68,10 +72,10 @@ def engine_has(host: Optional[str], ref: str) -> bool:
 
 @pytest.fixture
 def own_image() -> Iterator[str]:
-    """A tag of this test's own on the shared engine, removed afterwards."""
+    """A tag of this test's own on the shared engine, removed afterwards (with its dev image)."""
     image = f"docker-ros-test/faults:{uuid.uuid4().hex[:8]}"
     yield image
-    subprocess.run(["docker", "image", "rm", image], capture_output=True)
+    subprocess.run(["docker", "image", "rm", image, f"{image}-dev"], capture_output=True)
 
 
 def fails_then_works(project: Path, image: str, restore: Callable[[], object],
@@ -214,3 +218,96 @@ def test_an_apt_proxy_that_is_gone_is_named_with_the_url_apt_could_not_fetch(
     assert final[1].startswith("  E: "), final
     assert final[-1].startswith("  could not reach http://deb.debian.org/debian/"), final
     assert f"(Could not connect to 127.0.0.1:{port}: Connection refused)" in final[-1], final
+
+
+class SocketProxy:
+    """A unix socket forwarding every connection to the engine's: DOCKER_HOST for docker-ros,
+    and stopped (all its connections cut) to make the engine go away from the client's side
+    while the engine and what runs in it stay."""
+
+    def __init__(self, path: Path, target: str = "/var/run/docker.sock") -> None:
+        self.path, self.target = path, target
+        self.open: List[socket.socket] = []
+        self.listener = socket.socket(socket.AF_UNIX)
+
+    def start(self) -> SocketProxy:
+        self.listener = socket.socket(socket.AF_UNIX)
+        self.listener.bind(str(self.path))
+        self.listener.listen(64)
+        threading.Thread(target=self.accept, daemon=True).start()
+        return self
+
+    def accept(self) -> None:
+        with suppress(OSError):
+            while True:
+                client, _ = self.listener.accept()
+                engine = socket.socket(socket.AF_UNIX)
+                engine.connect(self.target)
+                self.open += [client, engine]
+                for source, sink in ((client, engine), (engine, client)):
+                    threading.Thread(target=pump, args=(source, sink), daemon=True).start()
+
+    def stop(self) -> None:
+        self.listener.close()
+        self.path.unlink()
+        for connection in self.open:
+            with suppress(OSError):
+                connection.shutdown(socket.SHUT_RDWR)
+            connection.close()
+        self.open.clear()
+
+
+def pump(source: socket.socket, sink: socket.socket) -> None:
+    with suppress(OSError):
+        while True:
+            data = source.recv(65536)
+            if not data:
+                sink.shutdown(socket.SHUT_WR)
+                return
+            sink.sendall(data)
+
+
+def test_an_engine_gone_during_a_dev_shell_is_named(
+    ros1_base_image: str, own_image: str, tmp_path: Path
+) -> None:
+    """The engine's socket cut while a dev shell runs: the last line says that the connection
+    to the engine was lost and that rerunning is safe, with no traceback; once it answers
+    again, the same dev shell works."""
+    project, name = tmp_path / "project", f"docker-ros-test-faults-{uuid.uuid4().hex[:8]}"
+    make_package(project / "app", "app")
+    write_env(project, BASE_IMAGE=ros1_base_image, IMAGE=own_image, BUILD_NETWORK="host")
+    proxy = SocketProxy(tmp_path / "docker.sock").start()
+    env = {"DOCKER_HOST": f"unix://{proxy.path}"}
+    shell = subprocess.Popen([sys.executable, "-m", "docker_ros", "dev-shell", "--name", name,
+                              "--cmd", "sleep 60"], cwd=project, env={**os.environ, **env},
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 600
+        while not running(name):
+            assert shell.poll() is None and time.monotonic() < deadline, shell.communicate()[0]
+            time.sleep(1)
+        proxy.stop()
+        output, _ = shell.communicate(timeout=120)
+        last = output.strip().splitlines()[-1]
+        print(last)
+        assert shell.returncode != 0 and "Traceback" not in output, output[-3000:]
+        assert last.startswith("docker-ros dev-shell: the connection to the Docker engine "
+                               "was lost during the dev shell (`docker run` ended with exit "
+                               "code "), last
+        assert "rerunning is safe once `docker info` answers" in last, last
+        proxy.start()
+        again = docker_ros(project, "dev-shell", "--cmd", "true", env=env)
+        assert again.returncode == 0, again.stdout[-3000:]
+    finally:
+        if shell.poll() is None:
+            shell.kill()
+            shell.communicate()
+        subprocess.run(["docker", "rm", "-f", name], capture_output=True)
+        with suppress(FileNotFoundError):
+            proxy.stop()
+
+
+def running(name: str) -> bool:
+    shown = subprocess.run(["docker", "inspect", "-f", "{{.State.Running}}", name],
+                           capture_output=True, text=True)
+    return shown.stdout.strip() == "true"

@@ -552,15 +552,11 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
         except KeyboardInterrupt:  # (SIGTERM too: the docker CLI stops the container; killed,
             let_end(container)     # as subprocess.call did, it left the container running)
             raise
-        if code == DOCKER_RUN_FAILED and not faults.engine_answers():
+        if code and not faults.engine_answers():  # (125 when it broke off, else the shell's)
             raise TaskError(faults.engine_lost_line(
-                "the dev shell", "`docker run` ended with exit code 125 and the engine no "
+                "the dev shell", f"`docker run` ended with exit code {code} and the engine no "
                 "longer answers"), code)
         return code
-
-
-# `docker run`'s exit code for a failure of docker itself (not of the command in the container)
-DOCKER_RUN_FAILED = 125
 
 
 def check_shell_engine(settings: Settings) -> None:
