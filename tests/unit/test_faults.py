@@ -15,7 +15,7 @@ import urllib3
 
 from docker_ros.host import faults as host_faults
 from docker_ros.in_image.runtime import faults
-from docker_ros.in_image.runtime.process import fault_lines, run
+from docker_ros.in_image.runtime.process import fault_lines, run, run_script
 from docker_ros.in_image.runtime.workspace import StepError
 
 DATA = Path(__file__).parent / "data" / "faults"
@@ -201,3 +201,17 @@ def test_vcs_names_the_url_of_a_git_daemon_that_is_gone() -> None:
              "fatal: unable to connect to 127.0.0.1:",
              "127.0.0.1[0: 127.0.0.1]: errno=Connection refused"]
     assert faults.unreachable(lines) == ("git://127.0.0.1:9418/libs.git", "Connection refused")
+
+
+def test_what_a_hook_adds_stays_on_the_first_line(tmp_path: Path) -> None:
+    """A failed hook's `it stopped at line N` goes to the message's first line, the tool's
+    lines (a real git's) below it."""
+    script = tmp_path / "hook.sh"
+    script.write_text("true\ngit clone -q file:///srv/missing/repo.git x\n")
+    with pytest.raises(StepError) as failed:
+        run_script(["bash", "-e", str(script)], script, step="custom", dry_run=False,
+                   cwd=tmp_path, what=str(script))
+    first, *rest = failed.value.message.splitlines()
+    assert "it stopped at line 2" in first, failed.value.message
+    assert rest == ["  fatal: '/srv/missing/repo.git' does not appear to be a git repository",
+                    "  fatal: Could not read from remote repository."]

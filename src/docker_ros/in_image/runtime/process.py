@@ -257,7 +257,7 @@ def run_script(
             hint = script_hint(script.read_bytes()) if script.is_file() else ""
             if not line and not hint:
                 raise
-            raise StepError(step, exc.message + line + hint, exc.returncode) from None
+            raise StepError(step, exc.said_more(line + hint), exc.returncode) from None
 
 
 def run_tee(
