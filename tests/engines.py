@@ -89,12 +89,14 @@ def engine26_dockerd() -> Path:
 
 
 @contextlib.contextmanager
-def private_engine(images: Sequence[str] = (), *, modern: bool = False) -> Iterator[str]:
+def private_engine(images: Sequence[str] = (), *, modern: bool = False,
+                   data_root: Optional[Path] = None) -> Iterator[str]:
     """A private Docker daemon with an empty image store and build cache holding only images
     (copied from the shared engine); yields its DOCKER_HOST. modern: Engine 26 of setup.sh on
     the containerd image store, else the distribution's dockerd. The daemon gets a bridge of its
     own (one started with --bridge=none deletes the host's docker0) and no outbound NAT: builds
-    in it that need the network use BUILD_NETWORK=host."""
+    in it that need the network use BUILD_NETWORK=host. data_root: where it keeps images and
+    cache (e.g. a small file system), else a folder of its own."""
     work = Path(f"/tmp/docker-ros-test-engine-{uuid.uuid4().hex[:8]}")
     bridge = f"drt{work.name[-8:]}"[:15]
     subnet = f"172.30.{(os.getpid() + (1 if modern else 0)) % 250}.1/24"
@@ -103,9 +105,9 @@ def private_engine(images: Sequence[str] = (), *, modern: bool = False) -> Itera
     subprocess.run(["ip", "link", "set", bridge, "up"], check=True)
     work.mkdir()
     host = f"unix://{work}/docker.sock"
-    argv = ["dockerd", "--data-root", str(work / "data"), "--exec-root", str(work / "exec"),
-            "--pidfile", str(work / "pid"), "-H", host, "-b", bridge, "--iptables=false",
-            "--ip-masq=false"]
+    argv = ["dockerd", "--data-root", str(data_root or work / "data"),
+            "--exec-root", str(work / "exec"), "--pidfile", str(work / "pid"), "-H", host,
+            "-b", bridge, "--iptables=false", "--ip-masq=false"]
     env: Optional[Dict[str, str]] = None
     if modern:
         (work / "daemon.json").write_text(CONTAINERD_STORE)

@@ -27,6 +27,7 @@ from docker_ros.core.settings import (
     kind_of,
     settings_where,
 )
+from docker_ros.host import faults
 from docker_ros.host.config import read_settings
 from docker_ros.host.pipeline import (
     TaskFailed,
@@ -229,6 +230,10 @@ def settings_task(
                     raise Exit(f"docker-ros {name}: terminated (SIGTERM){detail}",
                                code=143) from None
                 raise Exit(f"docker-ros {name}: interrupted{detail}", code=130) from None
+            except faults.RequestException as exc:  # (the Engine API's transport)
+                raise Exit(f"docker-ros {name}: "
+                           + faults.engine_lost_line(name, faults.request_detail(exc)),
+                           code=1) from None
             except DockerRosError as exc:  # (the one place that reports them)
                 code = exc.exit_code
                 where = exc.step if isinstance(exc, StepError) else name

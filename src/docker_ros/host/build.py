@@ -17,7 +17,7 @@ from typing import IO, Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.core.errors import BuildError
 from docker_ros.core.settings import Settings
-from docker_ros.host import builder, buildlog, buildstate, engine
+from docker_ros.host import builder, buildlog, buildstate, engine, faults
 from docker_ros.host.buildcontext import (
     _kept,
     ensure_imports_image,
@@ -297,10 +297,13 @@ def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *
         stage, step = buildlog.failed_step(lines)
         failed = [t for t in targets if t not in done]
         what = "target" if len(failed) == 1 else "targets"
-        raise BuildError(f"building {what} {', '.join(repr(t) for t in failed)} ({platform}) "
-                         f"{buildlog.failure_reason(lines, errors, network, unseen)}"
-                         + "".join(f"; {built_note(t, targets[t])}" for t in done),
-                         code, stage=stage, step=step)
+        reason = buildlog.failure_reason(lines, errors, network, unseen)
+        shown = [] if buildlog.engine_lost(lines) else \
+            faults.build_lines(lines, faults.engine_data_root, reason)
+        raise BuildError(faults.with_lines(
+            f"building {what} {', '.join(repr(t) for t in failed)} ({platform}) {reason}"
+            + "".join(f"; {built_note(t, targets[t])}" for t in done), shown),
+            code, stage=stage, step=step)
     return time.monotonic() - began
 
 

@@ -40,6 +40,7 @@ from docker_ros.host import (
     container,
     devshell,
     engine,
+    faults,
     refs,
     slim,
     slimoptions,
@@ -546,10 +547,15 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
                 print(stale, file=sys.stderr, flush=True)
         container = subprocess.Popen(argv)
         try:
-            return container.wait()
+            code = container.wait()
         except KeyboardInterrupt:  # (SIGTERM too: the docker CLI stops the container; killed,
             let_end(container)     # as subprocess.call did, it left the container running)
             raise
+        if code and not faults.engine_answers():  # (125 when it broke off, else the shell's)
+            raise TaskError(faults.engine_lost_line(
+                "the dev shell", f"`docker run` ended with exit code {code} and the engine no "
+                "longer answers"), code)
+        return code
 
 
 def check_shell_engine(settings: Settings) -> None:

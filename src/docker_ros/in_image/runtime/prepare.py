@@ -328,11 +328,11 @@ def main(
                 run(argv, step="prepare", dry_run=dry_run, env=apt_env())
         except StepError as exc:
             rmw = settings.rmw_implementation
-            raise StepError("prepare", f"{exc.message}: the package of RMW_IMPLEMENTATION={rmw} "
-                            f"could not be installed: check RMW_IMPLEMENTATION and ROS_DISTRO "
-                            f"({distro}), and that the base image's apt sources have ROS "
-                            "packages (or set DISABLE_ROS_INSTALLATION=true)",
-                            exc.returncode) from None
+            raise StepError("prepare", exc.said_more(
+                f": the package of RMW_IMPLEMENTATION={rmw} could not be installed: check "
+                f"RMW_IMPLEMENTATION and ROS_DISTRO ({distro}), and that the base image's apt "
+                "sources have ROS packages (or set DISABLE_ROS_INSTALLATION=true)"),
+                exc.returncode) from None
         if options.get("dependency_types") == "all":
             # dependencies-dev stage: the base is prepared already; add the build toolchain.
             if shutil.which("g++") is None:

@@ -1,9 +1,11 @@
 """Running commands and hook scripts: argv lists only, one clear error per failure.
 Standard library only, Python 3.8+ (runs inside images)."""
 
+import collections
 import contextlib
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -11,6 +13,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
+from docker_ros.in_image.runtime import faults
 from docker_ros.in_image.runtime.workspace import LOG, StepError, dry, format_argv
 
 # A line in which a compiler, the linker, make, CMake or Python says what is wrong (not make's
@@ -43,19 +46,26 @@ def run(
     full_env = None if env is None else dict(env)
     sys.stdout.flush()
     try:
+        # (not captured: its output passes through us, its last lines kept for the error)
         proc = subprocess.Popen(
             executable_argv(argv),
             cwd=str(cwd) if cwd else None,
             env=full_env,
-            stdout=subprocess.PIPE if capture else None,
-            stderr=subprocess.PIPE if capture else None,
-            text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE if capture else subprocess.STDOUT,
+            universal_newlines=True,
+            errors="replace",
         )
     except FileNotFoundError:
         raise StepError(step, f"command not found: {argv[0]} (needed for: {shown})"
                         f"{host_tool_hint(argv[0])}", 127) from None
+    tail: collections.deque[str] = collections.deque(maxlen=TAIL_LINES)
     try:
-        stdout, stderr = proc.communicate()
+        if capture:
+            stdout, stderr = proc.communicate()
+        else:
+            stdout, stderr = "", ""
+            passed_through(proc, tail)
     except BaseException:  # interrupted or terminated: the command does not outlive us
         stop_tree(proc)
         raise
@@ -66,10 +76,58 @@ def run(
         subject = f"{what} " if what else ""
         raise StepError(
             step,
-            f"{subject}failed with exit code {proc.returncode}: {shown}{detail}",
+            f"{subject}failed with exit code {proc.returncode}: {shown}{detail}"
+            + "".join(f"\n  {line}" for line in fault_lines(list(tail), cwd)),
             proc.returncode,
         )
     return stdout if capture else ""
+
+
+# How many of a command's last lines are kept for its error message.
+TAIL_LINES = 400
+
+
+def passed_through(proc: "subprocess.Popen[str]", tail: "collections.deque[str]") -> None:
+    """Copy the command's output to our stdout as it comes, keeping its last lines in tail."""
+    assert proc.stdout is not None
+    with proc.stdout:
+        for line in proc.stdout:
+            sys.stdout.write(line)
+            sys.stdout.flush()
+            tail.append(line.rstrip("\n"))
+    proc.wait()
+
+
+def fault_lines(lines: Sequence[str], cwd: Optional[Path]) -> List[str]:
+    """The lines a failed command's error adds: the tool's own error lines and, on the host,
+    a host it could not reach and a full disk with the room left where the step writes (in
+    an image, the host names those from the build's log, with the engine's data root)."""
+    shown = faults.tool_lines(lines)
+    if hook_context() != "host":
+        return shown
+    url, reason = faults.unreachable(lines)
+    if reason:
+        shown.append(faults.network_line(url or "a server", reason))
+    if faults.disk_full(lines):
+        shown.append(faults.host_disk_line(free_places([Path(cwd or os.getcwd()),
+                                                        Path(tempfile.gettempdir())])))
+    return shown
+
+
+def free_places(paths: Sequence[Path]) -> List[Tuple[str, Optional[int]]]:
+    """(path, bytes free) of each file system of paths, once (None: not readable)."""
+    places: List[Tuple[str, Optional[int]]] = []
+    devices = set()
+    for path in paths:
+        try:
+            device = path.stat().st_dev
+            free: Optional[int] = shutil.disk_usage(str(path)).free
+        except OSError:
+            device, free = None, None
+        if device is None or device not in devices:
+            devices.add(device)
+            places.append((str(path), free))
+    return places
 
 
 def probe(
@@ -200,7 +258,7 @@ def run_script(
             hint = script_hint(script.read_bytes()) if script.is_file() else ""
             if not line and not hint:
                 raise
-            raise StepError(step, exc.message + line + hint, exc.returncode) from None
+            raise StepError(step, exc.said_more(line + hint), exc.returncode) from None
 
 
 def run_tee(

@@ -46,6 +46,12 @@ class StepError(DockerRosError):
         self.returncode = returncode
         self.exit_code = returncode or 1
 
+    def said_more(self, more: str) -> str:
+        """The message with more at the end of its first line (the lines below it are the
+        failed tool's own, see faults.tool_lines)."""
+        first, newline, rest = self.message.partition("\n")
+        return first + more + newline + rest
+
 
 def read_user_text(path: "os.PathLike[str] | str", error: Callable[[str], Exception],
                    shown: str = "") -> str:
