@@ -11,9 +11,6 @@ import re
 from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence
 
-from dotenv import dotenv_values
-from dotenv.parser import parse_stream
-
 from docker_ros.core.ci import github_default_branch
 from docker_ros.core.display import display_value
 from docker_ros.core.loading import load_settings
@@ -69,6 +66,8 @@ def read_settings(
     if unreadable:
         raise SettingsError(f"{env_file}: " + "; ".join(unreadable) + ": write NAME=VALUE "
                             "(quote a value with spaces or #, and close the quotes)")
+    # (start-up: python-dotenv is needed only where a task reads settings, not by --help)
+    from dotenv import dotenv_values
     dotenv = dotenv_values(stream=io.StringIO(text)) if env_file.is_file() else {}
     above = None if env_file.is_file() else repository_env_file(project)
     if above is not None:
@@ -109,6 +108,8 @@ def dotenv_problems(text: str) -> List[str]:
     """The lines of a .env file python-dotenv cannot read (it would skip them with a warning,
     and the variable would silently keep another value), by line and variable name: never
     their text, which may be a secret's value (a key with an unclosed quote)."""
+    # (start-up: python-dotenv is needed only where a task reads settings, not by --help)
+    from dotenv.parser import parse_stream
     out = []
     for binding in parse_stream(io.StringIO(text)):
         if binding.error:

@@ -25,8 +25,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
-import docker
-
 from docker_ros.core import errors
 from docker_ros.core.settings import Settings, env_name
 from docker_ros.host import build, buildcontext, builder, buildplan, engine, refs
@@ -350,14 +348,14 @@ class Session:
             # newest first: an older snapshot is the parent of the newer ones (and of the
             # result, which keeps it: removing it then fails, and that is fine)
             for snapshot in reversed(snapshots):
-                with contextlib.suppress(docker.errors.APIError):
+                with contextlib.suppress(engine.sdk().errors.APIError):
                     self.client.images.remove(snapshot)
 
 
 def image_label(client: Any, ref: str) -> Optional[str]:
     try:
         return client.images.get(ref).labels.get(STATE_LABEL)
-    except docker.errors.ImageNotFound:
+    except engine.sdk().errors.ImageNotFound:
         return None
 
 
@@ -411,7 +409,7 @@ def run_plan(
             with contextlib.suppress(engine.EngineError):
                 engine.remove_quietly([stage_tag])
         else:
-            with contextlib.suppress(docker.errors.APIError):
+            with contextlib.suppress(engine.sdk().errors.APIError):
                 client.images.remove(stage_tag)
             client.close()
     return plan.tag

@@ -14,14 +14,39 @@ import shlex
 import signal
 import threading
 from pathlib import Path
-from typing import Any, Dict, Iterable, Iterator, List, Mapping, Optional, Sequence, Tuple
-
-import docker
-from docker.errors import APIError, DockerException, ImageNotFound, NotFound
-from docker.models.containers import Container
-from docker.utils import parse_repository_tag
+from types import ModuleType
+from typing import (
+    TYPE_CHECKING,
+    Any,
+    Dict,
+    Iterable,
+    Iterator,
+    List,
+    Mapping,
+    Optional,
+    Sequence,
+    Tuple,
+)
 
 from docker_ros.core.errors import DockerRosError
+
+if TYPE_CHECKING:
+    import docker
+    from docker.models.containers import Container
+
+
+def sdk() -> ModuleType:
+    """The docker SDK (its errors, utils and models come with it), imported on first use."""
+    # (start-up: the docker SDK and requests/urllib3 cost ~0.1-0.3 s; `--help`, `--list` and
+    # the tasks that never reach the engine do not need them)
+    import docker
+    return docker
+
+
+def parse_repository_tag(ref: str) -> Tuple[str, Optional[str]]:
+    """The docker SDK's split of a reference into repository and tag."""
+    repository, name_tag = sdk().utils.parse_repository_tag(ref)
+    return repository, name_tag
 
 
 class EngineError(DockerRosError):
@@ -105,14 +130,15 @@ def client() -> docker.DockerClient:
     """A client of the engine the CLI talks to (cli_host: DOCKER_HOST or the current docker
     context, so that both reach the same engine) or the one bound, checked to answer."""
     host = _bound.get("host")
+    docker_sdk = sdk()
     try:
         if host is None and os.environ.get("DOCKER_HOST"):
-            engine = docker.from_env()  # with DOCKER_TLS_VERIFY/DOCKER_CERT_PATH
+            engine = docker_sdk.from_env()  # with DOCKER_TLS_VERIFY/DOCKER_CERT_PATH
         else:
             host = host or cli_host(os.environ)
-            engine = docker.DockerClient(base_url=host, use_ssh_client=host.startswith("ssh:"))
+            engine = docker_sdk.DockerClient(base_url=host, use_ssh_client=host.startswith("ssh:"))
         engine.ping()
-    except DockerException:
+    except docker_sdk.errors.DockerException:
         where = host or os.environ.get("DOCKER_HOST") or "the default socket"
         raise EngineError(f"no Docker daemon answers at {where}: start it, e.g. with "
                           "scripts/setup.sh") from None
@@ -124,9 +150,9 @@ def inspect_image(ref: str) -> Optional[Dict[str, Any]]:
     when the engine refuses (an invalid reference)."""
     try:
         return dict(client().images.get(ref).attrs)
-    except (ImageNotFound, NotFound):
+    except (sdk().errors.ImageNotFound, sdk().errors.NotFound):
         return None
-    except APIError as exc:
+    except sdk().errors.APIError as exc:
         raise EngineError(f"docker image inspect {ref}: {exc.explanation or exc}") from None
 
 
@@ -137,7 +163,7 @@ def image_exists(ref: str) -> bool:
 def tags_labelled(labels: Mapping[str, str]) -> List[str]:
     """The tags of the local images that carry all these labels (none if the engine cannot
     say: housekeeping)."""
-    with contextlib.suppress(DockerException):
+    with contextlib.suppress(sdk().errors.DockerException):
         found = client().images.list(filters={"label": [f"{k}={v}" for k, v in labels.items()]})
         return [tag for image in found for tag in image.tags]
     return []
@@ -146,7 +172,7 @@ def tags_labelled(labels: Mapping[str, str]) -> List[str]:
 def local_tags() -> List[str]:
     """The tags of every local image (none if the engine cannot say: a hint, not a check). The
     raw list: images.list() inspects each image and fails when one is removed meanwhile."""
-    with contextlib.suppress(DockerException):
+    with contextlib.suppress(sdk().errors.DockerException):
         return [tag for image in client().api.images() for tag in image.get("RepoTags") or []
                 if tag != "<none>:<none>"]
     return []
@@ -156,7 +182,7 @@ def remove_quietly(refs: Iterable[str], *, force: bool = False) -> None:
     """Remove tags (or images) this tool made, as housekeeping: whatever the engine says is not
     an error."""
     for ref in refs:
-        with contextlib.suppress(DockerException):
+        with contextlib.suppress(sdk().errors.DockerException):
             client().images.remove(ref, force=force, noprune=False)
 
 
@@ -175,7 +201,7 @@ def pull_error(ref: str) -> Optional[str]:
     repository, tag = parse_repository_tag(ref)
     try:
         client().images.pull(repository, tag=tag or "latest")
-    except DockerException as exc:
+    except sdk().errors.DockerException as exc:
         explanation = getattr(exc, "explanation", None)
         return str(explanation or exc).strip() or type(exc).__name__
     return None
@@ -190,7 +216,7 @@ def tag(source: str, target: str) -> None:
     repository, name_tag = parse_repository_tag(target)
     try:
         client().images.get(source).tag(repository, tag=name_tag or "latest")
-    except DockerException as exc:
+    except sdk().errors.DockerException as exc:
         raise EngineError(f"tagging {source} as {target} failed: {exc}") from None
 
 
@@ -203,13 +229,13 @@ def push(ref: str, auth: Optional[Dict[str, str]] = None) -> None:
         for event in events:
             if "error" in event:
                 raise EngineError(f"docker push {ref} failed: {event['error']}")
-    except DockerException as exc:
+    except sdk().errors.DockerException as exc:
         raise EngineError(f"docker push {ref} failed: {exc}") from None
 
 
 def remove_image(ref: str) -> None:
     """Remove a tag this tool made; a missing one is fine."""
-    with contextlib.suppress(ImageNotFound, NotFound):
+    with contextlib.suppress(sdk().errors.ImageNotFound, sdk().errors.NotFound):
         client().images.remove(ref, noprune=False)
 
 
@@ -219,7 +245,7 @@ def engine_errors(doing: str) -> Iterator[None]:
     """An Engine API error while `doing` something becomes an EngineError saying what and why."""
     try:
         yield
-    except DockerException as exc:
+    except sdk().errors.DockerException as exc:
         raise EngineError(f"{doing} failed: {getattr(exc, 'explanation', None) or exc}") from None
 
 
@@ -229,7 +255,7 @@ def container(name: str) -> Container:
 
 
 def remove_container(name: str) -> None:
-    with contextlib.suppress(DockerException):
+    with contextlib.suppress(sdk().errors.DockerException):
         client().containers.get(name).remove(force=True)
 
 
