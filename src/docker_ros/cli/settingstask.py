@@ -27,12 +27,6 @@ from docker_ros.core.settings import (
     kind_of,
     settings_where,
 )
-from docker_ros.host import faults
-from docker_ros.host.config import read_settings
-from docker_ros.host.pipeline import (
-    TaskFailed,
-    logged_in_job,
-)
 from docker_ros.in_image.runtime.workspace import StepError, setup_logging
 
 Flag = Tuple[str, object, str]  # name, default, help
@@ -188,6 +182,11 @@ def settings_task(
         settings_flags = [n for n in dict.fromkeys(uses) if n not in own and not is_secret(n)]
 
         def body(c: Context, **kwargs: Any) -> Any:
+            # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+            # ~0.1-0.3 s; --help and --list need only the task declarations)
+            from docker_ros.host import faults
+            from docker_ros.host.config import read_settings  # (start-up, as above)
+            from docker_ros.host.pipeline import TaskFailed, logged_in_job  # (start-up, as above)
             setup_logging()
             hear_interrupts()
             if invoke_dry(c):

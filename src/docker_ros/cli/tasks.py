@@ -44,36 +44,6 @@ from docker_ros.core.settings import (
     FIELDS,
     Settings,
 )
-from docker_ros.host import (
-    baseimage,
-    build,
-    buildcontext,
-    container,
-    devcontainer,
-    devshell,
-    engine,
-    refs,
-)
-from docker_ros.host.config import config_table, input_problems, read_settings
-from docker_ros.host.lock import lock
-from docker_ros.host.lockpins import lock_status
-from docker_ros.host.pipeline import (
-    TaskError,
-    build_targets,
-    build_until,
-    check_slim_options,
-    composite_flow,
-    push_and_report,
-    require_tasks,
-    run_ci_plan,
-    run_dev_shell,
-    run_host_steps,
-    run_in_container,
-    run_test_stage,
-    slim_one,
-    slimmed_here,
-)
-from docker_ros.host.push import manifest, official_only_names, push, push_targets
 from docker_ros.in_image.steps import BY_NAME, STEPS
 
 DOTENV: Flag = ("dotenv", "", "Write docker-ros's _IMAGE_* image names to this dotenv file")
@@ -93,6 +63,14 @@ def make_step_task(step: str) -> Task:
                    logs_in="in_container")
     def step_task(c: Context, settings: Settings, *, dry_run: bool, in_container: bool,
                   shell_on_failure: bool) -> None:
+        # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+        # ~0.1-0.3 s; --help and --list need only the task declarations)
+        from docker_ros.host import container
+        from docker_ros.host.pipeline import (  # (start-up, as above)
+            TaskError,
+            run_host_steps,
+            run_in_container,
+        )
         if in_container:
 
             run_in_container(settings, container.plan_step(settings, step), dry_run=dry_run,
@@ -111,6 +89,11 @@ def make_step_task(step: str) -> Task:
     lenient=True,
 )
 def config(c: Context, settings: Settings) -> None:
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host.config import config_table, input_problems
+    from docker_ros.host.lockpins import lock_status  # (start-up, as above)
+    from docker_ros.host.pipeline import TaskError  # (start-up, as above)
     problems = input_problems(settings, made_images(settings), images=True)
     missing = [n for n in required_for_build(settings) if not getattr(settings, n)]
     print(config_table(settings, problems, missing))
@@ -134,7 +117,11 @@ def config(c: Context, settings: Settings) -> None:
     logs_in=True,
 )
 def lock_task(c: Context, settings: Settings, *, check: bool, host: bool) -> None:
-
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host import build
+    from docker_ros.host.lock import lock  # (start-up, as above)
+    from docker_ros.host.pipeline import TaskError  # (start-up, as above)
     started = time.monotonic()
     if not host:
         require(settings, ["base_image"])  # (COMMAND is no input of what a build installs)
@@ -164,6 +151,9 @@ def make_composite_task(name: str) -> Task:
                    uses=IMAGE_SETTINGS + HOST_SETTINGS + (("command",) if name == "run" else ()),
                    logs_in=True)
     def composite(c: Context, settings: Settings, **flags: bool) -> None:
+        # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+        # ~0.1-0.3 s; --help and --list need only the task declarations)
+        from docker_ros.host.pipeline import composite_flow
         composite_flow(settings, name, **flags)
 
     return composite
@@ -183,6 +173,9 @@ dev, run = make_composite_task("dev"), make_composite_task("run")
 )
 def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failure: bool,
                until: str) -> None:
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host.pipeline import build_targets, build_until, run_test_stage
     if until:
         build_until(settings, until, dry_run=dry_run, shell_on_failure=shell_on_failure)
         return
@@ -207,6 +200,15 @@ def build_task(c: Context, settings: Settings, *, dry_run: bool, shell_on_failur
     logs_in=True,
 )
 def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host import build, engine, refs
+    from docker_ros.host.pipeline import (  # (start-up, as above)
+        build_targets,
+        check_slim_options,
+        slim_one,
+        slimmed_here,
+    )
     settings = dataclasses.replace(settings, target=("run",))
     check_slim_options(settings)
     here = [p for p in settings.platform if slimmed_here(settings, p)]
@@ -237,6 +239,9 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     logs_in=True,
 )
 def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str) -> None:
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host.pipeline import run_test_stage
     run_test_stage(settings, results_dir=results_dir, dry_run=dry_run)
 
 
@@ -252,7 +257,10 @@ def test_task(c: Context, settings: Settings, *, dry_run: bool, results_dir: str
     login_required=True,
 )
 def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
-
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host.pipeline import TaskError, build_targets, push_and_report
+    from docker_ros.host.push import official_only_names, push, push_targets  # (start-up, as above)
     targets = push_targets(settings)
     unpushable = official_only_names(settings, targets)
     if unpushable:
@@ -272,7 +280,10 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     login_required=True,
 )
 def manifest_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
-
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host.pipeline import push_and_report, require_tasks
+    from docker_ros.host.push import manifest  # (start-up, as above)
     images = made_images(settings)
     if "slim" in images:
         require_tasks([["slim"]], ns.task_names)
@@ -290,7 +301,9 @@ def manifest_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool)
     login_required=True,
 )
 def ci_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
-
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host.pipeline import check_slim_options, require_tasks, run_ci_plan
     host = host_platform()
     plan = plan_ci_job(target=settings.target, enable_industrial_ci=settings.enable_industrial_ci,
                        enable_slim=settings.enable_slim, slims_here=host in settings.platform)
@@ -306,6 +319,9 @@ def ci_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> No
 def write_image_references(settings: Settings, path: str) -> None:
     """docker-ros's `_IMAGE_*` names of this pipeline's images (image_references) written to
     path, when given, as a dotenv file (GitLab's `artifacts: reports: dotenv:`)."""
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host.pipeline import TaskError
     if not path:
         return
     pipeline = detect_pipeline(os.environ)
@@ -350,6 +366,10 @@ def dev_shell(
     network: str, name: str, privileged: bool, device: List[str], x11: str, gpus: str,
     rebuild: bool, dry_run: bool,
 ) -> None:
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host import devshell
+    from docker_ros.host.pipeline import run_dev_shell  # (start-up, as above)
     code = run_dev_shell(settings, devshell.ShellOptions(
         command=cmd, volumes=volume, env=env, network=network, name=name, privileged=privileged,
         devices=device, gpus=gpus), x11=x11, rebuild=rebuild, dry_run=dry_run)
@@ -381,6 +401,9 @@ def devcontainer_task(
     privileged: bool, device: List[str], x11: str, gpus: str, check: bool, force: bool,
     dry_run: bool,
 ) -> None:
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host import devcontainer, devshell
     code = devcontainer.run(settings, devshell.ShellOptions(
         volumes=volume, env=env, network=network, privileged=privileged, devices=device),
         x11=x11, gpus=gpus, check=check, force=force, dry_run=dry_run)
@@ -406,7 +429,10 @@ def devcontainer_task(
 def bootstrap_base_image(
     c: Context, settings: Settings, *, flavor: str, tag: str, mirror: str, force: bool
 ) -> None:
-
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host import baseimage, buildcontext
+    from docker_ros.host.pipeline import TaskError  # (start-up, as above)
     if flavor not in baseimage.FLAVORS:
         raise TaskError(f"--flavor {flavor!r}: use one of {', '.join(baseimage.FLAVORS)}")
     tag = tag or baseimage.default_tag(flavor)
@@ -429,7 +455,11 @@ EXAMPLE = Path(docker_ros.__file__).resolve().parents[2] / "example"
     [("seconds", 20, "How long to let the example's run image run")],
 )
 def example(c: Context, settings: Settings, *, seconds: int) -> None:
-
+    # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
+    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host import baseimage, container
+    from docker_ros.host.config import read_settings  # (start-up, as above)
+    from docker_ros.host.pipeline import TaskError, build_targets  # (start-up, as above)
     project = EXAMPLE
     if not project.is_dir():
         raise TaskError(f"{project} not found: the example ships with the source repository")
