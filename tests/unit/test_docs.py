@@ -223,3 +223,12 @@ def test_the_architecture_page_names_modules_that_exist() -> None:
             assert any(path.exists() for path in found), f"{row}/{name} is named, not found"
     for path in re.findall(r"`((?:cli|host|in_image)/[\w/]+\.py)`", text):
         assert (package / path).exists(), path
+
+
+def test_a_parser_leaves_the_tasks_help_texts() -> None:
+    """invoke pops a task's help texts as it makes its flags: after one parser (this module's
+    commands, the docs' reference), --help and every reader of Task.help still find them."""
+    before = {name: dict(ns[name].help) for name in ns.task_names}
+    ns.to_contexts()
+    assert {name: dict(ns[name].help) for name in ns.task_names} == before
+    assert any(before.values())

@@ -123,8 +123,14 @@ class SettingsTask(Task):
     def get_arguments(self, ignore_unknown_help: Optional[bool] = None) -> List[Argument]:
         """A repeatable flag with an optional value (--set) starts without a raw value, so that
         invoke gives a bare one True (invoke would drop it silently): parse_set refuses it. A
-        whole-number flag refuses another value as one line (WholeNumberArgument)."""
-        args = super().get_arguments(ignore_unknown_help)
+        whole-number flag refuses another value as one line (WholeNumberArgument). The task's
+        help texts stay (invoke pops each as it makes the flag: a second parser, the docs'
+        reference or a test reading them found none)."""
+        kept = dict(self.help)
+        try:
+            args = super().get_arguments(ignore_unknown_help)
+        finally:
+            self.help = kept
         for arg in args:
             if arg.kind is list and arg.optional:
                 arg.raw_value = None
