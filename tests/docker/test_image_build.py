@@ -358,8 +358,13 @@ def test_failing_step_names_step_and_cause_and_tags_nothing(
     write_env(tmp_path, BASE_IMAGE=ros1_base_image, COMMAND=command, IMAGE=tag, TARGET="run")
     result = docker_ros(tmp_path, "build")
     assert result.returncode != 0
-    last = result.stdout.strip().splitlines()[-1]
-    assert f"building target 'run' (amd64) failed in step {step}" in last, result.stdout[-3000:]
+    # the message: its first line, then the failing tool's own lines (host/faults.py)
+    lines = result.stdout.strip().splitlines()
+    first = max(i for i, line in enumerate(lines) if line.startswith("docker-ros build: "))
+    last = "\n".join(lines[first:])
+    assert f"building target 'run' (amd64) failed in step {step}" in lines[first], (
+        result.stdout[-3000:])
+    assert all(line.startswith("  ") for line in lines[first + 1:]), last
     for needle in needles:
         assert needle in last, last
     assert "was built" not in last, last
