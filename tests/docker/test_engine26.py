@@ -311,7 +311,9 @@ def test_a_build_without_network_on_engine26_names_build_network_host(
     finally:
         subprocess.run(["docker", "rmi", base], env=env, capture_output=True)
     assert result.returncode != 0, result.stdout[-3000:]
-    last = result.stdout.strip().splitlines()[-1]
+    # (the message's first line; the failing tool's own lines may follow it, indented)
+    last = [line for line in result.stdout.splitlines()
+            if line.startswith("docker-ros build: ")][-1]
     assert last.startswith("docker-ros build: building target 'dev' (amd64) failed in step "
                            "scripts: "), last
     assert ("; the step could not reach the network (Temporary failure in name resolution): on "
