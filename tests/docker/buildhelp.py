@@ -178,3 +178,11 @@ def run_unique(source: Path) -> None:
     builder's cache from an earlier run at the same temporary path (pytest numbers them
     afresh once its folder is removed), whose cache mounts they share."""
     source.write_text(f"// test run {uuid.uuid4().hex}\n{source.read_text()}")
+
+
+def failure_message(stdout: str) -> str:
+    """A failed task's message: its first line (`docker-ros <task>: ...`), then the failing
+    tool's own lines, indented (host/faults.py)."""
+    lines = stdout.strip().splitlines()
+    first = max(i for i, line in enumerate(lines) if line.startswith("docker-ros "))
+    return "\n".join(lines[first:])

@@ -10,7 +10,13 @@ from typing import Iterator
 
 import pytest
 
-from tests.docker.buildhelp import docker_ros, image_exists, remove_image, write_env
+from tests.docker.buildhelp import (
+    docker_ros,
+    failure_message,
+    image_exists,
+    remove_image,
+    write_env,
+)
 from tests.rosfixtures import make_package
 
 pytestmark = pytest.mark.docker
@@ -42,7 +48,7 @@ def test_too_old_python3_in_base_image_is_one_clear_line(
     write_env(project, BASE_IMAGE=old_python_base, IMAGE=image, COMMAND="true", TARGET="dev")
     result = docker_ros(project, "build")
     assert result.returncode != 0
-    last = result.stdout.strip().splitlines()[-1]
+    last = failure_message(result.stdout)
     assert "failed in step prepare: " in last, result.stdout[-3000:]
     assert (f"BASE_IMAGE '{old_python_base}' has python3 3.6.9 (/usr/local/bin/python3); "
             "docker-ros needs Python 3.8 or newer in the image") in last, last

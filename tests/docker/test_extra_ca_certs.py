@@ -28,7 +28,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from tests.docker.buildhelp import docker_ros, remove_image, write_env
+from tests.docker.buildhelp import docker_ros, failure_message, remove_image, write_env
 from tests.rosfixtures import make_package
 
 pytestmark = pytest.mark.docker
@@ -157,7 +157,7 @@ def test_extra_ca_certs_work_during_the_build_and_stay_out_of_images(
     try:
         without = docker_ros(project, "build")
         assert without.returncode != 0
-        last = without.stdout.strip().splitlines()[-1]
+        last = failure_message(without.stdout)
         assert "failed in step pip" in last, without.stdout[-3000:]
         # The cause and the fix in the last line, after pip's first try (no minutes of retries).
         assert "CERTIFICATE_VERIFY_FAILED" in last and "set EXTRA_CA_CERTS" in last, last
