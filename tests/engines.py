@@ -88,15 +88,49 @@ def engine26_dockerd() -> Path:
     return ENGINE26_ROOT / "usr" / "sbin" / "dockerd"
 
 
+class Daemon:
+    """A private dockerd (see private_engine) that can be stopped as `systemctl stop docker`
+    stops one (SIGTERM: it stops its containers and exits) and started again on the same data
+    root; its DOCKER_HOST is .host."""
+
+    def __init__(self, argv: Sequence[str], env: Optional[Dict[str, str]], work: Path,
+                 host: str) -> None:
+        self.argv, self.env, self.work, self.host = list(argv), env, work, host
+        self.process: Optional[subprocess.Popen] = None
+
+    def start(self) -> None:
+        with (self.work / "dockerd.log").open("ab") as log:
+            self.process = subprocess.Popen(self.argv, stdout=log, stderr=subprocess.STDOUT,
+                                            env=self.env)
+        deadline = time.monotonic() + 60
+        while not answers(self.host):
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                raise EngineFailed(f"private dockerd did not start:\n"
+                                   f"{(self.work / 'dockerd.log').read_text()}")
+            time.sleep(0.5)
+
+    def stop(self) -> None:
+        """SIGTERM, and SIGKILL if it has not ended after 30 s."""
+        if self.process is None:
+            return
+        self.process.terminate()
+        try:
+            self.process.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+        self.process = None
+
+
 @contextlib.contextmanager
-def private_engine(images: Sequence[str] = (), *, modern: bool = False,
-                   data_root: Optional[Path] = None) -> Iterator[str]:
+def private_daemon(images: Sequence[str] = (), *, modern: bool = False,
+                   data_root: Optional[Path] = None) -> Iterator[Daemon]:
     """A private Docker daemon with an empty image store and build cache holding only images
-    (copied from the shared engine); yields its DOCKER_HOST. modern: Engine 26 of setup.sh on
-    the containerd image store, else the distribution's dockerd. The daemon gets a bridge of its
-    own (one started with --bridge=none deletes the host's docker0) and no outbound NAT: builds
-    in it that need the network use BUILD_NETWORK=host. data_root: where it keeps images and
-    cache (e.g. a small file system), else a folder of its own."""
+    (copied from the shared engine). modern: Engine 26 of setup.sh on the containerd image
+    store, else the distribution's dockerd. The daemon gets a bridge of its own (one started
+    with --bridge=none deletes the host's docker0) and no outbound NAT: builds in it that need
+    the network use BUILD_NETWORK=host. data_root: where it keeps images and cache (e.g. a
+    small file system), else a folder of its own."""
     work = Path(f"/tmp/docker-ros-test-engine-{uuid.uuid4().hex[:8]}")
     bridge = f"drt{work.name[-8:]}"[:15]
     subnet = f"172.30.{(os.getpid() + (1 if modern else 0)) % 250}.1/24"
@@ -115,27 +149,24 @@ def private_engine(images: Sequence[str] = (), *, modern: bool = False,
         # dockerd starts the containerd first on PATH: Engine 26's own
         path = f"{ENGINE26_ROOT}/usr/bin:{ENGINE26_ROOT}/usr/sbin:{os.environ.get('PATH', '')}"
         env = {**os.environ, "PATH": path}
-    with (work / "dockerd.log").open("wb") as log:
-        daemon = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=env)
+    daemon = Daemon(argv, env, work, host)
     try:
-        deadline = time.monotonic() + 60
-        while not answers(host):
-            if daemon.poll() is not None or time.monotonic() > deadline:
-                raise EngineFailed(f"private dockerd did not start:\n"
-                                   f"{(work / 'dockerd.log').read_text()}")
-            time.sleep(0.5)
+        daemon.start()
         for ref in images:
             copy_image(ref, host)
-        yield host
+        yield daemon
     finally:
-        daemon.terminate()
-        try:
-            daemon.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            daemon.kill()
-            daemon.wait()
+        daemon.stop()
         subprocess.run(["ip", "link", "del", bridge], capture_output=True)
         subprocess.run(["rm", "-rf", "--one-file-system", str(work)], capture_output=True)
+
+
+@contextlib.contextmanager
+def private_engine(images: Sequence[str] = (), *, modern: bool = False,
+                   data_root: Optional[Path] = None) -> Iterator[str]:
+    """private_daemon's DOCKER_HOST."""
+    with private_daemon(images, modern=modern, data_root=data_root) as daemon:
+        yield daemon.host
 
 
 # BuildKit's daemon built from Debian's docker.io source (moby/buildkit cannot be pulled here):

@@ -30,12 +30,26 @@ def docker_ros(project: Path, *args: str, env: Optional[Dict[str, str]] = None,
     """`docker-ros ARGS` in project; output (stdout+stderr) in .stdout. ENABLE_SLIM is false
     unless env sets it: a local build's default, and for push and ci too, which would slim by
     default (a traced run; only the slim tests pay for it)."""
+    return subprocess.run([sys.executable, "-m", "docker_ros", *args], cwd=project,
+                          env=docker_ros_env(env), stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, text=True, timeout=timeout)
+
+
+def docker_ros_started(project: Path, *args: str,
+                       env: Optional[Dict[str, str]] = None) -> subprocess.Popen:
+    """docker_ros started, not awaited: its output (stdout+stderr) as text on .stdout."""
+    return subprocess.Popen([sys.executable, "-m", "docker_ros", *args], cwd=project,
+                            env=docker_ros_env(env), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+
+
+def docker_ros_env(env: Optional[Dict[str, str]]) -> Dict[str, str]:
+    """docker_ros's environment: this process's without TARGET, COMMAND and IMAGE, with
+    ENABLE_SLIM false, then env."""
     full_env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
     full_env["ENABLE_SLIM"] = "false"
     full_env.update(env or {})
-    return subprocess.run([sys.executable, "-m", "docker_ros", *args], cwd=project,
-                          env=full_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                          text=True, timeout=timeout)
+    return full_env
 
 
 def write_env(project: Path, **values: str) -> None:

@@ -1,10 +1,12 @@
 """Faults of the machine, made for real: an engine whose data root fills up during a build, a
 git server that is gone when the build clones from it, an apt proxy that is gone, the engine's
-socket gone during a dev shell. The last lines of output say what happened and what to do,
-nothing is tagged, and the same command works once the fault is gone."""
+socket gone during a dev shell, the engine stopped during a push and during a slim run. The
+last lines of output say what happened and what to do, nothing is tagged or pushed, and the
+same command works once the fault is gone."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -17,6 +19,7 @@ import urllib.error
 import urllib.request
 import uuid
 from contextlib import suppress
+from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Callable, Iterator, List, Optional
@@ -24,7 +27,7 @@ from typing import Callable, Iterator, List, Optional
 import pytest
 
 from tests import engines
-from tests.docker.buildhelp import docker_ros, write_env
+from tests.docker.buildhelp import docker_ros, docker_ros_started, write_env
 from tests.rosfixtures import free_port, make_git_repo, make_package, write_repos
 
 pytestmark = pytest.mark.docker
@@ -35,7 +38,7 @@ DISK_SIZE = "2500M"
 LEFT = 100 * 1000 * 1000
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def small_disk() -> Iterator[Path]:
     """A loop-mounted ext4 file system of DISK_SIZE (a sparse file), removed afterwards."""
     name = f"docker-ros-test-disk-{uuid.uuid4().hex[:8]}"
@@ -53,6 +56,48 @@ def small_disk() -> Iterator[Path]:
         if mount.is_dir():
             mount.rmdir()
         image.unlink()
+
+
+# The image of the module's private engine: built by the full-disk test (its build after the
+# disk had room again), pushed and slimmed by the tests that stop that engine.
+DISK_IMAGE = "docker-ros-test/faults-disk:latest"
+
+
+@dataclass
+class DiskEngine:
+    """The module's private engine (data root on small_disk) and its project."""
+
+    daemon: engines.Daemon
+    data_root: Path
+    project: Path
+
+    @property
+    def host(self) -> str:
+        return self.daemon.host
+
+
+@pytest.fixture(scope="module")
+def module_engine(ros1_base_image: str, small_disk: Path,
+                  tmp_path_factory: pytest.TempPathFactory) -> Iterator[DiskEngine]:
+    """A private engine whose data root is on small_disk, holding the ROS 1 base image, and a
+    project of one package (IMAGE DISK_IMAGE; COMMAND runs until stopped, for slim's trace)."""
+    if shutil.which("dockerd") is None:
+        pytest.fail("dockerd is not installed; run scripts/setup.sh")
+    project = tmp_path_factory.mktemp("faults-disk")
+    make_package(project / "pkg", "pkg")
+    write_env(project, BASE_IMAGE=ros1_base_image, IMAGE=DISK_IMAGE, BUILD_NETWORK="host",
+              TARGET="run", COMMAND="sleep 600")
+    data_root = small_disk / "docker"
+    with engines.private_daemon([ros1_base_image], data_root=data_root) as daemon:
+        yield DiskEngine(daemon, data_root, project)
+
+
+@pytest.fixture
+def disk_engine(module_engine: DiskEngine) -> DiskEngine:
+    """module_engine, answering (a test that failed with it stopped started it not again)."""
+    if module_engine.daemon.process is None:
+        module_engine.daemon.start()
+    return module_engine
 
 
 def fill(mount: Path, left: int) -> Path:
@@ -98,21 +143,18 @@ def fails_then_works(project: Path, image: str, restore: Callable[[], object],
 
 
 def test_a_full_engine_disk_is_named_with_its_data_root_and_room(
-    ros1_base_image: str, small_disk: Path, tmp_path: Path
+    disk_engine: DiskEngine, small_disk: Path
 ) -> None:
     """An engine whose data root has about 100 MB left (a loop-mounted file system filled
     up): the build's last lines name the full disk, the engine's data root and its room, and
     what to do; after the filler is removed the same build works."""
-    if shutil.which("dockerd") is None:
-        pytest.fail("dockerd is not installed; run scripts/setup.sh")
-    image = "docker-ros-test/faults-disk:latest"
-    make_package(tmp_path / "pkg", "pkg")
-    write_env(tmp_path, BASE_IMAGE=ros1_base_image, IMAGE=image, BUILD_NETWORK="host",
-              COMMAND="true")
-    data_root = small_disk / "docker"
-    with engines.private_engine([ros1_base_image], data_root=data_root) as host:
-        filler = fill(small_disk, LEFT)
-        final = fails_then_works(tmp_path, image, filler.unlink, host)
+    filler = fill(small_disk, LEFT)
+    try:
+        final = fails_then_works(disk_engine.project, DISK_IMAGE, filler.unlink,
+                                 disk_engine.host)
+    finally:
+        filler.unlink(missing_ok=True)
+    data_root = disk_engine.data_root
     print("\n".join(final))
     assert "failed in step prepare: failed with exit code 100: apt-get " in final[0], final
     assert "No space left on device" in final[1] or "enough free space" in final[1], final
@@ -311,3 +353,132 @@ def running(name: str) -> bool:
     shown = subprocess.run(["docker", "inspect", "-f", "{{.State.Running}}", name],
                            capture_output=True, text=True)
     return shown.stdout.strip() == "true"
+
+
+class RegistryDoor:
+    """A port in front of a registry (host:port): while shut, it takes every connection and
+    answers nothing, so a push to it is surely in flight (the engine waits for the registry);
+    once opened, it forwards each new connection to the registry."""
+
+    def __init__(self, registry: str) -> None:
+        host, port = registry.rsplit(":", 1)
+        self.registry = (host, int(port))
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.address = f"127.0.0.1:{self.listener.getsockname()[1]}"
+        self.connections: List[socket.socket] = []
+        self.knocked = threading.Event()
+        self.opened = False
+        threading.Thread(target=self.accept, daemon=True).start()
+
+    def accept(self) -> None:
+        with suppress(OSError):
+            while True:
+                client, _ = self.listener.accept()
+                self.connections.append(client)
+                if not self.opened:
+                    self.knocked.set()
+                    continue
+                registry = socket.create_connection(self.registry)
+                self.connections.append(registry)
+                for source, sink in ((client, registry), (registry, client)):
+                    threading.Thread(target=pump, args=(source, sink), daemon=True).start()
+
+    def close(self) -> None:
+        self.listener.close()
+        for connection in self.connections:
+            connection.close()
+
+
+def registry_tags(registry: str, repository: str) -> List[str]:
+    """The tags the registry holds of repository (none when it has no such repository)."""
+    opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+    try:
+        with opener.open(f"http://{registry}/v2/{repository}/tags/list", timeout=10) as answer:
+            return list(json.loads(answer.read()).get("tags") or [])
+    except urllib.error.HTTPError as refused:
+        assert refused.code == 404, refused
+        return []
+
+
+def stopped_during(run: subprocess.Popen, daemon: engines.Daemon,
+                   busy: Callable[[], bool]) -> List[str]:
+    """The engine stopped (SIGTERM, as `systemctl stop docker`) once busy() says that the
+    docker-ros command `run` is in the middle of its work; its output lines once it ended:
+    it failed, with no traceback. The engine is left stopped."""
+    try:
+        deadline = time.monotonic() + 900
+        while not busy():
+            assert run.poll() is None and time.monotonic() < deadline, \
+                run.communicate()[0][-4000:]
+            time.sleep(0.5)
+        daemon.stop()
+        output, _ = run.communicate(timeout=300)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.communicate()
+    lines = output.strip().splitlines()
+    print("\n".join(lines[-3:]))
+    assert run.returncode != 0 and "Traceback" not in output, output[-4000:]
+    return lines
+
+
+def lost_line(task: str, during: str) -> Callable[[str], None]:
+    """A check of a last line saying that the engine was lost during the task."""
+
+    def check(last: str) -> None:
+        assert last.startswith(f"docker-ros {task}: the connection to the Docker engine was "
+                               f"lost during {during} ("), last
+        assert last.endswith("rerunning is safe once `docker info` answers"), last
+
+    return check
+
+
+def test_an_engine_stopped_during_a_push_is_named_and_nothing_is_pushed(
+    disk_engine: DiskEngine, local_registry: str
+) -> None:
+    """The module's engine stopped while it pushes (to a port in front of the registry that
+    takes the connection and answers nothing, so the push is surely in flight): the last line
+    says that the connection to the engine was lost during the push and that rerunning is
+    safe, with no traceback, and the registry holds nothing; once the engine is started again
+    on the same data root (and the port forwards to the registry), the same push works."""
+    door = RegistryDoor(local_registry)
+    try:
+        env = {"DOCKER_HOST": disk_engine.host,
+               "IMAGE": f"{door.address}/docker-ros-test/faults-push:latest"}
+        push = docker_ros_started(disk_engine.project, "push", env=env)
+        lines = stopped_during(push, disk_engine.daemon, door.knocked.is_set)
+        lost_line("push", "the push")(lines[-1])
+        assert registry_tags(local_registry, "docker-ros-test/faults-push") == []
+        door.opened = True
+        disk_engine.daemon.start()
+        again = docker_ros(disk_engine.project, "push", env=env)
+        assert again.returncode == 0, again.stdout[-4000:]
+        assert registry_tags(local_registry, "docker-ros-test/faults-push") == ["latest"]
+    finally:
+        door.close()
+
+
+def tracing_on(host: str) -> bool:
+    """Whether slim's trace container runs in the engine at host."""
+    shown = subprocess.run(["docker", "ps", "-q", "--filter", "name=docker-ros-slim-trace-"],
+                           env=engines.env_for(host), capture_output=True, text=True)
+    return bool(shown.stdout.strip())
+
+
+def test_an_engine_stopped_during_a_slim_run_is_named_and_nothing_is_tagged(
+    disk_engine: DiskEngine
+) -> None:
+    """The module's engine stopped while slim's trace container runs the run image's COMMAND:
+    the last line says that the connection to the engine was lost during the slim run and
+    that rerunning is safe, with no traceback, and no slim image is tagged; once the engine is
+    started again on the same data root, the same slim run works."""
+    env = {"DOCKER_HOST": disk_engine.host}
+    slim = docker_ros_started(disk_engine.project, "slim", env=env)
+    lines = stopped_during(slim, disk_engine.daemon, lambda: tracing_on(disk_engine.host))
+    disk_engine.daemon.start()
+    lost_line("slim", "the slim run")(lines[-1])
+    assert not engine_has(disk_engine.host, f"{DISK_IMAGE}-slim")
+    again = docker_ros(disk_engine.project, "slim", env=env)
+    assert again.returncode == 0, again.stdout[-4000:]
+    assert engine_has(disk_engine.host, f"{DISK_IMAGE}-slim")
