@@ -5,6 +5,7 @@ engine whose data root was full)."""
 
 from __future__ import annotations
 
+import http.client
 from pathlib import Path
 from typing import List
 
@@ -185,6 +186,38 @@ def test_an_engine_that_no_longer_listens_is_named_as_lost(tmp_path: Path) -> No
         "safe once `docker info` answers")
 
 
+def test_a_tasks_failure_after_its_engine_went_away_names_the_lost_engine() -> None:
+    """The failure a stopped engine caused (slim's trace container, stopped by the engine's
+    shutdown, as measured) is named as the lost engine with the failure as its detail; a
+    failure while the engine answers, or of a task that never reached it, is the task's own."""
+    failure = "the tracer stopped early (exit code 143): docker-ros slimtrace: stopped\nmore"
+    asked: List[bool] = []
+
+    def gone() -> bool:
+        asked.append(True)
+        return False
+
+    lost = host_faults.lost_during(host_faults.task_doing("slim"), failure, answered=True,
+                                   answers=gone)
+    assert lost == (
+        "the connection to the Docker engine was lost during the slim run (the tracer stopped "
+        "early (exit code 143): docker-ros slimtrace: stopped); an image is tagged or pushed "
+        "only once it is complete, so rerunning is safe once `docker info` answers")
+    assert host_faults.lost_during("the push", failure, answered=True,
+                                   answers=lambda: True) is None
+    assert host_faults.lost_during("the push", failure, answered=False, answers=gone) is None
+    assert len(asked) == 1  # (an engine never reached is not asked about)
+    built = ("failed: the connection to the Docker engine was lost (ERROR: EOF); nothing was "
+             "tagged, so rerunning is safe once `docker info` answers")
+    assert host_faults.lost_during("the push", built, answered=True, answers=gone) is None
+
+
+def test_each_task_names_what_it_was_doing_when_the_engine_went_away() -> None:
+    assert [host_faults.task_doing(name) for name in ("push", "slim", "test", "dev-shell")] == [
+        "the push", "the slim run", "the test run", "the dev shell"]
+    assert host_faults.task_doing("build-base") == "`docker-ros build-base`"
+
+
 def test_a_response_cut_short_by_the_engine_is_named_by_its_reason() -> None:
     """As the SDK raised it when the engine was killed while a container ran (measured)."""
     cut = requests.exceptions.ChunkedEncodingError(
@@ -193,6 +226,15 @@ def test_a_response_cut_short_by_the_engine_is_named_by_its_reason() -> None:
         "Connection aborted.", ConnectionRefusedError(111, "Connection refused")))
     assert host_faults.request_detail(cut) == "Response ended prematurely"
     assert host_faults.request_detail(refused) == "Connection refused"
+
+
+def test_a_push_stream_cut_by_the_engine_is_named_as_a_lost_engine() -> None:
+    """urllib3's own error, as the SDK raised it reading a push's progress when the engine was
+    stopped in the middle of the push (measured: no requests error around it)."""
+    cut = urllib3.exceptions.ProtocolError("Connection broken: IncompleteRead(0 bytes read)",
+                                           http.client.IncompleteRead(b""))
+    assert host_faults.lost_engine(cut)
+    assert host_faults.request_detail(cut) == "Connection broken: IncompleteRead(0 bytes read)"
 
 
 def test_vcs_names_the_url_of_a_git_daemon_that_is_gone() -> None:

@@ -190,7 +190,7 @@ def settings_task(
         def body(c: Context, **kwargs: Any) -> Any:
             # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
             # ~0.1-0.3 s; --help and --list need only the task declarations)
-            from docker_ros.host import faults
+            from docker_ros.host import engine, faults
             from docker_ros.host.config import read_settings  # (start-up, as above)
             from docker_ros.host.pipeline import TaskFailed, logged_in_job  # (start-up, as above)
             setup_logging()
@@ -235,14 +235,18 @@ def settings_task(
                     raise Exit(f"docker-ros {name}: terminated (SIGTERM){detail}",
                                code=143) from None
                 raise Exit(f"docker-ros {name}: interrupted{detail}", code=130) from None
-            except faults.RequestException as exc:  # (the Engine API's transport)
-                raise Exit(f"docker-ros {name}: "
-                           + faults.engine_lost_line(name, faults.request_detail(exc)),
-                           code=1) from None
+            except faults.TRANSPORT_ERRORS as exc:  # (the Engine API's transport)
+                raise Exit(f"docker-ros {name}: " + faults.engine_lost_line(
+                    faults.task_doing(name), faults.request_detail(exc)), code=1) from None
             except DockerRosError as exc:  # (the one place that reports them)
                 code = exc.exit_code
                 where = exc.step if isinstance(exc, StepError) else name
                 text = exc.message if isinstance(exc, StepError) else str(exc)
+                lost = faults.lost_during(faults.task_doing(name), text,
+                                          answered=engine.answered(),
+                                          answers=faults.engine_answers)
+                if lost:  # (e.g. slim's trace container, stopped by the engine's shutdown)
+                    where, text, code = name, lost, 1
                 annotation = error_annotation(os.environ, f"docker-ros {where}", text)
                 if annotation and not isinstance(exc, TaskFailed):  # (the task's is there)
                     print(annotation, flush=True)

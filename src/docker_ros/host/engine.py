@@ -145,6 +145,11 @@ def client() -> docker.DockerClient:
     return engine
 
 
+def answered() -> bool:
+    """Whether an engine answered in this process (client() holds a client that pinged)."""
+    return client.cache_info().currsize > 0
+
+
 def inspect_image(ref: str) -> Optional[Dict[str, Any]]:
     """`docker image inspect` of a local image, or None when there is none; an EngineError
     when the engine refuses (an invalid reference)."""

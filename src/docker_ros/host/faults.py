@@ -11,6 +11,7 @@ from typing import Callable, List, Optional, Sequence, Tuple
 
 from docker.errors import DockerException
 from requests.exceptions import RequestException
+from urllib3.exceptions import HTTPError as TransportError
 
 from docker_ros.host import buildlog, engine
 from docker_ros.in_image.runtime import faults
@@ -69,10 +70,33 @@ def with_lines(message: str, shown: Sequence[str]) -> str:
     return message + "".join(f"\n  {line}" for line in shown)
 
 
+# What a task is doing with the engine, as its lost-engine message says it.
+TASK_WORDS = {"push": "the push", "slim": "the slim run", "test": "the test run",
+              "dev-shell": "the dev shell", "ci": "the CI job", "manifest": "the manifest lists"}
+LOST = "the connection to the Docker engine was lost"
+
+
+def task_doing(name: str) -> str:
+    """What the task `name` was doing, for engine_lost_line (`docker-ros NAME` when unnamed)."""
+    return TASK_WORDS.get(name, f"`docker-ros {name}`")
+
+
+def lost_during(doing: str, failure: str, *, answered: bool,
+                answers: Callable[[], bool]) -> Optional[str]:
+    """The message of a task's failure (its text) when the engine went away under it: the
+    engine answered during the task (answered) and answers no longer (answers(), asked only
+    then), so the failure is what its going away did (a container its shutdown stopped, a
+    request cut short); its first line is the detail. None when the failure is the task's own,
+    or says already that the engine was lost (a build's)."""
+    if not answered or LOST in failure or answers():
+        return None
+    return engine_lost_line(doing, shorten_detail(failure.splitlines()[0] if failure else ""))
+
+
 def engine_lost_line(doing: str, detail: str) -> str:
     """The message of an engine that went away while docker-ros was `doing` something (a
     push, a slim run, a command in a container, a dev shell), as a lost build says it."""
-    return (f"the connection to the Docker engine was lost during {doing} ({detail}); an image "
+    return (f"{LOST} during {doing} ({detail}); an image "
             "is tagged or pushed only once it is complete, so rerunning is safe once "
             "`docker info` answers")
 
@@ -83,6 +107,8 @@ def request_detail(exc: BaseException) -> str:
     text = str(exc)
     found = re.findall(r"\w*Error\(\d+, '([^']+)'\)|ProtocolError\('([^']+)'", text)
     reasons = [a or b for a, b in found]
+    if not reasons and exc.args and isinstance(exc.args[0], str):  # (urllib3's own)
+        reasons = [exc.args[0]]
     return shorten_detail(reasons[-1] if reasons else text or type(exc).__name__)
 
 
@@ -100,7 +126,12 @@ def engine_answers() -> bool:
     return True
 
 
+# The Engine API's transport failing: the SDK raises requests' errors (no DockerException) when
+# the engine stops mid-request or no longer listens, and urllib3's own when it stops in the
+# middle of a stream the SDK reads raw (a push's progress: measured, engine stopped mid-push).
+TRANSPORT_ERRORS = (RequestException, TransportError)
+
+
 def lost_engine(exc: BaseException) -> bool:
-    """Whether exc is the Engine API's transport failing (the SDK raises requests' errors, no
-    DockerException, when the engine stops mid-request or no longer listens)."""
-    return isinstance(exc, RequestException)
+    """Whether exc is the Engine API's transport failing (TRANSPORT_ERRORS)."""
+    return isinstance(exc, TRANSPORT_ERRORS)

@@ -553,8 +553,8 @@ def run_dev_shell(settings: Settings, options: devshell.ShellOptions, *, x11: st
             raise
         if code and not faults.engine_answers():  # (125 when it broke off, else the shell's)
             raise TaskError(faults.engine_lost_line(
-                "the dev shell", f"`docker run` ended with exit code {code} and the engine no "
-                "longer answers"), code)
+                faults.task_doing("dev-shell"), f"`docker run` ended with exit code {code} "
+                "and the engine no longer answers"), code)
         return code
 
 
