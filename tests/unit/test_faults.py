@@ -187,8 +187,9 @@ def test_an_engine_that_no_longer_listens_is_named_as_lost(tmp_path: Path) -> No
 
 
 def test_a_tasks_failure_after_its_engine_went_away_names_the_lost_engine() -> None:
-    """The failure a stopped engine caused (slim's trace container, stopped by the engine's
-    shutdown, as measured) is named as the lost engine with the failure as its detail; a
+    """A task's failure after the engine it reached stopped answering (here: slim's trace
+    container as the engine's shutdown would stop it; not seen in the suite, where slim's next
+    request fails first) is named as the lost engine with the failure as its detail; a
     failure while the engine answers, or of a task that never reached it, is the task's own."""
     failure = "the tracer stopped early (exit code 143): docker-ros slimtrace: stopped\nmore"
     asked: List[bool] = []

@@ -245,7 +245,7 @@ def settings_task(
                 lost = faults.lost_during(faults.task_doing(name), text,
                                           answered=engine.answered(),
                                           answers=faults.engine_answers)
-                if lost:  # (e.g. slim's trace container, stopped by the engine's shutdown)
+                if lost:  # (e.g. a container the engine's shutdown stopped)
                     where, text, code = name, lost, 1
                 annotation = error_annotation(os.environ, f"docker-ros {where}", text)
                 if annotation and not isinstance(exc, TaskFailed):  # (the task's is there)
