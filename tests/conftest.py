@@ -18,7 +18,7 @@ import urllib.request
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Callable, Dict, Iterator, Optional
 
 import docker
 import pytest
@@ -26,6 +26,7 @@ import yaml
 
 from docker_ros.host import baseimage
 from tests import engines, leftovers, suitelock
+from tests.warmup import Warmup
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"
 ROS2_BASE_IMAGE = "docker-ros-test/ros2:trixie"
@@ -73,6 +74,27 @@ def tier(item: pytest.Item) -> str:
 def pytest_collection_finish(session: pytest.Session) -> None:
     for item in session.items:
         item.user_properties.append(("tier", tier(item)))
+    docker_items = [item for item in session.items if tier(item) == "docker"]
+    if docker_items:  # (the first docker test needs the ROS 1 base: foreign_cache_record)
+        needed = {"ros1_base_image"}.union(
+            *(getattr(item, "fixturenames", ()) for item in docker_items))
+        WARMUP.start((name, locked(job)) for name, job in WARM_JOBS if name in needed)
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    WARMUP.stop()
+
+
+def lock_the_suite() -> None:
+    suitelock.hold(3600, say=lambda text: print(text, file=sys.__stderr__))
+
+
+def locked(job: Callable[[], object]) -> Callable[[], object]:
+    """job, once this run holds the suite lock (a run that waits for another builds nothing)."""
+    def run() -> object:
+        lock_the_suite()
+        return job()
+    return run
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
@@ -120,9 +142,30 @@ def docker_client() -> Iterator[docker.DockerClient]:
     client.close()
 
 
+# Modules whose tests need what the warm-up makes last (the arm64 base, the BuildKit image)
+LATE_FIXTURES = ("ros1_arm64_base_image", "buildkit_image")
+
+
+def module_rank(items: list) -> Dict[str, int]:
+    """Each module's place in the run: unit, host, docker, then docker modules that need what
+    the warm-up makes last, so that it is made while the others run. A module's tests stay
+    together (its fixtures are made once) and in their order."""
+    rank: Dict[str, int] = {}
+    for item in items:
+        own = TIERS.index(tier(item))
+        if own == 2 and any(name in item.fixturenames for name in LATE_FIXTURES):
+            own = 3
+        module = item.nodeid.split("::", 1)[0]
+        rank[module] = max(rank.get(module, 0), own)
+    return rank
+
+
 def pytest_collection_modifyitems(items: list) -> None:
-    """Every docker test runs while this run is the machine's only one, after the foreign cache
-    record exists, and before the images the run leaves are removed."""
+    """Unit and host tests first, then the docker modules (module_rank). Every docker test runs
+    while this run is the machine's only one, after the foreign cache record exists, and before
+    the images the run leaves are removed."""
+    rank = module_rank(items)
+    items.sort(key=lambda item: rank[item.nodeid.split("::", 1)[0]])
     for item in items:
         if item.get_closest_marker("docker"):
             for name in ("this_runs_images", "foreign_cache_record", "only_run_on_this_machine"):
@@ -138,15 +181,14 @@ def only_run_on_this_machine() -> Iterator[None]:
     need none)."""
     if not engines.buildx_plugin("current").is_file():
         pytest.fail(f"no current buildx at {engines.buildx_plugin('current')}; {SETUP_HINT}")
-    with suitelock.LOCK.open("a+") as handle:
-        try:
-            suitelock.acquire(handle, 3600, say=lambda text: print(text, file=sys.__stderr__))
-        except suitelock.Busy as exc:
-            pytest.fail(str(exc))
-        for host in (None, engines.ENGINE26_HOST):
-            with ENGINE_DOWN, engine_client(host) as client:
-                leftovers.remove_killed_runs_images(client)
-        yield
+    try:
+        lock_the_suite()  # (the warm-up thread may hold it already: then at once)
+    except suitelock.Busy as exc:
+        pytest.fail(str(exc))
+    for host in (None, engines.ENGINE26_HOST):
+        with ENGINE_DOWN, engine_client(host) as client:
+            leftovers.remove_killed_runs_images(client)
+    yield
 
 
 # An engine that does not answer: the docker SDK's errors, and requests' (OSError) for a socket
@@ -222,24 +264,58 @@ def cache_mount_id(marker: str) -> str:
                  if description.startswith(f"cached mount {marker} ")), "")
 
 
+def make_ros1() -> str:
+    return baseimage.bootstrap("ros1", tag=ROS1_BASE_IMAGE)
+
+
+def make_ros1_arm64() -> str:
+    return baseimage.bootstrap("ros1", tag=ROS1_BASE_IMAGE, platform="arm64")
+
+
+def make_ros2() -> str:
+    return baseimage.bootstrap("ros2", tag=ROS2_BASE_IMAGE)
+
+
+def make_ros1_ubuntu() -> str:
+    bundle = Path(ssl.get_default_verify_paths().openssl_cafile)
+    return baseimage.bootstrap("ros1-ubuntu", tag=ROS1_UBUNTU_BASE_IMAGE,
+                               ca_bundle=bundle if bundle.is_file() else None)
+
+
+def make_buildkit_image() -> str:
+    if not engines.answers(engines.ENGINE26_HOST):
+        raise RuntimeError(f"no Engine 26 answers at {engines.ENGINE26_HOST}; {SETUP_HINT}")
+    if not engines.has_image(engines.ENGINE26_HOST, ROS2_BASE_IMAGE):
+        engines.copy_image(make_ros2(), engines.ENGINE26_HOST)
+    return engines.buildkit_image(engines.ENGINE26_HOST, ROS2_BASE_IMAGE)
+
+
+# What the warm-up makes (tests/warmup.py), in the order the run needs it: fixture -> job
+WARM_JOBS = (("ros1_base_image", make_ros1), ("ros2_base_image", make_ros2),
+             ("ros1_ubuntu_base_image", make_ros1_ubuntu),
+             ("ros1_arm64_base_image", make_ros1_arm64), ("buildkit_image", make_buildkit_image))
+WARMUP = Warmup()
+
+
 @pytest.fixture(scope="session")
 def ros1_base_image(docker_client: docker.DockerClient) -> str:
     """Tag of a Debian bookworm image with ROS 1 from Debian (in /usr); built once, then reused."""
-    return baseimage.bootstrap("ros1", tag=ROS1_BASE_IMAGE)
+    return WARMUP.result("ros1_base_image", make_ros1)
 
 
 @pytest.fixture(scope="session")
 def ros1_arm64_base_image(ros1_base_image: str) -> str:
     """The arm64 image of the ROS 1 base: `<ROS1_BASE_IMAGE>-arm64` (bootstrap tags another
     architecture's image so, and a build for arm64 with BASE_IMAGE=ROS1_BASE_IMAGE finds it);
-    built under QEMU once (about 5 minutes), then reused while its recipe is unchanged."""
-    return baseimage.bootstrap("ros1", tag=ROS1_BASE_IMAGE, platform="arm64")
+    built under QEMU once (5 to 10 minutes, in the warm-up's background), then reused while its
+    recipe is unchanged."""
+    return WARMUP.result("ros1_arm64_base_image", make_ros1_arm64)
 
 
 @pytest.fixture(scope="session")
 def ros2_base_image(docker_client: docker.DockerClient) -> str:
     """Tag of a Debian trixie image with ROS 2 build tooling (ament, colcon); built once."""
-    return baseimage.bootstrap("ros2", tag=ROS2_BASE_IMAGE)
+    return WARMUP.result("ros2_base_image", make_ros2)
 
 
 @pytest.fixture(scope="session")
@@ -247,9 +323,7 @@ def ros1_ubuntu_base_image(docker_client: docker.DockerClient) -> str:
     """Tag of an Ubuntu 22.04 image with Ubuntu's ROS 1 (in /usr), colcon and vcstool from
     PyPI; built once (about a minute), then reused. The machine's CA bundle is the pip's: where
     a TLS-intercepting proxy re-signs PyPI, the machine trusts its CA."""
-    bundle = Path(ssl.get_default_verify_paths().openssl_cafile)
-    return baseimage.bootstrap("ros1-ubuntu", tag=ROS1_UBUNTU_BASE_IMAGE,
-                               ca_bundle=bundle if bundle.is_file() else None)
+    return WARMUP.result("ros1_ubuntu_base_image", make_ros1_ubuntu)
 
 
 @pytest.fixture(scope="session")
@@ -413,10 +487,9 @@ def engine26(ros1_base_image: str) -> str:
 def buildkit_image(engine26: str, ros2_base_image: str) -> str:
     """The image of a buildx docker-container builder on Engine 26 (tests.engines
     .buildkit_image: BuildKit from Debian's source, as moby/buildkit cannot be pulled here),
-    built once per machine (3 to 5 minutes), then reused by its tag."""
-    if not engines.has_image(engines.ENGINE26_HOST, ros2_base_image):
-        engines.copy_image(ros2_base_image, engines.ENGINE26_HOST)
-    return engines.buildkit_image(engines.ENGINE26_HOST, ros2_base_image)
+    built once per machine (3 to 10 minutes, in the warm-up's background), then reused by its
+    tag."""
+    return WARMUP.result("buildkit_image", make_buildkit_image)
 
 
 @pytest.fixture(scope="session")

@@ -3,10 +3,41 @@ own base image (`<BASE_IMAGE>-arm64`, as bootstrap tags it), pushed to a local r
 one manifest list per image, both by the Action's single job with platform amd64,arm64 and by
 the GitLab template's per-architecture jobs and its Push job (gitlab-ci-local). The pulled
 arm64 run image runs its talker and listener. `inv lock` resolves each platform's entries in
-its own image stages, and a locked arm64 build installs its platform's entry (issue 23).
+its own image stages (issue 23).
 
 The workspace is one Python catkin package (a real colcon build, no C++ compile and no -dev
-packages to install under QEMU): the emulated build is the slow part of this module."""
+packages to install under QEMU): the emulated build is the slow part of this module. The
+GitLab jobs, the Action and `inv lock` build FROM the same BASE_IMAGE on the same engine, so
+the emulated steps run once and the later builds take them from BuildKit's cache (the apt
+cache mounts are named after BASE_IMAGE and the platform; only colcon's build/ cache is per
+checkout and image name).
+
+proves (each line: where; "image" = a test here):
+- the dry run names each platform's base (`<BASE_IMAGE>-arm64`) and refuses a local amd64-only
+  base for arm64: test_the_dry_run_shows_and_checks_each_platforms_base
+- GitLab per-architecture jobs push `-<arch>` names, Push joins them into manifest lists, the
+  arm64 job emulates and skips slim, the pulled arm64 run image runs under QEMU: image,
+  test_gitlab_jobs_per_architecture_then_the_manifest_job
+- the Action's single job builds dev and run for both architectures, logs in to push, pushes
+  one manifest list per name, slims the runner's architecture only, hides the password: image,
+  test_action_single_job_multiarch_example. (Its base was a private multi-arch image in the
+  registry, which made every emulated step of this module run twice: the apt cache ids follow
+  BASE_IMAGE. A private base pulled after the login is test_github_action's; a multi-arch base
+  from a registry is the container builder's test below.)
+- a docker-container builder builds both platforms from a multi-arch base in a registry and
+  the pulled arm64 image runs: image,
+  test_a_docker_container_builder_builds_both_platforms_from_a_multiarch_base
+- `inv lock` with two platforms writes four entries, each platform's base digest and the
+  toolchain resolved under QEMU: image, test_lock_resolves_each_platform_in_its_own_image.
+  A locked arm64 build installing its platform's entry was an emulated build of its own (5
+  minutes): the entry a step honours is the one of the machine it runs on (unit,
+  tests/unit/test_lock.py::test_a_step_honours_the_entry_of_the_platform_it_runs_on), an
+  arm64 image's machine is aarch64 (the GitLab test above), and a locked build installing
+  exactly its entry is test_lock.py's (image).
+- the GitLab jobs' QEMU snippet registers only the job's architecture, never touching this
+  machine's handlers: test_gitlab_job_of_another_architecture_registers_qemu_for_its_
+  architecture_only
+"""
 
 from __future__ import annotations
 
@@ -33,14 +64,12 @@ from tests.ci.cihelp import (
     index_architectures,
     load,
     manifest_architectures,
-    push_private_multiarch_base,
     registry_get,
     registry_tags,
 )
 from tests.ci.github_harness import Event, run_action
 from tests.docker.buildhelp import (
     docker_ros,
-    dpkg_versions,
     own_copy,
     remove_image,
     run_until,
@@ -225,14 +254,12 @@ def test_action_single_job_multiarch_example(
 ) -> None:
     """docker-ros's README example "Build multi-arch images" through the Action as it is
     (dev and run, both architectures, slim left at its default: on), plus where to push: a
-    registry that wants a login, which also holds the private multi-arch base image. The job
-    logs in first (the build pulls each architecture's base from there), pushes one manifest
-    list per name, slims the runner's architecture only, and passes; the password is in no log."""
+    registry that wants a login. The job builds each architecture FROM its base (the local
+    amd64 image and its `-arm64` sibling, as the GitLab jobs: the emulated steps come from
+    their cache), logs in, pushes one manifest list per name, slims the runner's architecture
+    only, and passes; the password is in no log."""
     image = f"{IMAGE}-action"
-    base = push_private_multiarch_base(
-        {"amd64": ros1_base_image, "arm64": ros1_arm64_base_image}, auth_registry.address,
-        auth_registry.auth, tmp_path)
-    inputs = {"base-image": base, "command": COMMAND, "target": "dev,run",
+    inputs = {"base-image": ros1_base_image, "command": COMMAND, "target": "dev,run",
               "platform": "amd64,arm64", "image-name": f"{auth_registry.address}/{image}",
               "registry": auth_registry.address}
     event = Event(origin=repository.parent / "origin.git", repository="Org/Multiarch",
@@ -256,6 +283,33 @@ def test_action_single_job_multiarch_example(
     # the slim names hold the runner's architecture only (slimming runs the image)
     assert image_architectures(auth_registry.address, image, "latest-slim", auth) == [
         host_arch()]
+
+
+def test_lock_resolves_each_platform_in_its_own_image(
+    repository: Path, ros1_base_image: str, tmp_path: Path
+) -> None:
+    """`inv lock` with PLATFORM=amd64,arm64: four entries, each platform's from its own base
+    image (arm64 resolved under QEMU, in lock stages that start from the steps the builds
+    above left in the cache), the toolchain in dev's prepare."""
+    image = f"{IMAGE}-lock-{uuid.uuid4().hex[:8]}:1"
+    repo = own_copy(repository, tmp_path / "repo", image)
+    arm64_base = f"{ros1_base_image}-arm64"
+    began = time.monotonic()
+    locked = docker_ros(repo, "lock", env={"PLATFORM": "amd64,arm64"})
+    print(f"inv lock, PLATFORM=amd64,arm64: {time.monotonic() - began:.0f} s")
+    try:
+        assert locked.returncode == 0, locked.stdout[-6000:]
+        targets = json.loads((repo / LOCK_FILE).read_text())["targets"]
+        assert sorted(targets) == ["dev/amd64", "dev/arm64", "run/amd64", "run/arm64"]
+        for target in ("dev", "run"):
+            amd64, arm64 = targets[f"{target}/amd64"], targets[f"{target}/arm64"]
+            assert amd64["base_image"]["digest"] == engine.inspect_image(ros1_base_image)["Id"]
+            assert arm64["base_image"]["digest"] == engine.inspect_image(arm64_base)["Id"]
+            assert amd64["inputs"] == arm64["inputs"]  # one repository: the same resolution
+        assert "g++" in targets["dev/arm64"]["prepare"]  # the toolchain, resolved under QEMU
+        assert "g++" not in targets["run/arm64"]["prepare"]
+    finally:
+        remove_image(local_base_tag(ros1_base_image, engine.inspect_image(arm64_base)["Id"]))
 
 
 def test_a_docker_container_builder_builds_both_platforms_from_a_multiarch_base(
@@ -304,44 +358,6 @@ def test_a_docker_container_builder_builds_both_platforms_from_a_multiarch_base(
         remove_image(f"{name}:latest")
         subprocess.run(["docker", "rmi", f"{base}-amd64", f"{base}-arm64"], env=env26,
                        capture_output=True)
-
-
-def test_lock_resolves_each_platform_and_a_locked_arm64_build_installs_its_entry(
-    repository: Path, ros1_base_image: str, tmp_path: Path
-) -> None:
-    """`inv lock` with PLATFORM=amd64,arm64: four entries, each platform's from its own base
-    image (arm64 resolved under QEMU); then a locked build of the arm64 run image holds its
-    platform's versions (what prepare and the dependency steps installed)."""
-    image = f"{IMAGE}-lock-{uuid.uuid4().hex[:8]}:1"
-    repo = own_copy(repository, tmp_path / "repo", image)
-    began = time.monotonic()
-    locked = docker_ros(repo, "lock", env={"PLATFORM": "amd64,arm64"})
-    print(f"inv lock, PLATFORM=amd64,arm64: {time.monotonic() - began:.0f} s")
-    assert locked.returncode == 0, locked.stdout[-6000:]
-    targets = json.loads((repo / LOCK_FILE).read_text())["targets"]
-    assert sorted(targets) == ["dev/amd64", "dev/arm64", "run/amd64", "run/arm64"]
-    arm64_base = f"{ros1_base_image}-arm64"
-    for target in ("dev", "run"):
-        amd64, arm64 = targets[f"{target}/amd64"], targets[f"{target}/arm64"]
-        assert amd64["base_image"]["digest"] == engine.inspect_image(ros1_base_image)["Id"]
-        assert arm64["base_image"]["digest"] == engine.inspect_image(arm64_base)["Id"]
-        assert amd64["inputs"] == arm64["inputs"]  # one repository: the same resolution
-    assert "g++" in targets["dev/arm64"]["prepare"]  # the toolchain, resolved under QEMU
-    try:
-        began = time.monotonic()
-        built = docker_ros(repo, "build", "--set", "LOCKED=true",
-                           env={"PLATFORM": "arm64", "TARGET": "run"})
-        print(f"locked build, PLATFORM=arm64 TARGET=run: {time.monotonic() - began:.0f} s")
-        assert built.returncode == 0, built.stdout[-6000:]
-        assert "lock: locked build, docker-ros.lock sha256:" in built.stdout
-        installed = dpkg_versions(image)
-        assert sh(image, "uname -m").stdout.strip() == "aarch64"
-        for kind in ("prepare", "apt"):
-            entry = targets["run/arm64"][kind]
-            assert {n: installed.get(n) for n in entry} == entry, kind
-    finally:
-        remove_image(image)
-        remove_image(local_base_tag(ros1_base_image, engine.inspect_image(arm64_base)["Id"]))
 
 
 BINFMT = Path("/proc/sys/fs/binfmt_misc")

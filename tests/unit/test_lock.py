@@ -244,6 +244,42 @@ def test_which_entry_a_step_honours():
     assert not lockfile.is_locked(object(), {})
 
 
+def test_a_step_honours_the_entry_of_the_platform_it_runs_on(tmp_path: Path, monkeypatch):
+    """A locked arm64 build: its steps run on an aarch64 machine (QEMU's, as an arm64 image
+    says `uname -m`: test_multiarch's GitLab test) and honour the arm64 entries; the host
+    gives that build the arm64 entries' prepare pins and base image. (Was a locked arm64 image
+    build of 5 minutes under QEMU; a locked build installing its entry is test_lock.py's.)"""
+    import os
+
+    from docker_ros.core.loading import load_settings
+    from docker_ros.host.lockpins import locked_build_args, prepare_pins
+    from docker_ros.in_image.runtime.workspace import Workspace
+
+    def entry(arch: str, version: str) -> dict:
+        return {"base_image": {"ref": "reg:5000/ros:noetic", "digest": f"sha256:{version * 64}",
+                               "local": False},
+                "prepare": {"tini": version}, "apt": {"sl": version}}
+
+    ws = Workspace(tmp_path / "ws")
+    ws.target.mkdir(parents=True)
+    (ws.target / lockfile.LOCK_FILE).write_text(lockfile.dump_lock({"format": 1, "targets": {
+        f"{target}/{arch}": entry(arch, version) for target in ("dev", "run")
+        for arch, version in (("amd64", "1"), ("arm64", "2"))}}))
+    settings = load_settings(environ={"LOCKED": "true", "BASE_IMAGE": "reg:5000/ros:noetic",
+                                      "BUILD_CONTEXT": str(ws.target)},
+                             project_dir=ws.target)
+    real = os.uname()
+    for machine, version in (("aarch64", "2"), ("x86_64", "1")):
+        faked = os.uname_result((*real[:4], machine))
+        monkeypatch.setattr(os, "uname", lambda faked=faked: faked)
+        monkeypatch.setenv(lockfile.TARGET_ENV, "run")
+        assert lockfile.active_entry(ws, settings, "debs")["apt"] == {"sl": version}
+    pins = prepare_pins(settings, "arm64")
+    assert lockapt.parse_apt_preferences(pins["base.pref"]) == {"tini": "2"}
+    assert locked_build_args(settings, target="run", platform="arm64")["BASE_IMAGE"] == (
+        "reg:5000/ros@sha256:" + "2" * 64)
+
+
 def test_entry_changes_name_each_difference_by_entry():
     from docker_ros.host.lock import entry_changes
 

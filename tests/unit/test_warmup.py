@@ -1,0 +1,50 @@
+"""The suite's warm-up (tests/warmup.py): jobs run in order in one background thread, a fixture
+waits for its own job, one not started runs in the caller, a failure reaches the caller."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import List
+
+import pytest
+
+from tests.warmup import Warmup
+
+
+def test_jobs_run_in_order_in_one_background_thread_and_each_result_waits_for_its_own():
+    ran: List[str] = []
+    threads = set()
+    release = threading.Event()
+
+    def job(name: str, wait: bool = False):
+        def run() -> str:
+            if wait:
+                release.wait(10)
+            threads.add(threading.current_thread().name)
+            ran.append(name)
+            return name.upper()
+        return run
+
+    warmup = Warmup()
+    warmup.start([("first", job("first", wait=True)), ("second", job("second"))])
+    assert warmup.started() == ("first", "second")
+    time.sleep(0.1)
+    assert ran == []  # the first waits, the second is behind it
+    release.set()
+    assert warmup.result("second", job("never")) == "SECOND"
+    assert ran == ["first", "second"]
+    assert len(threads) == 1 and threading.current_thread().name not in threads
+    assert warmup.result("other", lambda: "in the caller") == "in the caller"
+    warmup.stop()
+
+
+def test_a_failed_job_fails_the_fixture_that_waits_for_it():
+    def broken() -> str:
+        raise RuntimeError("no Engine 26 answers")
+
+    warmup = Warmup()
+    warmup.start([("buildkit_image", broken)])
+    with pytest.raises(RuntimeError, match="no Engine 26 answers"):
+        warmup.result("buildkit_image", lambda: "not run")
+    warmup.stop()
