@@ -5,8 +5,9 @@ the GitLab template's per-architecture jobs and its Push job (gitlab-ci-local). 
 arm64 run image runs its talker and listener. `inv lock` resolves each platform's entries in
 its own image stages (issue 23).
 
-The workspace is one Python catkin package (a real colcon build, no C++ compile and no -dev
-packages to install under QEMU): the emulated build is the slow part of this module. The
+The workspace is one Python catkin package (a real colcon build, no C++ compile and, with its
+rosdep rule for std_msgs, no -dev packages to install under QEMU): the emulated build is the
+slow part of this module. The
 GitLab jobs, the Action and `inv lock` build FROM the same BASE_IMAGE on the same engine, so
 the emulated steps run once and the later builds take them from BuildKit's cache (the apt
 cache mounts are named after BASE_IMAGE and the platform; only colcon's build/ cache is per
@@ -126,6 +127,14 @@ FILES = {
         rospy.init_node("listener")
         rospy.Subscriber("chat", String, lambda m: print("tiny_chat heard: " + m.data, flush=True))
         rospy.spin()
+        """,
+    # A Python node needs std_msgs' Python module, which the base has; Debian's rosdep rule
+    # also installs its C++ headers and the roscpp -dev chain they pull in: under QEMU, three
+    # minutes of every emulated build. The repository's own rule (ROSDEP_RULES_FILE's default
+    # place) is what a user of Python nodes writes for a small run image.
+    "docker/rosdep.yaml": """\
+        std_msgs:
+          debian: [python3-std-msgs]
         """,
     "tiny_chat/launch/chat.launch": """\
         <launch>
