@@ -48,6 +48,7 @@ class Scenario:
     deps_overlap: Optional[float] = None  # seconds both dependency RUNs ran at once
     image_seconds: Dict[str, float] = field(default_factory=dict)
     load1: float = 0.0
+    steps: int = 0  # Dockerfile instructions BuildKit resolved (`[stage n/m]` vertices)
 
 
 
@@ -116,6 +117,41 @@ def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = ()
         tail = "".join(lines[-25:])
         raise BenchError(f"docker-ros {task} failed (exit code {code}); log: {log}\n{tail}")
     return seconds, "".join(lines)
+
+
+# A Dockerfile instruction's vertex: `#12 [dev upstream 2/2] RUN ...` (bake: target, stage)
+STEP_VERTEX = re.compile(r"^#(\d+) \[[^\]]*\b\d+/\d+\] ")
+FROM_LINE = re.compile(r"^FROM\s", re.MULTILINE | re.IGNORECASE)
+
+
+def steps_resolved(output: str) -> int:
+    """The Dockerfile instructions BuildKit resolved (cached or run) in the builds of output,
+    each vertex once per buildx invocation: what a rebuild walks through however little it
+    does, so that growth of the Dockerfile shows up as a number."""
+    seen = set()
+    invocation = 0
+    for line in output.splitlines():
+        if INVOCATION.match(line):
+            invocation += 1
+        match = STEP_VERTEX.match(line)
+        if match:
+            seen.add((invocation, match.group(1)))
+    return len(seen)
+
+
+def stage_count(dockerfile: Path) -> int:
+    """The stages of a Dockerfile (its FROM lines)."""
+    return len(FROM_LINE.findall(dockerfile.read_text()))
+
+
+def startup_seconds(*argv: str, runs: int = 5) -> float:
+    """The best of runs wall times of a command that only starts and answers (`--help`)."""
+    best = float("inf")
+    for _ in range(runs):
+        began = time.monotonic()
+        subprocess.run(argv, capture_output=True, check=True, env=clean_environ())
+        best = min(best, time.monotonic() - began)
+    return best
 
 
 def compiled_units(output: str) -> List[str]:

@@ -33,6 +33,7 @@ from bench.buildlog import (
     resolve_keys,
     run_cli,
     run_output,
+    steps_resolved,
 )
 from bench.workspace import (
     DEV_IMAGE,
@@ -89,10 +90,11 @@ class Bench:
                        image_seconds=image_seconds(output), load1=load,
                        deps_overlap=dependency_overlap(timed))
         row.imports = imports_state(output)
+        row.steps = steps_resolved(output)
         self.output = output
         self.say(f"{name}: {seconds:.1f} s, {len(row.compiled)} TUs compiled, "
                  f"dependency layers {row.deps_layers}, sources taken as changed "
-                 f"{row.changed_sources}")
+                 f"{row.changed_sources}, {row.steps} BuildKit steps resolved")
         self.rows.append(row)
         return row
 
