@@ -93,9 +93,9 @@ def created_time(committed: int, environ: Mapping[str, str]) -> str:
     """org.opencontainers.image.created (RFC 3339, UTC): SOURCE_DATE_EPOCH when set (the
     reproducible-builds variable), else the commit's time; '' when neither is known."""
     epoch = environ.get("SOURCE_DATE_EPOCH", "").strip()
-    seconds = int(epoch) if epoch.isdigit() else committed
-    if not seconds:
+    if not epoch.isdigit() and not committed:
         return ""
+    seconds = int(epoch) if epoch.isdigit() else committed
     moment = datetime.datetime.fromtimestamp(seconds, tz=datetime.timezone.utc)
     return moment.strftime("%Y-%m-%dT%H:%M:%SZ")
 

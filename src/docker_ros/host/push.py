@@ -221,7 +221,7 @@ def plan_outputs(
     """CI outputs naming the pushed images: `images` (all, comma-separated) and per target
     `image`/`dev-image`/`slim-image` (its configured name, or `<name>-<arch>` if only that);
     with their digests (name -> digest) also `digest`/`dev-digest`/`slim-digest` (that image's)
-    and `digests` (JSON: every pushed name -> its digest)."""
+    and `digests` (JSON: each name of `images` -> its digest)."""
     states = [f"{image_ref(settings, 'build-state')}-{p}" for p in settings.platform]
     outputs = {"images": ",".join(n for n in pushed if n not in states)}
     for target in targets:
@@ -230,9 +230,9 @@ def plan_outputs(
         if mine:
             prefix = "" if target == "run" else f"{target}-"
             outputs[f"{prefix}image"] = mine[0]
-            if digests.get(mine[0]):
+            if digests.get(mine[0]) and target != "build-state":
                 outputs[f"{prefix}digest"] = digests[mine[0]]
-    known = {name: digests[name] for name in pushed if digests.get(name)}
+    known = {name: digests[name] for name in pushed if name not in states and digests.get(name)}
     if known:
         outputs["digests"] = json.dumps(known, sort_keys=True)
     return outputs
