@@ -290,6 +290,8 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
 def report_built(settings: Settings, built: Sequence[BuiltImage]) -> None:
     """The size table of what was built or slimmed, also into the CI job's record."""
     print(build.summary_table(built))
+    if not os.environ.get(jobsummary.RECORD_ENV):
+        return  # (not in a CI job)
     for image in built:
         entry = {"kind": "image", **dataclasses.asdict(image), "size": engine.image_size(image.ref)}
         if image.target == "slim":
