@@ -237,3 +237,20 @@ def docker_recorder(root: Path) -> Tuple[Path, Path, Path]:
                                  f"exec '{real}' \"$@\"\n")
     (shim / "docker").chmod(0o755)
     return config, argv_log, shim
+
+
+def registry_digest(registry: str, name: str, tag: str,
+                    auth: Optional[Mapping[str, str]] = None) -> str:
+    """The digest a loopback registry serves name:tag under (its Docker-Content-Digest)."""
+    accept = ", ".join(("application/vnd.docker.distribution.manifest.v2+json",
+                        "application/vnd.docker.distribution.manifest.list.v2+json",
+                        "application/vnd.oci.image.manifest.v1+json",
+                        "application/vnd.oci.image.index.v1+json"))
+    opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+    request = urllib.request.Request(f"http://{registry}/v2/{name}/manifests/{tag}",
+                                     method="HEAD", headers={"Accept": accept})
+    if auth:
+        pair = f"{auth['username']}:{auth['password']}".encode()
+        request.add_header("Authorization", "Basic " + base64.b64encode(pair).decode())
+    with opener.open(request, timeout=10) as answer:
+        return str(answer.headers.get("Docker-Content-Digest", ""))

@@ -10,7 +10,8 @@ What GitHub does and this harness does too:
 - `run:` steps with `shell: bash` run as `bash --noprofile --norc -eo pipefail {script}`, in
   `working-directory` (default GITHUB_WORKSPACE), with GITHUB_* / RUNNER_* of the event and the
   step's `env:`; GITHUB_OUTPUT becomes `steps.<id>.outputs`, GITHUB_PATH lines are put in front
-  of PATH for the later steps, GITHUB_ENV lines are added to their environment.
+  of PATH for the later steps, GITHUB_ENV lines are added to their environment, and what a step
+  writes to its GITHUB_STEP_SUMMARY file is the job summary (the steps' in order).
 
 `uses:` steps are replaced by what they do here (nothing else can be run without GitHub):
 - actions/checkout: `git clone` of the event's branch from the test's origin into
@@ -69,6 +70,7 @@ class Run:
     outputs: Dict[str, Dict[str, str]]
     skipped: List[str] = field(default_factory=list)
     replaced: List[Dict[str, Any]] = field(default_factory=list)
+    summary: str = ""  # the job summary (markdown)
 
 
 def value(expression: str, contexts: Mapping[str, Any]) -> Any:
@@ -195,6 +197,7 @@ def run_action(action_dir: Path, inputs: Mapping[str, str], event: Event, work: 
             contexts["steps"][step["id"]] = {"outputs": result.outputs}
             run.outputs[step["id"]] = result.outputs
         run.log += f"##[step] {name}\n{result.log}"
+        run.summary += result.summary
         if result.returncode != 0:
             run.returncode = result.returncode
             return run
@@ -206,6 +209,7 @@ class StepResult:
     returncode: int
     log: str
     outputs: Dict[str, str] = field(default_factory=dict)
+    summary: str = ""
 
 
 def run_step(step: Mapping[str, Any], contexts: Dict[str, Any], env: Dict[str, str],
@@ -216,10 +220,11 @@ def run_step(step: Mapping[str, Any], contexts: Dict[str, Any], env: Dict[str, s
     script = files / "script.sh"
     script.write_text(step["run"])
     output, path_file, env_file = files / "output", files / "path", files / "env"
+    summary = files / "summary"
     step_env = dict(env)
     step_env.update({k: substitute(str(v), contexts) for k, v in (step.get("env") or {}).items()})
     step_env.update({"GITHUB_OUTPUT": str(output), "GITHUB_PATH": str(path_file),
-                     "GITHUB_ENV": str(env_file)})
+                     "GITHUB_ENV": str(env_file), "GITHUB_STEP_SUMMARY": str(summary)})
     cwd = substitute(str(step.get("working-directory", "")), contexts) or str(workspace)
     proc = subprocess.run(["bash", "--noprofile", "--norc", "-eo", "pipefail", str(script)],
                           cwd=cwd, env=step_env, stdout=subprocess.PIPE,
@@ -228,7 +233,8 @@ def run_step(step: Mapping[str, Any], contexts: Dict[str, Any], env: Dict[str, s
         for line in reversed(path_file.read_text().splitlines()):
             env["PATH"] = f"{line}{os.pathsep}{env.get('PATH', '')}"
     env.update(read_pairs(env_file))
-    return StepResult(proc.returncode, proc.stdout, read_pairs(output))
+    return StepResult(proc.returncode, proc.stdout, read_pairs(output),
+                      summary.read_text() if summary.exists() else "")
 
 
 # gacts/github-slug's src/formatters.js (v1.3.5)

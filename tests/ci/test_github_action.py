@@ -7,7 +7,10 @@ private base image there."""
 from __future__ import annotations
 
 import base64
+import datetime
+import json
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -23,6 +26,7 @@ from tests.ci.cihelp import (
     forget_local,
     git,
     push_private_base_image,
+    registry_digest,
     registry_tags,
 )
 from tests.ci.github_harness import Event, run_action
@@ -34,6 +38,7 @@ FEATURE = "Feature/GitHub--Test-Straße"
 # as gacts/github-slug@v1, the Action's slug step, spells it (ß transliterated; docker-ros's
 # action takes its tags from the same step)
 SLUG = "feature-github-test-strasse"
+LABELS = "com.example.team=drives, navigation\ncom.example.tier=1\n"
 
 
 @pytest.fixture(scope="module")
@@ -52,9 +57,11 @@ def runs(ros1_base_image: str, auth_registry, tmp_path_factory: pytest.TempPathF
            if k not in ("TARGET", "COMMAND", "IMAGE") and not k.startswith(("GITHUB_", "CI_"))}
     env.update({"PATH": f"{shim}{os.pathsep}{env['PATH']}", "DOCKER_CONFIG": str(docker_config)})
     results = {}
-    # main also runs the tests (docker-ros's enable-industrial-ci), into the default folder
+    # main also runs the tests (docker-ros's enable-industrial-ci), into the default folder,
+    # and adds labels of its own (one a line, a value with a comma)
     for key, branch, extra in (("feature", FEATURE, {"enable-slim": "false"}),
-                               ("main", "main", {"enable-industrial-ci": "true"})):
+                               ("main", "main", {"enable-industrial-ci": "true",
+                                                 "labels": LABELS})):
         forget_local(base)  # each run pulls it
         event = Event(origin=root / "origin.git", repository="Org/Example-Repo", ref_name=branch,
                       actor=auth_registry.user, token=auth_registry.password)
@@ -87,17 +94,75 @@ def test_feature_branch_gets_the_ci_postfix_and_main_also_latest(runs: dict) -> 
     ]
 
 
-def test_outputs_name_the_pushed_images(runs: dict) -> None:
-    name = f"{runs['registry'].address}/{IMAGE}"
-    assert runs["feature"].outputs["docker-ros"] == {
+def test_outputs_name_the_pushed_images_and_their_digests(runs: dict) -> None:
+    auth = runs["registry"]
+    name = f"{auth.address}/{IMAGE}"
+    outputs = runs["feature"].outputs["docker-ros"]
+    digests = json.loads(outputs.pop("digests"))
+    assert outputs == {
         "images": f"{name}:latest-dev_{SLUG}_ci,{name}:latest_{SLUG}_ci",
         "dev-image": f"{name}:latest-dev_{SLUG}_ci",
         "image": f"{name}:latest_{SLUG}_ci",
         "build-state-image": f"{name}:latest_{SLUG}_ci-build-state-amd64",
+        "dev-digest": digests[f"{name}:latest-dev_{SLUG}_ci"],
+        "digest": digests[f"{name}:latest_{SLUG}_ci"],
     }
     # IMAGE_TAG is latest already: ENABLE_PUSH_AS_LATEST adds no second push of it
-    assert runs["main"].outputs["docker-ros"]["images"] == (
-        f"{name}:latest-dev,{name}:latest,{name}:latest-slim")
+    main = runs["main"].outputs["docker-ros"]
+    assert main["images"] == f"{name}:latest-dev,{name}:latest,{name}:latest-slim"
+    assert set(json.loads(main["digests"])) == set(main["images"].split(","))
+    # each the digest the registry serves the name under (what signing by digest needs)
+    for pushed, digest in [*digests.items(), *json.loads(main["digests"]).items()]:
+        assert re.fullmatch(r"sha256:[0-9a-f]{64}", digest), (pushed, digest)
+        assert registry_digest(auth.address, IMAGE, pushed.rpartition(":")[2],
+                               auth.auth) == digest, pushed
+    assert main["slim-digest"] == json.loads(main["digests"])[f"{name}:latest-slim"]
+
+
+def test_images_carry_the_oci_labels_and_the_action_s_labels(runs: dict) -> None:
+    """source and revision from the repository (GitHub's name of it, the checked-out commit),
+    created the commit's time, version IMAGE_TAG, title, licenses of the example's package.xml,
+    then the `labels` input's; the slim image keeps them under a title of its own."""
+    name = f"{runs['registry'].address}/{IMAGE}"
+    origin = runs["root"] / "origin.git"
+    revision = git(origin, "rev-parse", "main").strip()
+    committed = int(git(origin, "log", "-1", "--format=%ct", "main"))
+    created = datetime.datetime.fromtimestamp(committed, tz=datetime.timezone.utc)
+    expected = {
+        "org.opencontainers.image.source": "https://github.com/Org/Example-Repo",
+        "org.opencontainers.image.revision": revision,
+        "org.opencontainers.image.created": created.strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "org.opencontainers.image.version": "latest",
+        "org.opencontainers.image.licenses": "MIT",
+        "com.example.team": "drives, navigation",
+        "com.example.tier": "1",
+    }
+    titles = {"latest": "ci-github", "latest-dev": "ci-github (dev)",
+              "latest-slim": "ci-github (slim)"}
+    for tag, title in titles.items():
+        labels = json.loads(subprocess.run(
+            ["docker", "image", "inspect", "--format", "{{json .Config.Labels}}",
+             f"{name}:{tag}"], capture_output=True, text=True, check=True).stdout)
+        print(f"\nLABELS {name}:{tag} {json.dumps(labels, sort_keys=True)}")
+        oci = {k: v for k, v in labels.items() if not k.startswith("org.docker-ros.")}
+        assert oci == {**expected, "org.opencontainers.image.title": title}, tag
+        assert all(not k.startswith(("io.", "docker-ros.")) for k in labels), labels
+
+
+def test_the_job_summary_lists_the_images_and_the_digests(runs: dict) -> None:
+    name = f"{runs['registry'].address}/{IMAGE}"
+    summary = runs["main"].summary
+    assert summary.startswith("### docker-ros\n"), summary
+    assert "| image | platform | size | build time | cached steps | slim ratio |" in summary
+    for tag in ("latest-dev", "latest"):
+        assert re.search(rf"\| `{re.escape(name)}:{tag}` \| amd64 \| \d+ MB \| [\d.]+ s \| "
+                         r"\d+/\d+ \|  \|", summary), summary
+    assert re.search(rf"\| `{re.escape(name)}:latest-slim` \| amd64 \| \d+ MB \| [\d.]+ s "
+                     r"\((traced, checked|up to date)\) \|  \| [\d.]+x \|", summary), summary
+    for pushed, digest in json.loads(runs["main"].outputs["docker-ros"]["digests"]).items():
+        assert f"| `{pushed}` | `{digest}` |" in summary
+    assert runs["registry"].password not in summary + runs["feature"].summary
+    assert "| pushed | digest |" in runs["feature"].summary
 
 
 def test_test_results_are_in_the_folder_the_output_names(runs: dict) -> None:

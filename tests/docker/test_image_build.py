@@ -3,6 +3,9 @@ user mapping, underlaying a docker-ros base image, and bad input (issue: contain
 
 proves (each line: where; "image" = a test here):
 - a build ends with the summary table of both images: image, test_build_ends_with_summary_table
+- outside git the images carry the OCI labels known there (version, title, licenses) and
+  docker-ros's own under org.docker-ros.: image, test_images_carry_the_labels_known_outside_git
+  (in git, from the Action: tests/ci/test_github_action.py)
 - the run image runs the node (talker heard): image, test_run_image_runs_the_node
 - DEFAULT_CMD replaces the command, sourced: image, test_default_cmd_replaces_the_command_...
 - `docker stop` reaches roslaunch, which shuts its nodes down and exits 0 by itself (not killed
@@ -114,6 +117,20 @@ def test_build_ends_with_summary_table(example: dict) -> None:
     assert "IMAGE" in table and "BUILD TIME" in table
     assert "docker-ros-test/example  latest-dev  amd64" in table
     assert "docker-ros-test/example  latest      amd64" in table
+
+
+def test_images_carry_the_labels_known_outside_git(example: dict) -> None:
+    """Not a git repository: no source, revision or created; the example's one package.xml
+    names MIT."""
+    for ref, title in ((example["run"], "example"), (example["dev"], "example (dev)")):
+        labels = json.loads(subprocess.run(
+            ["docker", "image", "inspect", "--format", "{{json .Config.Labels}}", ref],
+            capture_output=True, text=True, check=True).stdout)
+        oci = {k: v for k, v in labels.items() if k.startswith("org.opencontainers.")}
+        assert oci == {"org.opencontainers.image.version": "latest",
+                       "org.opencontainers.image.title": title,
+                       "org.opencontainers.image.licenses": "MIT"}, labels
+        assert all(k.startswith("org.docker-ros.") for k in set(labels) - set(oci)), labels
 
 
 def test_run_image_runs_the_node(example: dict) -> None:

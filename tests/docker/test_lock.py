@@ -79,7 +79,7 @@ BASE = f"docker-ros-test/lock-base:{uuid.uuid4().hex[:8]}"
 USER, PASSWORD = "robot", "lock-test-secret"
 WHEEL = "docker-ros-lock-probe"
 MODULE = "docker_ros_lock_probe"
-LABEL = "io.github.docker-ros.lock"
+LABEL = "org.docker-ros.lock"
 
 
 def pip_versions(ref: str) -> Dict[str, str]:

@@ -114,7 +114,7 @@ def test_slim_keeps_the_config_and_names_its_source(ros1: dict) -> None:
     run, slim = inspect(ros1["run"]), inspect(ros1["slim"])
     for key in ("Entrypoint", "Cmd", "Env", "WorkingDir"):
         assert slim["Config"][key] == run["Config"][key], key
-    assert slim["Config"]["Labels"]["io.docker-ros.slim.source"] == run["Id"]
+    assert slim["Config"]["Labels"]["org.docker-ros.slim.source"] == run["Id"]
     assert len(slim["RootFS"]["Layers"]) == 1
 
 
@@ -258,7 +258,7 @@ def test_excluding_a_needed_library_fails_the_check_and_tags_nothing(ros2: dict)
     assert "libstdc++" in lines[-1]  # the loader's error names the missing library
     assert not image_exists(f"{ROS2_IMAGE.split(':')[0]}:{tag}")
     dangling = subprocess.run(["docker", "images", "-q", "--filter",
-                               f"label=io.docker-ros.slim.source={inspect(ros2['run'])['Id']}"],
+                               f"label=org.docker-ros.slim.source={inspect(ros2['run'])['Id']}"],
                               capture_output=True, text=True).stdout.split()
     assert dangling == [inspect(ros2["slim"])["Id"][7:19]]  # only the good one is left
 

@@ -140,9 +140,9 @@ def test_unlocked_builds_are_unchanged_and_a_locked_one_builds_from_the_digest(t
     assert "BASE_IMAGE=reg:5000/ros@" + digest in locked
     assert "DOCKER_ROS_LOCKED=true" in locked
     label = locked[locked.index("--label") + 1]
-    assert label == "io.github.docker-ros.lock=" + lockfile.lock_digest(
+    assert label == "org.docker-ros.lock=" + lockfile.lock_digest(
         (tmp_path / lockfile.LOCK_FILE).read_text())
-    changed = ("BASE_IMAGE=", "DOCKER_ROS_LOCKED=", "io.github.docker-ros.lock=")
+    changed = ("BASE_IMAGE=", "DOCKER_ROS_LOCKED=", "org.docker-ros.lock=")
 
     def kept(argv):  # each `--flag value` pair, without the ones a locked build changes
         pairs = [(a, b) for a, b in zip(argv, argv[1:]) if a.startswith("--")]

@@ -113,7 +113,7 @@ def test_the_slim_lists_leave_out_the_slim_images_a_foreign_runner_did_not_make(
 def test_a_slim_image_belongs_to_the_run_image_its_label_names():
     """The label holds the run image's local ID: its configuration's digest (classic store),
     or the digest of its manifest or index (containerd store)."""
-    label = "io.docker-ros.slim.source"
+    label = "org.docker-ros.slim.source"
     run = {"manifest": {"digest": "sha256:m"}}
     raw = {"config": {"digest": "sha256:c"}}
 

@@ -135,14 +135,14 @@ CONFIG = {
 
 
 def test_changes_carry_the_config_quoted() -> None:
-    changes = plan_changes(CONFIG, {"io.docker-ros.slim.source": "sha256:1"})
+    changes = plan_changes(CONFIG, {"org.docker-ros.slim.source": "sha256:1"})
     assert changes == [
         'ENV PATH="/usr/bin:/bin"',
         'ENV DEFAULT_CMD="roslaunch a \\"b\\" \\$HOME"',
         'ENTRYPOINT ["/usr/bin/tini", "--", "/docker-ros/entrypoint.sh"]',
         'CMD ["bash", "-c", "eval \\"$DEFAULT_CMD\\""]',
         "WORKDIR /docker-ros/ws",
-        'LABEL "io.docker-ros.slim.source"="sha256:1"',
+        'LABEL "org.docker-ros.slim.source"="sha256:1"',
         'LABEL "org.example"="a b"',
     ]
 
@@ -541,7 +541,7 @@ def test_a_locked_slim_refuses_a_run_image_of_another_lock(monkeypatch, tmp_path
     settings = load_settings(environ={"IMAGE": "reg/x:v1", "PLATFORM": slim.host_platform(),
                                       "LOCKED": "true", "BUILD_CONTEXT": str(tmp_path)})
     images = {"reg/x:v1": {"Id": "sha256:run", "Config": {
-        "Cmd": ["x"], "Labels": {"io.github.docker-ros.lock": "sha256:older"}}}}
+        "Cmd": ["x"], "Labels": {"org.docker-ros.lock": "sha256:older"}}}}
     monkeypatch.setattr(slim, "inspect_image", images.get)
 
     def no_trace(*args: object) -> None:

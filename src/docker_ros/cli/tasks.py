@@ -206,6 +206,7 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
     from docker_ros.host.pipeline import (  # (start-up, as above)
         build_targets,
         check_slim_options,
+        report_built,
         slim_one,
         slimmed_here,
     )
@@ -224,7 +225,7 @@ def slim_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
         return
     slimmed = [slim_one(settings, p, dry_run=dry_run) for p in here]
     if not dry_run:
-        print(build.summary_table(slimmed))
+        report_built(settings, slimmed)
 
 
 @settings_task(
@@ -282,12 +283,14 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 def manifest_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
     # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
     # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host.jobsummary import job_record  # (start-up, as above)
     from docker_ros.host.pipeline import push_and_report, require_tasks
     from docker_ros.host.push import manifest  # (start-up, as above)
     images = made_images(settings)
     if "slim" in images:
         require_tasks([["slim"]], ns.task_names)
-    push_and_report(settings, images, manifest, dry_run=dry_run)
+    with job_record():
+        push_and_report(settings, images, manifest, dry_run=dry_run)
     write_image_references(settings, dotenv)
 
 
@@ -303,6 +306,7 @@ def manifest_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool)
 def ci_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
     # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
     # ~0.1-0.3 s; --help and --list need only the task declarations)
+    from docker_ros.host.jobsummary import job_record  # (start-up, as above)
     from docker_ros.host.pipeline import check_slim_options, require_tasks, run_ci_plan
     host = host_platform()
     plan = plan_ci_job(target=settings.target, enable_industrial_ci=settings.enable_industrial_ci,
@@ -312,7 +316,8 @@ def ci_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> No
         print(slim_skipped(settings.platform, host), flush=True)
     if ["slim"] in plan:
         check_slim_options(settings)
-    run_ci_plan(settings, plan, dry_run=dry_run)
+    with job_record():
+        run_ci_plan(settings, plan, dry_run=dry_run)
     write_image_references(settings, dotenv)
 
 

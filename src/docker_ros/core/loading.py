@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.core.ci import NO_POSTFIX, detect_pipeline, push_also_as, tag_postfix
+from docker_ros.core.labels import LabelsError, parse_labels
 from docker_ros.core.settings import (
     FALSE_WORDS,
     FIELDS,
@@ -87,6 +88,11 @@ def parse_value(name: str, raw: object) -> Value:
         except ValueError as exc:
             raise SettingsError(f"{env_name(name)}={text!r}: {exc}: close or escape the quote"
                                 ) from None
+    if name == "labels":
+        try:
+            parse_labels(text)
+        except LabelsError as exc:
+            raise SettingsError(f"{env_name(name)}: {exc}") from None
     return text
 
 

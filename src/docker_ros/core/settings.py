@@ -408,6 +408,13 @@ class Settings:
         " pipelines, else none",
         group="ours", build="tool",
     )
+    labels: str = setting(
+        "",
+        "Labels of your own for the dev, run and slim images: `key=value` entries, comma-"
+        "separated or one a line (they win over the `org.opencontainers.image.*` labels"
+        " docker-ros sets; `org.docker-ros.*` are docker-ros's own)",
+        group="ours", build="tool",
+    )
     sources: Mapping[str, str] = field(default_factory=dict, compare=False, repr=False)
     # Derived, not a setting: tags pushed besides the configured ones (`latest`, a git tag).
     push_also_as: Tuple[str, ...] = field(default=(), compare=False)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import List, Optional, Sequence, Tuple
 
+from docker_ros.core.labels import ours
 from docker_ros.core.loading import host_platform
 from docker_ros.host.engine import image_exists, inspect_image, remove_image
 from docker_ros.in_image.runtime.process import privileged, run
@@ -50,7 +51,7 @@ TOOL_DEBS = (
 )
 # Image label holding the recipe fingerprint: an existing image is reused only if it was built
 # from the same recipe (a changed package list or Dockerfile rebuilds it).
-RECIPE_LABEL = "org.docker-ros.base-recipe"
+RECIPE_LABEL = ours("base-recipe")
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from typing import IO, Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.core.errors import BuildError
 from docker_ros.core.settings import Settings
-from docker_ros.host import builder, buildlog, buildstate, engine, faults
+from docker_ros.host import builder, buildlog, buildmeta, buildstate, engine, faults
 from docker_ros.host.buildcontext import (
     _kept,
     ensure_imports_image,
@@ -41,6 +41,7 @@ from docker_ros.host.buildplan import (
     secret_env,
 )
 from docker_ros.host.engine import image_exists, image_size
+from docker_ros.host.labels import build_labels
 from docker_ros.host.lockpins import prepare_pin_secrets, tag_local_base
 from docker_ros.host.refs import platform_base
 
@@ -59,6 +60,9 @@ class BuiltImage:
     ref: str
     platform: str
     seconds: float
+    digest: str = ""  # buildx's metadata file's (buildmeta), '' unknown
+    cached: Tuple[int, int] = (0, 0)  # stage steps of its buildx run: (from the cache, in all)
+    reused: bool = False  # (slim) the slim image was up to date
 
 
 def seed_builds(settings: Settings, specs: Dict[str, Dict[str, Any]], platform: str,
@@ -182,6 +186,7 @@ def build_images_locked(
         base, why = platform_base(settings, platform)
         if why:
             print(why, file=out)
+        labels = build_labels(settings, environ)
         # a local base image such a builder will not see (named if its lookup fails)
         unseen = [base] if layouts is not None and base and image_exists(base) else []
         specs = {target: definition(settings, target=target, platform=platform,
@@ -190,7 +195,8 @@ def build_images_locked(
                                     push=push, dockerfile=dockerfile, output=output,
                                     extra_build_args={**extra_build_args, **pin_args},
                                     imports_image=imports, base_image=base,
-                                    cache_export=export, contexts=contexts)
+                                    cache_export=export, contexts=contexts,
+                                    labels=labels.get(target, {}))
                  for target, tag in targets.items()}
         built: List[BuiltImage] = []
         reused = seed_builds(settings, specs, platform, dockerfile, base,
@@ -206,20 +212,28 @@ def build_images_locked(
         if allow is not None:
             definition_file = Path(tmp) / "docker-ros.bake.json"
             definition_file.write_text(bake_file(specs))
-            runs = [(tuple(specs), plan_bake(specs, str(definition_file), buildx, allow))]
+            metadata = Path(tmp) / "metadata.json"
+            runs = [(tuple(specs), metadata,
+                     plan_bake(specs, str(definition_file), buildx, allow, str(metadata)))]
         else:
-            runs = [((t,), build_argv(specs[t], buildx))
+            runs = [((t,), Path(tmp) / f"metadata-{t}.json",
+                     build_argv(specs[t], buildx, str(Path(tmp) / f"metadata-{t}.json")))
                     for t in build_order(list(specs), export == "registry")]
-        for names, argv in runs:
+        for names, metadata, argv in runs:
+            lines: List[str] = []
             try:
                 seconds = run_buildx(argv, {t: targets[t] for t in names}, platform,
                                      env=child_env, out=out, environ=environ,
-                                     network=settings.build_network or "", unseen=unseen)
+                                     network=settings.build_network or "", unseen=unseen,
+                                     kept=lines)
             except BuildError as exc:
                 raise with_built(exc, built) from None
             except KeyboardInterrupt as exc:
                 raise noted(exc, built_notes(built)) from None
-            built += [BuiltImage(t, targets[t], platform, seconds) for t in names]
+            digests = buildmeta.image_digests(buildmeta.read_metadata(metadata), names)
+            cached = buildlog.cached_steps(lines)
+            built += [BuiltImage(t, targets[t], platform, seconds, digests.get(t, ""), cached)
+                      for t in names]
     return built, imports
 
 
@@ -265,15 +279,17 @@ def build_image(settings: Settings, *, target: str, platform: str, tag: str,
 
 def run_buildx(argv: Sequence[str], targets: Mapping[str, str], platform: str, *,
                env: Mapping[str, str], out: IO[str], environ: Mapping[str, str],
-               network: str = "", unseen: Sequence[str] = ()) -> float:
+               network: str = "", unseen: Sequence[str] = (),
+               kept: Optional[List[str]] = None) -> float:
     """Run one buildx command (targets: target -> tag), its log folded into out; its seconds,
     or a BuildError (network: BUILD_NETWORK, for the hint of a step that found none; unseen:
-    local images the builder cannot see, for the hint of a lookup that failed)."""
+    local images the builder cannot see, for the hint of a lookup that failed; kept: gets the
+    log's lines)."""
     # A plain header, not a group: GitHub cannot nest groups, and the steps are groups.
     header = ", ".join(f"{t} -> {tag}" for t, tag in targets.items())
     out.write(f"==> docker-ros build ({platform}) {header}\n")
     began = time.monotonic()
-    lines: List[str] = []
+    lines: List[str] = [] if kept is None else kept
     # (with: the pipe is closed however the build ends)
     with subprocess.Popen(list(argv), env=dict(env), stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT, text=True, bufsize=1) as proc:

@@ -15,6 +15,7 @@ from typing import Dict, Iterable, List, Mapping, Optional, Sequence
 
 import docker_ros
 from docker_ros.core.errors import BuildError
+from docker_ros.core.labels import ours
 from docker_ros.core.settings import Settings
 from docker_ros.host import engine
 from docker_ros.host.engine import image_exists
@@ -27,10 +28,13 @@ PACKAGE_DIR = Path(docker_ros.__file__).resolve().parent
 DOCKERFILE = PACKAGE_DIR / "docker" / "Dockerfile"
 TOOLS_REPOSITORY = "docker-ros-tools"
 IMPORTS_REPOSITORY = "docker-ros-imports"
-IMPORTS_LABEL = "docker-ros.imports-of"  # the repository (imports_owner) that made the image
+IMPORTS_LABEL = ours("imports-of")  # the repository (imports_owner) that made the image
 # the dev image's: the content digest of the files resolving its dependencies read (the
 # imports image's), which `inv dev-shell` compares with the repository's (stale_dev_image)
-INPUTS_LABEL = "io.github.docker-ros.dependency-inputs"
+INPUTS_LABEL = ours("dependency-inputs")
+# the names of these labels before one namespace, on images of an earlier version
+OLD_LABELS = {IMPORTS_LABEL: "docker-ros.imports-of",
+              INPUTS_LABEL: "io.github.docker-ros.dependency-inputs"}
 # Files of the package that the images need (stdlib-only step modules and the image scripts).
 TOOLS_PATTERNS = ("__init__.py", "core/*.py", "in_image/*.py", "in_image/*/*.py", "docker/*.sh")
 SCRATCH_FOLDER = ".gitlab-ci-local"  # gitlab-ci-local's copies of the repository
@@ -291,7 +295,7 @@ def stale_dev_image(labels: Mapping[str, str], current: str, ref: str) -> str:
     """A warning when the dev image was built from other dependency inputs than the
     repository has now (a package.xml, a list file, the rosdep rules, a hook or a .repos file
     changed since), else "" (also for an image without the label: made by an older version)."""
-    built = labels.get(INPUTS_LABEL, "")
+    built = labels.get(INPUTS_LABEL, labels.get(OLD_LABELS[INPUTS_LABEL], ""))
     if not built or built == current:
         return ""
     return (f"docker-ros dev-shell: {ref} was built before the repository's dependency inputs "
@@ -303,8 +307,10 @@ def stale_dev_image(labels: Mapping[str, str], current: str, ref: str) -> str:
 def remove_superseded_imports(settings: Settings, current: str) -> None:
     """The repository's other imports images of the platform go (see build_images: after a
     build, when no other build of the repository runs)."""
-    owner = {IMPORTS_LABEL: imports_owner(Path(settings.build_context))}
-    engine.remove_quietly(superseded_imports(engine.tags_labelled(owner), current))
+    owner = imports_owner(Path(settings.build_context))
+    tags = [t for label in (IMPORTS_LABEL, OLD_LABELS[IMPORTS_LABEL])
+            for t in engine.tags_labelled({label: owner})]
+    engine.remove_quietly(superseded_imports(tags, current))
 
 
 def imports_owner(repository: Path) -> str:

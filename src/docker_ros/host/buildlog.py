@@ -163,3 +163,17 @@ def network_hint(lines: Sequence[str], network: str) -> str:
     return (f"; the step could not reach the network ({seen}): on an engine without outbound "
             "NAT (dockerd --iptables=false, e.g. the Engine 26 of scripts/setup.sh) set "
             "BUILD_NETWORK=host")
+
+
+# a RUN, COPY or ADD of a stage (bake: the target first), not the context or a FROM
+STAGE_STEP = re.compile(r"^#(\d+) \[(?:[\w-]+ )?[\w-]+ \d+/\d+\] (?:RUN|COPY|ADD) ")
+
+
+def cached_steps(lines: Sequence[str]) -> Tuple[int, int]:
+    """(from the cache, in all) of the stage steps of a buildx run's plain log. A step BuildKit
+    CANCELED in a build that succeeded counts as cached: it cancels a step's cache load when a
+    later step's result is found first."""
+    steps = {m.group(1) for m in map(STAGE_STEP.match, lines) if m}
+    cached = {line.split(" ", 1)[0][1:] for line in lines
+              if re.match(r"#\d+ (CACHED|CANCELED)", line)}
+    return len(steps & cached), len(steps)

@@ -24,6 +24,7 @@ from docker_ros.host.buildcontext import (
     source_stages,
 )
 from docker_ros.host.config import rmw_chosen
+from docker_ros.host.labels import build_labels
 from docker_ros.host.lockpins import lock_labels, locked_build_args
 from docker_ros.host.refs import shown_base
 
@@ -88,6 +89,7 @@ def definition(
     base_image: str = "",
     cache_export: str = "inline",
     contexts: Mapping[str, str] = {},
+    labels: Mapping[str, str] = {},
 ) -> Dict[str, Any]:
     """One target and platform as a `docker buildx bake` target: the single description behind
     both plan_build (one `buildx build`) and plan_bake (several targets in one BuildKit run).
@@ -95,7 +97,9 @@ def definition(
     platform's base (platform_base) when it is not BASE_IMAGE; `cache_export`: what CACHE_TO
     exports, `registry` or `inline` (the builder's choice, see builder.py); `contexts`: named
     build contexts (--build-context), the tools and imports images' OCI layouts for a builder
-    with a BuildKit of its own (see scratch_layout)."""
+    with a BuildKit of its own (see scratch_layout); `labels`: the image's (labels.py), under
+    docker-ros's own. Labels are the final image's metadata: no RUN step's cache key holds
+    them."""
     args = {"BASE_IMAGE": base_image or settings.base_image or "",
             "DOCKER_ROS_TOOLS": tools_image,
             "DOCKER_ROS_IMPORTS": imports_image,
@@ -117,7 +121,7 @@ def definition(
     }
     if contexts:
         target_def["contexts"] = dict(contexts)
-    labels = lock_labels(settings, target)
+    labels = {**labels, **lock_labels(settings, target)}
     if target == "dev":
         labels[INPUTS_LABEL] = imports_digest_of(imports_image)
     if labels:
@@ -204,10 +208,13 @@ def plan_build(settings: Settings, **options: Any) -> List[str]:
     return build_argv(definition(settings, **options))
 
 
-def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX) -> List[str]:
+def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX,
+               metadata_file: str = "") -> List[str]:
     """A bake target's definition as one `docker buildx build` argv (buildx: the command
-    reaching the builder, builder.buildx_command)."""
+    reaching the builder, builder.buildx_command; metadata_file: where buildx writes what it
+    made, buildmeta.py reads it)."""
     argv = [*buildx, "build", "--progress=plain", "--file", spec["dockerfile"]]
+    argv += ["--metadata-file", metadata_file] if metadata_file else []
     argv += ["--target", spec["target"], "--platform", spec["platforms"][0]]
     argv += ["--tag", spec["tags"][0]]
     for name, value in spec["args"].items():
@@ -236,13 +243,15 @@ def build_argv(spec: Mapping[str, Any], buildx: Sequence[str] = BUILDX) -> List[
 
 
 def plan_bake(targets: Mapping[str, Dict[str, Any]], definition_file: str,
-              buildx: Sequence[str] = BUILDX, allow: Sequence[str] = ()) -> List[str]:
+              buildx: Sequence[str] = BUILDX, allow: Sequence[str] = (),
+              metadata_file: str = "") -> List[str]:
     """The `docker buildx bake` argv building the targets (bake target name -> definition,
     written as JSON to definition_file) in one BuildKit run: stages they share are built once,
     the others in parallel, from one load of the build context. allow: the entitlements the
-    definition needs (bake_allow)."""
-    return [*buildx, "bake", *(f"--allow={a}" for a in allow), "--progress=plain", "--file",
-            definition_file, *targets]
+    definition needs (bake_allow); metadata_file: as build_argv's, one entry per target."""
+    metadata = ["--metadata-file", metadata_file] if metadata_file else []
+    return [*buildx, "bake", *(f"--allow={a}" for a in allow), "--progress=plain", *metadata,
+            "--file", definition_file, *targets]
 
 
 def bake_allow(buildx: Sequence[str], settings: Settings, temporary: str) -> List[str]:
@@ -300,7 +309,8 @@ def shown_definition(settings: Settings, chosen: builder.Builder, *, target: str
                       imports_image=imports, tag=tag, secrets=plan_secrets(settings, None),
                       output=output, extra_build_args=extra_build_args,
                       base_image=shown_base(settings, platform),
-                      cache_export=builder.cache_export(chosen), contexts=contexts)
+                      cache_export=builder.cache_export(chosen), contexts=contexts,
+                      labels=build_labels(settings).get(target, {}))
 
 
 def plan_shown(settings: Settings, chosen: builder.Builder, **options: Any) -> List[str]:

@@ -19,12 +19,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Callable, Dict, Mapping, Optional
 
+from docker_ros.core.labels import ours
 from docker_ros.core.settings import Settings
 from docker_ros.host import engine
 
 SEED_ARG = "DOCKER_ROS_BUILD_STATE"
-SEED_LABEL = "io.github.docker-ros.build-state.seed"
-INPUTS_LABEL = "io.github.docker-ros.build-state.inputs"
+SEED_LABEL = ours("build-state.seed")
+INPUTS_LABEL = ours("build-state.inputs")
+# the names of docker-ros before one namespace: a build state an earlier pipeline pushed
+OLD_LABELS = {SEED_LABEL: "io.github.docker-ros.build-state.seed",
+              INPUTS_LABEL: "io.github.docker-ros.build-state.inputs"}
 EMPTY = "none"  # the recorded seed of a build that started from the empty seed
 DIGEST_REF = re.compile(r"^(?P<repository>[^@\s]+)@sha256:[0-9a-f]{64}$")
 
@@ -113,14 +117,15 @@ def choose_seed(pulled: str, attrs: Mapping[str, Any], platform: str, fingerprin
         return Seed("", EMPTY, why=f"{pulled} is a build state for {architecture}, not "
                                    f"{platform}: not used")
     over = Seed(pulled, repo_digest(pulled, attrs))
-    labels = (attrs.get("Config") or {}).get("Labels") or {}
+    given = (attrs.get("Config") or {}).get("Labels") or {}
+    labels = {new: given.get(new, given.get(old)) for new, old in OLD_LABELS.items()}
     if not registry_cache:
         return Seed(over.ref, over.recorded, why="building over it (without a registry cache"
                     " of every stage the colcon step runs on an empty runner)")
     if labels.get(INPUTS_LABEL) != fingerprint:
         return Seed(over.ref, over.recorded,
                     why="its inputs differ from this build's: building over it")
-    recorded = labels.get(SEED_LABEL, "")
+    recorded = labels.get(SEED_LABEL) or ""
     match = DIGEST_REF.match(recorded)
     if recorded != EMPTY and not (match and match["repository"] == repository(pulled)):
         return Seed(over.ref, over.recorded,

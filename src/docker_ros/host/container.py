@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import IO, Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.core import errors
+from docker_ros.core.labels import ours
 from docker_ros.core.settings import Settings, env_name
 from docker_ros.host import build, buildcontext, builder, buildplan, engine, refs
 from docker_ros.in_image.runtime.workspace import StepError
@@ -38,7 +39,7 @@ WORKDIR = "/docker-ros/ws"
 TARGET_DIR = "/docker-ros/ws/src/target"
 # As every RUN of the Dockerfile: trust EXTRA_CA_CERTS for this command only, then the step.
 CA_WRAPPER = ("bash", "-c", f'source {LIB}/docker_ros/docker/ca-certs.sh && exec "$@"', "bash")
-STATE_LABEL = "docker-ros.state"
+STATE_LABEL = ours("state")
 # the steps the dependency stages install with (their apply phases)
 INSTALL_STEPS = tuple(s for s in PHASED if BY_NAME[s].stage == "dependencies-dev")
 # Build arguments of the Dockerfile that are ids of cache mounts, not settings.

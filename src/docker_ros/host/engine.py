@@ -225,17 +225,21 @@ def tag(source: str, target: str) -> None:
         raise EngineError(f"tagging {source} as {target} failed: {exc}") from None
 
 
-def push(ref: str, auth: Optional[Dict[str, str]] = None) -> None:
-    """Push ref; credentials go to the engine in the request, never to a file or command line."""
+def push(ref: str, auth: Optional[Dict[str, str]] = None) -> str:
+    """Push ref; the digest of its manifest in the registry ('' if the engine named none).
+    Credentials go to the engine in the request, never to a file or command line."""
     repository, name_tag = parse_repository_tag(ref)
+    digest = ""
     try:
         events: Iterable[Dict[str, Any]] = client().images.push(
             repository, tag=name_tag or "latest", auth_config=auth, stream=True, decode=True)
         for event in events:
             if "error" in event:
                 raise EngineError(f"docker push {ref} failed: {event['error']}")
+            digest = str((event.get("aux") or {}).get("Digest") or digest)
     except sdk().errors.DockerException as exc:
         raise EngineError(f"docker push {ref} failed: {exc}") from None
+    return digest
 
 
 def remove_image(ref: str) -> None:

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Dict, Tuple
 
+from docker_ros.core.labels import ours
 from docker_ros.core.settings import Settings
 from docker_ros.host import engine
 from docker_ros.in_image.runtime.lockapt import apt_preferences
@@ -25,7 +26,7 @@ def lock_path(settings: Settings) -> Path:
     return Path(settings.build_context) / LOCK_FILE
 
 
-LOCK_LABEL = "io.github.docker-ros.lock"
+LOCK_LABEL = ours("lock")
 IMAGE_TARGETS = ("dev", "run")  # the targets `inv lock` resolves
 
 

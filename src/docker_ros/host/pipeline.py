@@ -41,6 +41,7 @@ from docker_ros.host import (
     devshell,
     engine,
     faults,
+    jobsummary,
     refs,
     slim,
     slimoptions,
@@ -281,9 +282,21 @@ def build_targets(settings: Settings, targets: Sequence[str], *, dry_run: bool,
             slimmed = slim_one(settings, platform, dry_run=dry_run)
             built += [] if dry_run else [slimmed]
     if built:
-        print(build.summary_table(built))
+        report_built(settings, built)
         print(lock_status(settings))
     return built
+
+
+def report_built(settings: Settings, built: Sequence[BuiltImage]) -> None:
+    """The size table of what was built or slimmed, also into the CI job's record."""
+    print(build.summary_table(built))
+    if not os.environ.get(jobsummary.RECORD_ENV):
+        return  # (not in a CI job)
+    for image in built:
+        entry = {"kind": "image", **dataclasses.asdict(image), "size": engine.image_size(image.ref)}
+        if image.target == "slim":
+            entry["run_size"] = engine.image_size(refs.target_ref(settings, "run", image.platform))
+        jobsummary.record(entry, os.environ)
 
 
 def check_slim_options(settings: Settings) -> None:
@@ -307,7 +320,7 @@ def slimmed_here(settings: Settings, platform: str) -> bool:
 def slim_one(settings: Settings, platform: str, *, dry_run: bool) -> BuiltImage:
 
     result = slim.slim_image(settings, platform, dry_run=dry_run)
-    return BuiltImage("slim", result.ref, platform, result.seconds)
+    return BuiltImage("slim", result.ref, platform, result.seconds, reused=result.reused)
 
 
 def results_root(settings: Settings, results_dir: str) -> Path:
@@ -430,18 +443,21 @@ def build_until(settings: Settings, step: str, *, dry_run: bool,
 
 
 def push_and_report(
-    settings: Settings, targets: Sequence[str], action: Callable[..., List[str]], *, dry_run: bool
+    settings: Settings, targets: Sequence[str], action: Callable[..., Dict[str, str]], *,
+    dry_run: bool
 ) -> None:
-    """Run push or manifest; print the pushed names and hand them to the CI as outputs."""
+    """Run push or manifest; print the pushed names and digests, hand them to the CI as
+    outputs and to the job's record."""
 
     warning = registry_warning(settings, targets)
     if warning:
         print(f"{action.__name__}: {warning}", file=sys.stderr, flush=True)
     pushed = action(settings, targets, dry_run=dry_run)
-    for name in pushed:
-        print(f"pushed {name}")
+    for name, digest in pushed.items():
+        print(f"pushed {name}" + (f" ({digest})" if digest else ""))
+        jobsummary.record({"kind": "pushed", "name": name, "digest": digest}, os.environ)
     if pushed:
-        write_outputs(plan_outputs(settings, targets, pushed), os.environ)
+        write_outputs(plan_outputs(settings, targets, list(pushed), pushed), os.environ)
 
 
 @contextlib.contextmanager

@@ -215,17 +215,26 @@ def slim_left_out(settings: Settings) -> Dict[str, str]:
 
 
 def plan_outputs(
-    settings: Settings, targets: Sequence[str], pushed: Sequence[str]
+    settings: Settings, targets: Sequence[str], pushed: Sequence[str],
+    digests: Mapping[str, str] = {},
 ) -> Dict[str, str]:
     """CI outputs naming the pushed images: `images` (all, comma-separated) and per target
-    `image`/`dev-image`/`slim-image` (its configured name, or `<name>-<arch>` if only that)."""
+    `image`/`dev-image`/`slim-image` (its configured name, or `<name>-<arch>` if only that);
+    with their digests (name -> digest) also `digest`/`dev-digest`/`slim-digest` (that image's)
+    and `digests` (JSON: each name of `images` -> its digest)."""
     states = [f"{image_ref(settings, 'build-state')}-{p}" for p in settings.platform]
     outputs = {"images": ",".join(n for n in pushed if n not in states)}
     for target in targets:
         ref = image_ref(settings, target)
         mine = [n for n in [ref] + [f"{ref}-{p}" for p in settings.platform] if n in pushed]
         if mine:
-            outputs["image" if target == "run" else f"{target}-image"] = mine[0]
+            prefix = "" if target == "run" else f"{target}-"
+            outputs[f"{prefix}image"] = mine[0]
+            if digests.get(mine[0]) and target != "build-state":
+                outputs[f"{prefix}digest"] = digests[mine[0]]
+    known = {name: digests[name] for name in pushed if name not in states and digests.get(name)}
+    if known:
+        outputs["digests"] = json.dumps(known, sort_keys=True)
     return outputs
 
 
@@ -252,13 +261,14 @@ def auth_config(settings: Settings, ref: str) -> Optional[Dict[str, str]]:
     return {**auth, "serveraddress": settings.registry} if settings.registry else auth
 
 
-def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
-    """Push; return the pushed names. Fails with the command and docker's reason."""
+def push(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> Dict[str, str]:
+    """Push; return the pushed names with their digests. Fails with the command and docker's
+    reason."""
     return run_commands(settings, plan_push(settings, targets), dry_run=dry_run, label="push")
 
 
-def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> List[str]:
-    """Write the manifest lists (plan_manifest); return their names."""
+def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> Dict[str, str]:
+    """Write the manifest lists (plan_manifest); return their names with their digests."""
     left_out = slim_left_out(settings) if "slim" in targets and not dry_run else {}
     for arch, why in left_out.items():
         print(f"manifest: {arch} {why}: the slim lists leave it out", flush=True)
@@ -266,16 +276,16 @@ def manifest(settings: Settings, targets: Sequence[str], *, dry_run: bool) -> Li
     return run_commands(settings, commands, dry_run=dry_run, label="manifest")
 
 
-def execute(argv: List[str], settings: Settings) -> None:
+def execute(argv: List[str], settings: Settings) -> str:
     """One planned command: tag and push through the Engine API (REGISTRY's credentials in the
-    request, auth_config), manifest lists through buildx (the API has none)."""
+    request, auth_config), manifest lists through buildx (the API has none); the digest of
+    what it pushed ('' none, or unknown)."""
     try:
         if argv[:2] == ["docker", "tag"]:
             engine.tag(argv[2], argv[3])
-            return
+            return ""
         if argv[:2] == ["docker", "push"]:
-            engine.push(argv[2], auth_config(settings, argv[2]))
-            return
+            return engine.push(argv[2], auth_config(settings, argv[2])) or ""
     except engine.EngineError as exc:
         raise BuildError(str(exc) + auth_hint(str(exc))) from None
     proc = subprocess.run(argv, capture_output=True, text=True)
@@ -284,6 +294,16 @@ def execute(argv: List[str], settings: Settings) -> None:
         last = reason[-1] if reason else "no reason given"
         raise BuildError(f"{format_argv(argv)} failed with exit code {proc.returncode}: "
                          f"{last}{auth_hint(last)}")
+    return list_digest(argv[argv.index("--tag") + 1]) if is_manifest(argv) else ""
+
+
+def list_digest(name: str) -> str:
+    """The digest of a manifest list in the registry ('' when buildx cannot say)."""
+    try:
+        found = remote_image(name, *SUMMARY)
+    except LookupError:
+        return ""
+    return str(((found or {}).get("manifest") or {}).get("digest") or "")
 
 
 # How registries and the engine say that the request had no (valid) credentials.
@@ -305,18 +325,19 @@ def is_manifest(argv: Sequence[str]) -> bool:
 
 def run_commands(
     settings: Settings, commands: Sequence[List[str]], *, dry_run: bool, label: str
-) -> List[str]:
-    """Run the docker commands in order; return the names pushed to the registry."""
+) -> Dict[str, str]:
+    """Run the docker commands in order; return the names pushed to the registry, each with
+    its digest ('' unknown)."""
     if dry_run:
         for argv in commands:
             print(f"[dry-run] {label}:", format_argv(argv))
-        return []
-    pushed = []
+        return {}
+    pushed = {}
     for argv in commands:
         print(f"{label}:", format_argv(argv), flush=True)
-        execute(argv, settings)
+        digest = execute(argv, settings)
         if argv[1] == "push":
-            pushed.append(argv[-1])
+            pushed[argv[-1]] = digest
         elif is_manifest(argv):
-            pushed.append(argv[argv.index("--tag") + 1])
+            pushed[argv[argv.index("--tag") + 1]] = digest
     return pushed

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO, Any, Dict, Iterator, List, Mapping, Sequence, Set, Tuple
 
+from docker_ros.core.labels import ours, parse_labels
 from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import Settings
 from docker_ros.host.buildcontext import PACKAGE_DIR
@@ -38,6 +39,7 @@ from docker_ros.host.engine import (
     signals_held,
     tag,
 )
+from docker_ros.host.labels import OCI, title
 from docker_ros.host.lockpins import LOCK_LABEL, lock_labels, lock_path
 from docker_ros.host.refs import target_ref
 from docker_ros.host.slimoptions import (
@@ -63,8 +65,8 @@ from docker_ros.host.slimprobe import (
 
 TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
 EXCHANGE = "/docker-ros-slim"  # the tracer and its results inside the trace container
-LABEL_SOURCE = "io.docker-ros.slim.source"
-LABEL_FINGERPRINT = "io.docker-ros.slim.fingerprint"
+LABEL_SOURCE = ours("slim.source")
+LABEL_FINGERPRINT = ours("slim.fingerprint")
 SNAPSHOT = re.compile(r"docker-ros slimtrace: keep set written, tracing on")
 
 
@@ -413,7 +415,10 @@ def slim_image(settings: Settings, platform: str, *, dry_run: bool = False) -> S
         print(f"slim: {slim_ref} is up to date (made from {run_ref}, {run['Id'][7:19]})")
         return SlimResult(slim_ref, platform, time.monotonic() - began, True)
     print(f"==> docker-ros slim {run_ref} -> {slim_ref}", flush=True)
-    changes = plan_changes(config, {LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp})
+    # the run image's labels (its OCI ones: the slim image is made of the same sources), with
+    # the slim image's own title (labels.image_labels) and where it comes from
+    own = {f"{OCI}.title": title(settings, "slim"), **parse_labels(settings.labels)}
+    changes = plan_changes(config, {**own, LABEL_SOURCE: run["Id"], LABEL_FINGERPRINT: stamp})
     traced_at = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="docker-ros-slim-") as tmp, \
             tracing(run["Id"], config, options, Path(tmp)) as traced:
