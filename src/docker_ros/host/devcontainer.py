@@ -40,12 +40,31 @@ from docker_ros.in_image.runtime.packages import find_package_dirs
 RELATIVE = Path(".devcontainer") / "devcontainer.json"
 MARK = "docker-ros"  # customizations.docker-ros.generated: what docker-ros wrote last
 HERE = "${localWorkspaceFolder}"  # the repository on the host, as Dev Containers names it
+# The editor opens the ROS workspace around the repository, where dev-shell starts too: colcon
+# there builds the repository (src/target) with the .repos imports the build cloned into the
+# image (src/upstream), into the container's build/ and install/, not into the repository.
+WORKSPACE = "/docker-ros/ws"
+# The host user, written on the host by the initializeCommand each time the folder is opened
+# (the user who opens it, not the one who ran `inv devcontainer`): docker run reads it
+# (--env-file), the image's entrypoint maps that user, and remoteUser is its UID.
+USER_FILE = ".devcontainer/.docker-ros-user.env"
+USER_VARIABLES = ("DOCKER_UID", "DOCKER_GID", "DOCKER_USER")
+# The script writing it ($1: its path): DOCKER_UID/DOCKER_GID/DOCKER_USER of the environment
+# win (another user's mapping); root is not mapped (an empty file). POSIX sh.
+USER_SCRIPT = (  # (no braces: Dev Containers would read `${...}` as its own variables)
+    'uid=$(id -u); gid=$(id -g); user=$(id -un 2>/dev/null || echo dockeruser); '
+    '[ -n "$DOCKER_UID" ] && uid=$DOCKER_UID; [ -n "$DOCKER_GID" ] && gid=$DOCKER_GID; '
+    '[ -n "$DOCKER_USER" ] && user=$DOCKER_USER; mkdir -p "$(dirname "$1")" && '
+    'if [ "$uid" = 0 ]; then : > "$1"; else '
+    'printf "DOCKER_UID=%s\\nDOCKER_GID=%s\\nDOCKER_USER=%s\\n" "$uid" "$gid" "$user" > "$1"; '
+    'fi')
 # ROS (a ROS 1 workspace and ROS 2 alike), C++ with CMake, Python; a user may remove any.
 EXTENSIONS = ("ms-iot.vscode-ros", "ms-vscode.cpptools", "ms-vscode.cmake-tools",
               "ms-python.python")
 # Terminals and tasks start bash interactively: /etc/bash.bashrc sources ROS and the workspace
 # as they are then (a workspace built after the editor connected too).
 EDITOR_SETTINGS = {
+    "git.scanRepositories": ["src/target"],  # (the repository, below the workspace folder)
     "terminal.integrated.defaultProfile.linux": "bash",
     "terminal.integrated.profiles.linux": {"bash": {"path": "/bin/bash", "args": ["-i"]}},
     "terminal.integrated.automationProfile.linux": {"path": "/bin/bash", "args": ["-i"]},
@@ -168,26 +187,37 @@ def env_entry(spec: str) -> Tuple[str, str]:
     return name, value
 
 
-def generate(settings: Settings, ref: str, pairs: Sequence[Tuple[str, str]], *,
-             uid: int, gpus_auto: bool, build: Sequence[str] = ()) -> Dict[str, Any]:
-    """devcontainer.json from dev-shell's run options (pairs); uid: the mapped user's (0: root,
-    not mapped); gpus_auto: GPUs when the host has the nvidia runtime (the editor's check
-    when it opens); build: the initializeCommand ([]: none)."""
-    repository = Path(settings.build_context).resolve()
-    config: Dict[str, Any] = {"name": ref, "image": ref}
+def initialize_command(build: Sequence[str]) -> Dict[str, List[str]]:
+    """The initializeCommand (run on the host before the container starts, its parts in
+    parallel): the host user's file, and the dev image's build ([]: none)."""
+    command = {"user": ["sh", "-c", USER_SCRIPT, "sh", f"{HERE}/{USER_FILE}"]}
     if build:
-        config["initializeCommand"] = list(build)
+        command["image"] = list(build)
+    return command
+
+
+def generate(settings: Settings, ref: str, pairs: Sequence[Tuple[str, str]], *,
+             gpus_auto: bool, build: Sequence[str] = ()) -> Dict[str, Any]:
+    """devcontainer.json from dev-shell's run options (pairs), the same for every host user
+    (their mapping is written when the folder is opened: USER_FILE); gpus_auto: GPUs when the
+    host has the nvidia runtime (the editor's check when it opens); build: the dev image's
+    build in the initializeCommand ([]: none)."""
+    repository = Path(settings.build_context).resolve()
+    config: Dict[str, Any] = {"name": ref, "image": ref,
+                              "initializeCommand": initialize_command(build)}
     env: Dict[str, str] = {}
     mounts: List[str] = []
     # The image's `bash` (after its entry point) waits on a terminal and ends on a hangup:
     # docker stop sends one (an interactive bash ignores SIGTERM).
-    run_args = ["--tty", "--stop-signal=SIGHUP"]
+    run_args = ["--tty", "--stop-signal=SIGHUP", f"--env-file={HERE}/{USER_FILE}"]
     for flag, value in pairs:
         if flag == "-v" and value == f"{repository}:{devshell.TARGET}":
             config["workspaceMount"] = f"source={HERE},target={devshell.TARGET},type=bind"
-            config["workspaceFolder"] = devshell.TARGET
+            config["workspaceFolder"] = WORKSPACE
         elif flag == "-v":
             mounts.append(mount_of(value, repository))
+        elif flag == "-e" and value.partition("=")[0] in USER_VARIABLES:
+            continue  # (the user who opens the folder: USER_FILE)
         elif flag == "-e":
             env.update([env_entry(value)])
         else:
@@ -196,7 +226,8 @@ def generate(settings: Settings, ref: str, pairs: Sequence[Tuple[str, str]], *,
         "overrideCommand": False,
         "runArgs": run_args,
         "containerEnv": env,
-        "remoteUser": str(uid) if uid else "root",
+        # the mapped UID, from the container's environment (USER_FILE); root when none
+        "remoteUser": "${containerEnv:DOCKER_UID:root}",
         "updateRemoteUserUID": False,  # (the entrypoint maps the user: DOCKER_UID)
         "userEnvProbe": "loginInteractiveShell",
     })
@@ -298,7 +329,11 @@ def up_to_date_message(result: Plan) -> str:
 
 
 def write(result: Plan) -> None:
+    """The file, and beside it a .gitignore of the host user's file (when there is none)."""
     result.path.parent.mkdir(parents=True, exist_ok=True)
+    ignore = result.path.parent / ".gitignore"
+    if not ignore.exists():
+        ignore.write_text(Path(USER_FILE).name + "\n")
     temporary = result.path.with_name(result.path.name + ".docker-ros-tmp")
     temporary.write_text(result.text)
     temporary.replace(result.path)
@@ -344,7 +379,7 @@ def config_for(settings: Settings, ref: str, options: devshell.ShellOptions, *,
     shell = dataclasses.replace(options, x11_display=display, xauthority="", gpus=explicit,
                                 colcon_defaults="")
     pairs = devshell.run_options(settings, shell, user)
-    config = generate(settings, ref, pairs, uid=user.uid, gpus_auto=gpus == "auto",
+    config = generate(settings, ref, pairs, gpus_auto=gpus == "auto",
                       build=() if cannot else build_command(settings))
     return config, notes
 
