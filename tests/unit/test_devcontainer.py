@@ -2,6 +2,8 @@
 and bad input: one message, nothing written."""
 
 import json
+import os
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -38,26 +40,61 @@ def config(tmp_path: Path, user: HostUser = USER, *, display: str = "", gpus: st
 def test_image_workspace_user_and_ros_environment(tmp_path):
     made = config(ros_repo(tmp_path))
     assert made["image"] == REF
-    assert made["initializeCommand"][:4] == ["docker-ros", "build", "--target", "dev"]
+    assert made["initializeCommand"]["image"][:4] == ["docker-ros", "build", "--target", "dev"]
     assert made["workspaceMount"] == ("source=${localWorkspaceFolder},"
                                       "target=/docker-ros/ws/src/target,type=bind")
-    assert made["workspaceFolder"] == devshell.TARGET
-    # dev-shell's mapping, by the image's entrypoint (which runs: overrideCommand false)
-    assert made["containerEnv"] == {"DOCKER_UID": "4242", "DOCKER_GID": "4343",
-                                    "DOCKER_USER": "alice", "NVIDIA_DRIVER_CAPABILITIES": "all"}
-    assert made["remoteUser"] == "4242" and made["updateRemoteUserUID"] is False
-    assert made["overrideCommand"] is False
-    assert made["runArgs"] == ["--tty", "--stop-signal=SIGHUP"]
+    # the workspace around the repository (colcon there sees the .repos imports too)
+    assert made["workspaceFolder"] == "/docker-ros/ws" == str(Path(devshell.TARGET).parents[1])
+    # dev-shell's mapping, by the image's entrypoint (which runs: overrideCommand false), of
+    # the user the initializeCommand writes when the folder is opened
+    assert made["containerEnv"] == {"NVIDIA_DRIVER_CAPABILITIES": "all"}
+    assert made["initializeCommand"]["user"][-1] == (
+        "${localWorkspaceFolder}/.devcontainer/.docker-ros-user.env")
+    assert made["remoteUser"] == "${containerEnv:DOCKER_UID:root}"
+    assert made["updateRemoteUserUID"] is False and made["overrideCommand"] is False
+    assert made["runArgs"] == [
+        "--tty", "--stop-signal=SIGHUP",
+        "--env-file=${localWorkspaceFolder}/.devcontainer/.docker-ros-user.env"]
     assert made["userEnvProbe"] == "loginInteractiveShell"
     vscode = made["customizations"]["vscode"]
     assert "ms-vscode.cpptools" in vscode["extensions"]
     assert vscode["settings"]["terminal.integrated.automationProfile.linux"]["args"] == ["-i"]
 
 
-def test_root_is_not_mapped(tmp_path):
-    made = config(ros_repo(tmp_path), HostUser(0, 0, "root"))
-    assert made["remoteUser"] == "root"
-    assert not [k for k in made["containerEnv"] if k.startswith("DOCKER_")]
+def test_the_file_is_the_same_for_every_host_user(tmp_path):
+    """`--check` passes for any user: the file names none (root included)."""
+    repo = ros_repo(tmp_path)
+    made = config(repo)
+    assert config(repo, HostUser(1000, 1000, "bob", cwd=Path("/home/alice"))) == made
+    assert config(repo, HostUser(0, 0, "root", cwd=Path("/home/alice"))) == made
+    assert "4242" not in json.dumps(made) and "alice" not in json.dumps(made)
+
+
+def run_user_script(made: dict, folder: Path, **environ: str) -> str:
+    """The initializeCommand's user part, run by sh as Dev Containers runs it (the variable
+    expanded); the file it writes."""
+    argv = [part.replace("${localWorkspaceFolder}", str(folder))
+            for part in made["initializeCommand"]["user"]]
+    env = {"PATH": os.environ["PATH"], **environ}
+    subprocess.run(argv, check=True, env=env, cwd=str(folder))
+    return (folder / ".devcontainer" / ".docker-ros-user.env").read_text()
+
+
+def test_the_user_who_opens_the_folder_is_mapped(tmp_path):
+    """The initializeCommand writes the mapping of whoever runs it (id -u), or of DOCKER_UID/
+    DOCKER_GID/DOCKER_USER when set; root maps nobody (an empty file: remoteUser is root)."""
+    made = config(ros_repo(tmp_path))
+    written = run_user_script(made, tmp_path)
+    if os.getuid() == 0:
+        assert written == ""
+    else:
+        assert written.startswith(f"DOCKER_UID={os.getuid()}\nDOCKER_GID={os.getgid()}\n")
+    written = run_user_script(made, tmp_path, DOCKER_UID="4242", DOCKER_GID="4343",
+                              DOCKER_USER="alice")
+    assert written == "DOCKER_UID=4242\nDOCKER_GID=4343\nDOCKER_USER=alice\n"
+    assert run_user_script(made, tmp_path, DOCKER_UID="0") == ""
+    # (no `${...}` in it: Dev Containers would take it for one of its variables)
+    assert "${" not in " ".join(made["initializeCommand"]["user"][:-1])
 
 
 def test_same_options_as_dev_shell(tmp_path):
@@ -65,8 +102,8 @@ def test_same_options_as_dev_shell(tmp_path):
     made = config(repo, display=":1", gpus="device=0", network="host", privileged=True,
                   devices=("/dev/ttyUSB0",), env=("ROS_DOMAIN_ID=7", "TOKEN"),
                   volumes=(f"{repo}/data:/data:ro", "ccache:/ccache", "/abs:/abs"))
-    assert made["runArgs"] == ["--tty", "--stop-signal=SIGHUP", "--network=host", "--ipc=host",
-                               "--privileged", "--device=/dev/ttyUSB0", "--gpus=device=0"]
+    assert made["runArgs"][3:] == ["--network=host", "--ipc=host", "--privileged",
+                                   "--device=/dev/ttyUSB0", "--gpus=device=0"]
     assert made["mounts"] == [
         "source=${localWorkspaceFolder}/data,target=/data,type=bind,readonly",
         "source=ccache,target=/ccache,type=volume", "source=/abs,target=/abs,type=bind",
@@ -182,7 +219,7 @@ def test_no_dev_image_and_no_way_to_build_it(tmp_path):
                                 gpus="auto", image_present=False)
     made, notes = devcontainer.config_for(unbuildable, REF, ShellOptions(), user=USER,
                                           display="", gpus="auto", image_present=True)
-    assert "initializeCommand" not in made and "used as it is" in notes[0]
+    assert list(made["initializeCommand"]) == ["user"] and "used as it is" in notes[0]
 
 
 def test_bad_json_changes_nothing(tmp_path):
@@ -221,6 +258,8 @@ def test_run_dry_run_writes_nothing_and_check_says_whether_it_is_current(tmp_pat
     assert not path.exists() and "not up to date" in capsys.readouterr().out
     run(settings(repo), options, x11="auto", gpus="auto", check=False, force=False,
         dry_run=False)
+    # (the host user's file, written when the folder is opened, stays out of git)
+    assert (repo / ".devcontainer" / ".gitignore").read_text() == ".docker-ros-user.env\n"
     assert run(settings(repo), options, x11="auto", gpus="auto", check=True, force=False,
                dry_run=False) == 0
     assert run(settings(repo), options, x11="auto", gpus="none", check=True, force=False,

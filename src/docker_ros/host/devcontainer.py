@@ -6,10 +6,14 @@ The file names the dev image the build tags and an `initializeCommand` that buil
 with docker-ros (`docker-ros build --target dev`, from cache: seconds when nothing changed).
 Opening the folder (or "Rebuild Container") so gets an image with the repository's current
 dependencies, where a bare `image` would silently keep a stale one. The host user is mapped by
-the image's entrypoint, as in dev-shell: the container runs the image's entry point
-(`overrideCommand: false`, its `bash` kept waiting by `--tty`), the editor's processes run as the
-mapped UID (`remoteUser`), and a login-interactive shell's environment (/etc/bash.bashrc
-sources the entrypoint: ROS, the base image's and the workspace's setup) is every process's.
+the image's entrypoint, as in dev-shell: the user who opens the folder, whose DOCKER_UID,
+DOCKER_GID and DOCKER_USER the initializeCommand writes to a file that `docker run` reads (the
+file names no user: one committed file serves every user); the container runs the image's entry
+point (`overrideCommand: false`, its `bash` kept waiting by `--tty`), the editor's processes run
+as the mapped UID (`remoteUser`, from the container's DOCKER_UID), and a login-interactive
+shell's environment (/etc/bash.bashrc sources the entrypoint: ROS, the base image's and the
+workspace's setup) is every process's. The editor opens the workspace (/docker-ros/ws), where
+colcon builds the repository and the .repos imports the build cloned into the image.
 
 A second run merges: what docker-ros wrote last is recorded under
 customizations.docker-ros.generated; the user's edits since (a changed value, an added or a
