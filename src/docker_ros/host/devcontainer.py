@@ -6,14 +6,12 @@ The file names the dev image the build tags and an `initializeCommand` that buil
 with docker-ros (`docker-ros build --target dev`, from cache: seconds when nothing changed).
 Opening the folder (or "Rebuild Container") so gets an image with the repository's current
 dependencies, where a bare `image` would silently keep a stale one. The host user is mapped by
-the image's entrypoint, as in dev-shell: the user who opens the folder, whose DOCKER_UID,
-DOCKER_GID and DOCKER_USER the initializeCommand writes to a file that `docker run` reads (the
-file names no user: one committed file serves every user); the container runs the image's entry
-point (`overrideCommand: false`, its `bash` kept waiting by `--tty`), the editor's processes run
-as the mapped UID (`remoteUser`, from the container's DOCKER_UID), and a login-interactive
-shell's environment (/etc/bash.bashrc sources the entrypoint: ROS, the base image's and the
-workspace's setup) is every process's. The editor opens the workspace (/docker-ros/ws), where
-colcon builds the repository and the .repos imports the build cloned into the image.
+the image's entrypoint, as in dev-shell: the container runs the image's entry point
+(`overrideCommand: false`, its `bash` kept waiting by `--tty`), the editor's processes run as the
+mapped UID (`remoteUser`), and a login-interactive shell's environment (/etc/bash.bashrc
+sources the entrypoint: ROS, the base image's and the workspace's setup) is every process's.
+The editor opens the workspace (/docker-ros/ws), where colcon builds the repository and the
+.repos imports the build cloned into the image.
 
 A second run merges: what docker-ros wrote last is recorded under
 customizations.docker-ros.generated; the user's edits since (a changed value, an added or a
@@ -48,20 +46,8 @@ HERE = "${localWorkspaceFolder}"  # the repository on the host, as Dev Container
 # there builds the repository (src/target) with the .repos imports the build cloned into the
 # image (src/upstream), into the container's build/ and install/, not into the repository.
 WORKSPACE = "/docker-ros/ws"
-# The host user, written on the host by the initializeCommand each time the folder is opened
-# (the user who opens it, not the one who ran `inv devcontainer`): docker run reads it
-# (--env-file), the image's entrypoint maps that user, and remoteUser is its UID.
-USER_FILE = ".devcontainer/.docker-ros-user.env"
+# The host user's mapping: the values that differ between users (`--check` passes for any).
 USER_VARIABLES = ("DOCKER_UID", "DOCKER_GID", "DOCKER_USER")
-# The script writing it ($1: its path): DOCKER_UID/DOCKER_GID/DOCKER_USER of the environment
-# win (another user's mapping); root is not mapped (an empty file). POSIX sh.
-USER_SCRIPT = (  # (no braces: Dev Containers would read `${...}` as its own variables)
-    'uid=$(id -u); gid=$(id -g); user=$(id -un 2>/dev/null || echo dockeruser); '
-    '[ -n "$DOCKER_UID" ] && uid=$DOCKER_UID; [ -n "$DOCKER_GID" ] && gid=$DOCKER_GID; '
-    '[ -n "$DOCKER_USER" ] && user=$DOCKER_USER; mkdir -p "$(dirname "$1")" && '
-    'if [ "$uid" = 0 ]; then : > "$1"; else '
-    'printf "DOCKER_UID=%s\\nDOCKER_GID=%s\\nDOCKER_USER=%s\\n" "$uid" "$gid" "$user" > "$1"; '
-    'fi')
 # ROS (a ROS 1 workspace and ROS 2 alike), C++ with CMake, Python; a user may remove any.
 EXTENSIONS = ("ms-iot.vscode-ros", "ms-vscode.cpptools", "ms-vscode.cmake-tools",
               "ms-python.python")
@@ -90,6 +76,7 @@ class Plan:
     content: Dict[str, Any]
     changed: bool
     notes: Tuple[str, ...] = ()
+    user_only: bool = False  # changed only in the host user's mapping (without_user)
 
     @property
     def text(self) -> str:
@@ -191,37 +178,26 @@ def env_entry(spec: str) -> Tuple[str, str]:
     return name, value
 
 
-def initialize_command(build: Sequence[str]) -> Dict[str, List[str]]:
-    """The initializeCommand (run on the host before the container starts, its parts in
-    parallel): the host user's file, and the dev image's build ([]: none)."""
-    command = {"user": ["sh", "-c", USER_SCRIPT, "sh", f"{HERE}/{USER_FILE}"]}
-    if build:
-        command["image"] = list(build)
-    return command
-
-
 def generate(settings: Settings, ref: str, pairs: Sequence[Tuple[str, str]], *,
-             gpus_auto: bool, build: Sequence[str] = ()) -> Dict[str, Any]:
-    """devcontainer.json from dev-shell's run options (pairs), the same for every host user
-    (their mapping is written when the folder is opened: USER_FILE); gpus_auto: GPUs when the
-    host has the nvidia runtime (the editor's check when it opens); build: the dev image's
-    build in the initializeCommand ([]: none)."""
+             uid: int, gpus_auto: bool, build: Sequence[str] = ()) -> Dict[str, Any]:
+    """devcontainer.json from dev-shell's run options (pairs); uid: the mapped user's (0: root,
+    not mapped); gpus_auto: GPUs when the host has the nvidia runtime (the editor's check
+    when it opens); build: the initializeCommand ([]: none)."""
     repository = Path(settings.build_context).resolve()
-    config: Dict[str, Any] = {"name": ref, "image": ref,
-                              "initializeCommand": initialize_command(build)}
+    config: Dict[str, Any] = {"name": ref, "image": ref}
+    if build:
+        config["initializeCommand"] = list(build)
     env: Dict[str, str] = {}
     mounts: List[str] = []
     # The image's `bash` (after its entry point) waits on a terminal and ends on a hangup:
     # docker stop sends one (an interactive bash ignores SIGTERM).
-    run_args = ["--tty", "--stop-signal=SIGHUP", f"--env-file={HERE}/{USER_FILE}"]
+    run_args = ["--tty", "--stop-signal=SIGHUP"]
     for flag, value in pairs:
         if flag == "-v" and value == f"{repository}:{devshell.TARGET}":
             config["workspaceMount"] = f"source={HERE},target={devshell.TARGET},type=bind"
             config["workspaceFolder"] = WORKSPACE
         elif flag == "-v":
             mounts.append(mount_of(value, repository))
-        elif flag == "-e" and value.partition("=")[0] in USER_VARIABLES:
-            continue  # (the user who opens the folder: USER_FILE)
         elif flag == "-e":
             env.update([env_entry(value)])
         else:
@@ -230,8 +206,9 @@ def generate(settings: Settings, ref: str, pairs: Sequence[Tuple[str, str]], *,
         "overrideCommand": False,
         "runArgs": run_args,
         "containerEnv": env,
-        # the mapped UID, from the container's environment (USER_FILE); root when none
-        "remoteUser": "${containerEnv:DOCKER_UID:root}",
+        # (a number: Dev Containers resolves remoteUser before it reads the container's
+        # environment, and the entrypoint creates the user only when the container starts)
+        "remoteUser": str(uid) if uid else "root",
         "updateRemoteUserUID": False,  # (the entrypoint maps the user: DOCKER_UID)
         "userEnvProbe": "loginInteractiveShell",
     })
@@ -314,6 +291,25 @@ def read_current(path: Path) -> Tuple[Optional[Dict[str, Any]], bool]:
     return parse_jsonc(text, path), strip_jsonc(text) != text
 
 
+def without_user(config: Any) -> Any:
+    """config without the host user's mapping (remoteUser; DOCKER_UID, DOCKER_GID, DOCKER_USER
+    in containerEnv), in the file and in docker-ros's record of it: what `--check` compares, so
+    that a file generated by another user (CI's, a colleague's) is up to date for this one."""
+    if not isinstance(config, dict):
+        return config
+    out = {key: value for key, value in config.items() if key != "remoteUser"}
+    env = out.get("containerEnv")
+    if isinstance(env, dict):
+        out["containerEnv"] = {k: v for k, v in env.items() if k not in USER_VARIABLES}
+    customizations = out.get("customizations")
+    record = customizations.get(MARK) if isinstance(customizations, dict) else None
+    if (isinstance(customizations, dict) and isinstance(record, dict)
+            and isinstance(record.get("generated"), dict)):
+        out["customizations"] = {**customizations,
+                                 MARK: {**record, "generated": without_user(record["generated"])}}
+    return out
+
+
 def plan(settings: Settings, ours: Dict[str, Any], *, force: bool = False) -> Plan:
     """The file's new content and whether it changes (nothing written)."""
     path = Path(settings.build_context).resolve() / RELATIVE
@@ -322,22 +318,22 @@ def plan(settings: Settings, ours: Dict[str, Any], *, force: bool = False) -> Pl
     changed = content != current
     notes = ((f"{path}: its comments and trailing commas are not kept (JSON is written)",)
              if changed and commented else ())
-    return Plan(path, content, changed, notes)
+    user_only = changed and current is not None and without_user(content) == without_user(current)
+    return Plan(path, content, changed, notes, user_only)
 
 
 def up_to_date_message(result: Plan) -> str:
     if not result.changed:
         return f"{result.path} is up to date"
+    if result.user_only:
+        return (f"{result.path} is up to date (it maps another host user than this one: "
+                "`inv devcontainer` maps yours)")
     return (f"{result.path} is not up to date with the settings; run `inv devcontainer` "
             "(your own edits are kept)")
 
 
 def write(result: Plan) -> None:
-    """The file, and beside it a .gitignore of the host user's file (when there is none)."""
     result.path.parent.mkdir(parents=True, exist_ok=True)
-    ignore = result.path.parent / ".gitignore"
-    if not ignore.exists():
-        ignore.write_text(Path(USER_FILE).name + "\n")
     temporary = result.path.with_name(result.path.name + ".docker-ros-tmp")
     temporary.write_text(result.text)
     temporary.replace(result.path)
@@ -383,7 +379,7 @@ def config_for(settings: Settings, ref: str, options: devshell.ShellOptions, *,
     shell = dataclasses.replace(options, x11_display=display, xauthority="", gpus=explicit,
                                 colcon_defaults="")
     pairs = devshell.run_options(settings, shell, user)
-    config = generate(settings, ref, pairs, gpus_auto=gpus == "auto",
+    config = generate(settings, ref, pairs, uid=user.uid, gpus_auto=gpus == "auto",
                       build=() if cannot else build_command(settings))
     return config, notes
 
@@ -405,7 +401,7 @@ def run(settings: Settings, options: devshell.ShellOptions, *, x11: str,
         print(f"docker-ros devcontainer: {note}", file=sys.stderr, flush=True)
     if check:
         print(up_to_date_message(result), flush=True)
-        return 1 if result.changed else 0
+        return 1 if result.changed and not result.user_only else 0
     if dry_run:
         print(result.text, end="", flush=True)
         return 0
