@@ -205,6 +205,20 @@ def tree_snapshot(root: Union[str, Path]) -> Dict[str, str]:
     return out
 
 
+def git_daemon(remotes: Path, port: int) -> subprocess.Popen:
+    """`git daemon` serving the bare repositories in remotes at git://127.0.0.1:port/ (no
+    login), once it answers for the first of them; the caller terminates it."""
+    daemon = subprocess.Popen(["git", "daemon", "--reuseaddr", "--export-all",
+                               f"--base-path={remotes}", "--listen=127.0.0.1", f"--port={port}",
+                               str(remotes)])
+    probe = f"git://127.0.0.1:{port}/{sorted(remotes.glob('*.git'))[0].name}"
+    deadline = time.monotonic() + 10
+    while subprocess.run(["git", "ls-remote", probe], capture_output=True).returncode != 0:
+        assert time.monotonic() < deadline and daemon.poll() is None, "git daemon did not start"
+        time.sleep(0.2)
+    return daemon
+
+
 def git_http_server(root: Union[str, Path], user: str, password: str) -> ThreadingHTTPServer:
     """A smart-HTTP git server (`git http-backend`) for the bare repositories in `root` on
     127.0.0.1:<free port>, Basic auth `user`/`password` required. Serves in a daemon thread;

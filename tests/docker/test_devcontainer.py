@@ -1,9 +1,18 @@
 """The real Dev Containers CLI (`devcontainer`, @devcontainers/cli from npm) on the bundled
-example with the devcontainer.json docker-ros writes: `up` builds the dev image through the
-initializeCommand and starts it, `exec` builds the workspace as the host user (UID 4242: the
-repository copy is theirs) with ROS and the workspace on PATH, talker and listener hear each
-other, and a new dependency in a package.xml is in the image the next `up` gets. One dev image
-build, one rebuild (from cache: the new dependency's layers)."""
+example plus a `.repos` file importing one package (`up_a`, from a local bare git repository
+that a git daemon serves), with the devcontainer.json docker-ros writes for host user 4242
+(the tests run as root: the user is given). Proven:
+
+- `up` builds the dev image through the initializeCommand (its clone step imports `up_a` into
+  the image's workspace) and starts it;
+- `exec colcon build`, in the workspace folder, builds the repository and the imported
+  package as the host user (UID 4242: a file it makes in the repository is theirs);
+- ROS, the workspace's packages and the imported one are on PATH in `exec`, nothing sourced
+  by hand;
+- the example's talker and listener hear each other;
+- a new dependency in a package.xml is in the image the next `up` gets.
+
+One dev image build, one rebuild (from cache: the new dependency's layers)."""
 
 from __future__ import annotations
 
@@ -21,13 +30,15 @@ from docker_ros.host import devcontainer
 from docker_ros.host.config import read_settings
 from docker_ros.host.devshell import HostUser, ShellOptions
 from tests.docker.buildhelp import REPO, copy_example, remove_image
+from tests.rosfixtures import free_port, git_daemon, make_git_repo, make_package, write_repos
 
 pytestmark = pytest.mark.docker
 
 IMAGE = "docker-ros-test/devcontainer:latest"
 DEV = f"{IMAGE}-dev"
 UID = 4242
-BUILD = "cd /docker-ros/ws && colcon build --base-paths src"  # as the image's colcon step
+BUILD = "colcon build"  # in the workspace folder (/docker-ros/ws), as a user types it
+IMPORTED = "up_a"  # the package the .repos file imports
 TIMES: List[str] = []  # each CLI call and its seconds, printed at the end
 
 
@@ -86,20 +97,32 @@ def write_devcontainer(repo: Path) -> Dict[str, object]:
 
 @pytest.fixture(scope="module")
 def repo(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """The example with a .repos file importing up_a over git:// from a local bare repository
+    (the build's clone step reaches it with BUILD_NETWORK=host), opened with `devcontainer up`."""
     if not shutil.which("devcontainer"):
         pytest.fail("no `devcontainer` command: scripts/setup.sh installs @devcontainers/cli")
-    root = copy_example(tmp_path_factory.mktemp("devcontainer") / "robot")
+    base = tmp_path_factory.mktemp("devcontainer")
+    make_package(base / "libs" / IMPORTED, IMPORTED)
+    make_git_repo(base / "libs", {}, bare_copy_to=base / "remotes" / "libs.git")
+    port = free_port()
+    root = copy_example(base / "robot")
+    write_repos(root / ".repos", {"libs": {"url": f"git://127.0.0.1:{port}/libs.git",
+                                           "version": "main"}})
     (root / ".env").write_text(f"BASE_IMAGE={ros1_base_image}\nIMAGE={IMAGE}\nTARGET=dev\n"
+                               "BUILD_NETWORK=host\n"
                                "COMMAND=roslaunch docker_ros_example talker_listener.launch\n")
     # the rule of the dependency a test adds later (rosdep is offline here)
     (root / "docker" / "rosdep.yaml").write_text("json_tool:\n  debian: [jq]\n")
     write_devcontainer(root)
     subprocess.run(["chown", "-R", f"{UID}:{UID}", str(root)], check=True)
     remove_image(DEV)
+    daemon = git_daemon(base / "remotes", port)
     try:
         up(root)
         yield root
     finally:
+        daemon.terminate()
+        daemon.wait(timeout=30)
         for container in containers_of(root):
             subprocess.run(["docker", "rm", "-f", container], capture_output=True)
         remove_image(DEV)
@@ -108,28 +131,36 @@ def repo(ros1_base_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iter
 
 def test_up_starts_the_dev_image(repo: Path) -> None:
     """`devcontainer up` (its initializeCommand built the dev image) runs the image the build
-    tagged."""
+    tagged; the imported package is in its workspace (src/upstream), not in the repository."""
     (container,) = containers_of(repo)
     image = subprocess.run(["docker", "inspect", "-f", "{{.Image}}", container],
                            capture_output=True, text=True).stdout.strip()
     dev = subprocess.run(["docker", "image", "inspect", "-f", "{{.Id}}", DEV],
                          capture_output=True, text=True).stdout.strip()
     assert image and image == dev
+    listed = subprocess.run(["docker", "exec", container, "ls", "/docker-ros/ws/src/upstream/libs"],
+                            capture_output=True, text=True)
+    assert listed.stdout.split() == [IMPORTED], listed.stdout + listed.stderr
+    assert not (repo / "libs").exists()
 
 
 def test_exec_builds_the_workspace_as_the_host_user(repo: Path) -> None:
-    """`devcontainer exec` runs colcon as the image's colcon step does, as UID 4242, and a file
-    it makes in the mounted repository is 4242's on the host."""
+    """`devcontainer exec colcon build` (in the workspace folder) builds the example and the
+    imported package as UID 4242, and a file it makes in the mounted repository is 4242's on
+    the host."""
     done = run_in(repo, f"{BUILD} && id -u && touch src/target/made-in-the-container")
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert done.stdout.split()[-1] == str(UID)
+    assert "Finished <<< docker_ros_example" in done.stdout, done.stdout[-3000:]
+    assert f"Finished <<< {IMPORTED}" in done.stdout, done.stdout[-3000:]
+    assert not (repo / "build").exists() and not (repo / "install").exists()
     made = (repo / "made-in-the-container").stat()
     assert (made.st_uid, made.st_gid) == (UID, UID)
 
 
 def test_ros_and_the_workspace_are_on_path_without_sourcing(repo: Path) -> None:
-    """roscore, roslaunch and the built workspace's package are found by `exec` of a plain
-    command (no shell, nothing sourced by hand)."""
+    """roscore, roslaunch, the built workspace's package and the imported package's program
+    are found by `exec` of a plain command (no shell, nothing sourced by hand)."""
     built = run_in(repo, f"test -d /docker-ros/ws/install || {BUILD} >/dev/null")
     assert built.returncode == 0, built.stderr[-3000:]
     # (exec runs no shell of its own: the environment is the login shell's, probed)
@@ -140,6 +171,8 @@ def test_ros_and_the_workspace_are_on_path_without_sourcing(repo: Path) -> None:
         "/share/docker_ros_example"), found
     which = cli("exec", "--workspace-folder", str(repo), "which", "roscore", "roslaunch")
     assert which.returncode == 0 and len(which.stdout.split()) == 2, which.stderr[-3000:]
+    imported = cli("exec", "--workspace-folder", str(repo), f"{IMPORTED}_node")
+    assert imported.returncode == 0, imported.stdout[-3000:] + imported.stderr[-3000:]
 
 
 def test_talker_and_listener_hear_each_other(repo: Path) -> None:

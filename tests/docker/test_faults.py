@@ -28,7 +28,7 @@ import pytest
 
 from tests import engines
 from tests.docker.buildhelp import docker_ros, docker_ros_started, write_env
-from tests.rosfixtures import free_port, make_git_repo, make_package, write_repos
+from tests.rosfixtures import free_port, git_daemon, make_git_repo, make_package, write_repos
 
 pytestmark = pytest.mark.docker
 
@@ -162,19 +162,6 @@ def test_a_full_engine_disk_is_named_with_its_data_root_and_room(
     assert disk.startswith(f"  the disk is full: the engine's data root {data_root} ("), final
     assert re.search(r"/docker \(\d+ (bytes|kB|MB) free\)", disk), disk
     assert "docker system df" in disk and "docker-ros removes nothing" in disk, disk
-
-
-def git_daemon(remotes: Path, port: int) -> subprocess.Popen:
-    """`git daemon` serving the bare repositories in remotes at git://127.0.0.1:port/."""
-    daemon = subprocess.Popen(["git", "daemon", "--reuseaddr", "--export-all",
-                               f"--base-path={remotes}", "--listen=127.0.0.1", f"--port={port}",
-                               str(remotes)])
-    deadline = time.monotonic() + 10
-    while subprocess.run(["git", "ls-remote", f"git://127.0.0.1:{port}/libs.git"],
-                         capture_output=True).returncode != 0:
-        assert time.monotonic() < deadline and daemon.poll() is None, "git daemon did not start"
-        time.sleep(0.2)
-    return daemon
 
 
 def test_a_git_server_that_is_gone_is_named_with_its_url(

@@ -395,7 +395,8 @@ def dev_shell(
         ("x11", "auto", "X11 forwarding: auto = when DISPLAY is a local display; true; false"),
         ("gpus", "auto", "auto = all when the host has the nvidia runtime; none; or a --gpus "
          "value"),
-        ("check", False, "Change nothing; exit 1 when the file is not up to date (for CI)"),
+        ("check", False, "Change nothing; exit 1 when the file is not up to date with the "
+         "settings (the host user it maps may be another: for CI)"),
         ("force", False, "Merge into a devcontainer.json docker-ros did not write"),
         DRY_RUN,
     ],
