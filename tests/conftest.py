@@ -297,10 +297,15 @@ WARM_JOBS = (("ros1_base_image", make_ros1), ("ros2_base_image", make_ros2),
 WARMUP = Warmup()
 
 
+def warm(fixture: str) -> str:
+    """What the warm-up made for fixture (WARM_JOBS), once it is there."""
+    return WARMUP.result(fixture, dict(WARM_JOBS)[fixture])
+
+
 @pytest.fixture(scope="session")
 def ros1_base_image(docker_client: docker.DockerClient) -> str:
     """Tag of a Debian bookworm image with ROS 1 from Debian (in /usr); built once, then reused."""
-    return WARMUP.result("ros1_base_image", make_ros1)
+    return warm("ros1_base_image")
 
 
 @pytest.fixture(scope="session")
@@ -309,13 +314,13 @@ def ros1_arm64_base_image(ros1_base_image: str) -> str:
     architecture's image so, and a build for arm64 with BASE_IMAGE=ROS1_BASE_IMAGE finds it);
     built under QEMU once (5 to 10 minutes, in the warm-up's background), then reused while its
     recipe is unchanged."""
-    return WARMUP.result("ros1_arm64_base_image", make_ros1_arm64)
+    return warm("ros1_arm64_base_image")
 
 
 @pytest.fixture(scope="session")
 def ros2_base_image(docker_client: docker.DockerClient) -> str:
     """Tag of a Debian trixie image with ROS 2 build tooling (ament, colcon); built once."""
-    return WARMUP.result("ros2_base_image", make_ros2)
+    return warm("ros2_base_image")
 
 
 @pytest.fixture(scope="session")
@@ -323,7 +328,7 @@ def ros1_ubuntu_base_image(docker_client: docker.DockerClient) -> str:
     """Tag of an Ubuntu 22.04 image with Ubuntu's ROS 1 (in /usr), colcon and vcstool from
     PyPI; built once (about a minute), then reused. The machine's CA bundle is the pip's: where
     a TLS-intercepting proxy re-signs PyPI, the machine trusts its CA."""
-    return WARMUP.result("ros1_ubuntu_base_image", make_ros1_ubuntu)
+    return warm("ros1_ubuntu_base_image")
 
 
 @pytest.fixture(scope="session")
@@ -489,7 +494,7 @@ def buildkit_image(engine26: str, ros2_base_image: str) -> str:
     .buildkit_image: BuildKit from Debian's source, as moby/buildkit cannot be pulled here),
     built once per machine (3 to 10 minutes, in the warm-up's background), then reused by its
     tag."""
-    return WARMUP.result("buildkit_image", make_buildkit_image)
+    return warm("buildkit_image")
 
 
 @pytest.fixture(scope="session")
