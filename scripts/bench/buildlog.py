@@ -16,6 +16,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 from bench import REPO, BenchError
 from bench.workspace import COMPILE_MARK, DEV_IMAGE, IMAGE
 from docker_ros.core.settings import FIELDS, env_name
+from docker_ros.host.buildlog import cached_steps
 
 # bake puts the target before the stage: `#12 [dev upstream 2/2] RUN ...`
 UPSTREAM_VERTEX = re.compile(r"^#(\d+) \[(?:\S+ )?upstream .*clone --imports-only")
@@ -119,24 +120,20 @@ def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = ()
     return seconds, "".join(lines)
 
 
-# A Dockerfile instruction's vertex: `#12 [dev upstream 2/2] RUN ...` (bake: target, stage)
-STEP_VERTEX = re.compile(r"^#(\d+) \[[^\]]*\b\d+/\d+\] ")
-FROM_LINE = re.compile(r"^FROM\s", re.MULTILINE | re.IGNORECASE)
-
-
 def steps_resolved(output: str) -> int:
-    """The Dockerfile instructions BuildKit resolved (cached or run) in the builds of output,
-    each vertex once per buildx invocation: what a rebuild walks through however little it
-    does, so that growth of the Dockerfile shows up as a number."""
-    seen = set()
-    invocation = 0
+    """The stage steps BuildKit resolved (cached or run) in the builds of output, counted per
+    buildx invocation by the tool's own reading of a build log (buildlog.cached_steps): what a
+    rebuild walks through however little it does, so that growth of the Dockerfile shows up as
+    a number."""
+    runs: List[List[str]] = [[]]
     for line in output.splitlines():
-        if INVOCATION.match(line):
-            invocation += 1
-        match = STEP_VERTEX.match(line)
-        if match:
-            seen.add((invocation, match.group(1)))
-    return len(seen)
+        if INVOCATION.match(line) and runs[-1]:
+            runs.append([])
+        runs[-1].append(line)
+    return sum(cached_steps(run)[1] for run in runs)
+
+
+FROM_LINE = re.compile(r"^FROM\s", re.MULTILINE | re.IGNORECASE)
 
 
 def stage_count(dockerfile: Path) -> int:
