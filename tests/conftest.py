@@ -26,6 +26,7 @@ import yaml
 
 from docker_ros.host import baseimage
 from tests import engines, leftovers, suitelock
+from tests.processes import stop
 from tests.warmup import Warmup
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"
@@ -405,16 +406,6 @@ def serve_registry(docker_client: docker.DockerClient, work: Path,
         # its storage is of no use any more (a few GB: the run's folder is kept for its logs)
         leftovers.remove_registry_images(docker_client, address)
         shutil.rmtree(work / "storage", ignore_errors=True)
-
-
-def stop(process: subprocess.Popen, *, timeout: float) -> None:
-    """Terminate a server the tests started; kill it if it does not end in time."""
-    process.terminate()
-    try:
-        process.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait()
 
 
 def free_port() -> int:

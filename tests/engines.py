@@ -17,6 +17,8 @@ import uuid
 from pathlib import Path
 from typing import Any, Dict, Iterator, Mapping, Optional, Sequence
 
+from tests.processes import stop
+
 # Where scripts/setup.sh puts Engine 26 (see CONTRIBUTING.md, "Setting up a machine").
 ENGINE26_HOST = "unix:///run/docker-ros-engine26/docker.sock"
 ENGINE26_ROOT = Path(os.environ.get("ENGINE26_ROOT", "/opt/docker-ros-engine26"))
@@ -113,12 +115,7 @@ class Daemon:
         """SIGTERM, and SIGKILL if it has not ended after 30 s."""
         if self.process is None:
             return
-        self.process.terminate()
-        try:
-            self.process.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
+        stop(self.process, timeout=30)
         self.process = None
 
 

@@ -1,5 +1,6 @@
 """The processes of this machine, for tests that check what an interrupted task leaves running."""
 
+import subprocess
 import time
 from pathlib import Path
 
@@ -24,3 +25,13 @@ def left_after(text: str, seconds: float = 10) -> list:
     while running(text) and time.monotonic() < deadline:
         time.sleep(0.1)
     return running(text)
+
+
+def stop(process: subprocess.Popen, *, timeout: float) -> None:
+    """Terminate a server the tests started; kill it if it does not end in time."""
+    process.terminate()
+    try:
+        process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()

@@ -18,6 +18,8 @@ from http.server import BaseHTTPRequestHandler, SimpleHTTPRequestHandler, Thread
 from pathlib import Path
 from typing import Dict, Mapping, Optional, Sequence, Union
 
+from tests.processes import stop
+
 GIT_ENV = {
     "GIT_AUTHOR_NAME": "docker-ros tests",
     "GIT_AUTHOR_EMAIL": "tests@docker-ros.invalid",
@@ -307,12 +309,7 @@ class SshServer:
     log: Path
 
     def stop(self) -> None:
-        self.proc.terminate()
-        try:
-            self.proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+        stop(self.proc, timeout=10)
 
 
 def sshd_server(
