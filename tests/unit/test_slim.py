@@ -37,7 +37,7 @@ from docker_ros.host.slimprobe import (
     trouble_lines,
     watch,
 )
-from docker_ros.in_image import slimtrace
+from docker_ros.in_image import slimelf, slimtrace
 
 # a shorter variant of docker-ros's default (SLIM_BUILD_ARGS_DEFAULT)
 DOCKER_ROS_GITLAB_DEFAULT = (
@@ -292,24 +292,24 @@ def test_trace_and_check_are_reported_one_line_each() -> None:
 # --------------------------------------------------------------------------- in-image code
 def test_parse_elf_of_a_real_executable() -> None:
     python = Path("/proc/self/exe").resolve()
-    elf = slimtrace.read_elf(str(Path("/bin/ls").resolve()))
+    elf = slimelf.read_elf(str(Path("/bin/ls").resolve()))
     assert elf is not None, python
     cls, _, interp, needed, _, _ = elf
     assert cls == 2 and interp and interp.startswith("/lib")
     assert "libc.so.6" in needed
-    assert slimtrace.read_elf(__file__) is None
-    assert slimtrace.parse_elf(b"\x7fELF" + b"\0" * 10) is None
+    assert slimelf.read_elf(__file__) is None
+    assert slimelf.parse_elf(b"\x7fELF" + b"\0" * 10) is None
 
 
 def test_find_library_follows_ld_so_rules(tmp_path: Path) -> None:
-    elf = slimtrace.read_elf(str(Path("/bin/ls").resolve()))
+    elf = slimelf.read_elf(str(Path("/bin/ls").resolve()))
     assert elf is not None
-    system = slimtrace.ld_so_conf_dirs() + list(slimtrace.DEFAULT_LIB_DIRS)
-    found = slimtrace.find_library("libc.so.6", elf, "/bin/ls", [], system)
+    system = slimelf.ld_so_conf_dirs() + list(slimelf.DEFAULT_LIB_DIRS)
+    found = slimelf.find_library("libc.so.6", elf, "/bin/ls", [], system)
     assert found and Path(found).resolve().name.startswith("libc")
-    assert slimtrace.find_library("libnothere.so.9", elf, "/bin/ls", [str(tmp_path)],
+    assert slimelf.find_library("libnothere.so.9", elf, "/bin/ls", [str(tmp_path)],
                                   system) is None
-    assert slimtrace.expand_origin("$ORIGIN/../lib", "/opt/x/bin") == "/opt/x/bin/../lib"
+    assert slimelf.expand_origin("$ORIGIN/../lib", "/opt/x/bin") == "/opt/x/bin/../lib"
 
 
 def test_glob_regex_like_docker_slim() -> None:
@@ -365,7 +365,7 @@ def test_ld_so_conf_includes(tmp_path: Path) -> None:
     (tmp_path / "conf.d").mkdir()
     (tmp_path / "conf.d" / "a.conf").write_text("# comment\n/opt/a/lib\n")
     (tmp_path / "ld.so.conf").write_text("include conf.d/*.conf\n/opt/b/lib # b\n")
-    assert slimtrace.ld_so_conf_dirs(str(tmp_path / "ld.so.conf")) == ["/opt/a/lib", "/opt/b/lib"]
+    assert slimelf.ld_so_conf_dirs(str(tmp_path / "ld.so.conf")) == ["/opt/a/lib", "/opt/b/lib"]
 
 
 def test_tracer_usage_error() -> None:

@@ -64,6 +64,8 @@ from docker_ros.host.slimprobe import (
 )
 
 TRACER = PACKAGE_DIR / "in_image" / "slimtrace.py"
+# what the tracer imports, copied beside it (the run image has no docker_ros package)
+TRACER_FILES = (TRACER, PACKAGE_DIR / "in_image" / "slimelf.py")
 EXCHANGE = "/docker-ros-slim"  # the tracer and its results inside the trace container
 LABEL_SOURCE = ours("slim.source")
 LABEL_FINGERPRINT = ours("slim.fingerprint")
@@ -133,7 +135,7 @@ def plan_changes(config: Mapping, labels: Mapping[str, str]) -> List[str]:
 
 def fingerprint(run_id: str, options: SlimOptions) -> str:
     """Same run image, same options, same tracer: the existing slim image is still right."""
-    key = json.dumps([run_id, repr(options), TRACER.read_bytes().decode()])
+    key = json.dumps([run_id, repr(options), *(f.read_text() for f in TRACER_FILES)])
     return hashlib.sha256(key.encode()).hexdigest()[:24]
 
 
@@ -215,7 +217,8 @@ def tracing(run_id: str, config: Mapping, options: SlimOptions, workdir: Path
                                                                      traced.name))
         exchange = io.BytesIO()
         with tarfile.open(fileobj=exchange, mode="w") as tar:
-            tar.add(str(TRACER), arcname=f"{EXCHANGE[1:]}/slimtrace.py")
+            for module in TRACER_FILES:
+                tar.add(str(module), arcname=f"{EXCHANGE[1:]}/{module.name}")
             spec = json.dumps(tracer_spec(config, options)).encode()
             info = tarfile.TarInfo(f"{EXCHANGE[1:]}/spec.json")
             info.size = len(spec)
