@@ -138,8 +138,8 @@ def test_runs_on_python_38(tmp_path):
 
 
 # Every module under in_image/ that runs as a program, found by its `__main__` guard (a
-# package's __main__.py runs as the package). slimtrace is the one exception: it runs as a lone
-# file in the run image, where no docker_ros package is (see its docstring).
+# package's __main__.py runs as the package). slimtrace is the one exception: it runs as a file
+# of its own in the run image (slimelf beside it), where no docker_ros package is (its docstring).
 ENTRY_POINTS = sorted(
     ".".join(path.relative_to(SRC).with_suffix("").parts).removesuffix(".__main__")
     for path in CHECKED
