@@ -6,6 +6,8 @@ import io
 import os
 import re
 import signal
+import threading
+import time
 import types
 from pathlib import Path
 
@@ -221,6 +223,7 @@ class InterruptedCreate:
 
     def create(self, *args, **kwargs):
         os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)  # (the engine's answer takes a moment: the signal is delivered in it)
         return FakeContainer(self.removed)
 
 
@@ -241,16 +244,23 @@ class FakeContainer:
 def test_ctrl_c_while_the_engine_creates_the_container_leaves_no_container():
     # Ctrl-C right after the engine created the step container left it running
     # `sleep infinity` (and `docker ps` full of them): it was never in the variable that
-    # the `finally` removes.
+    # the `finally` removes. With another thread running (the tool's log readers, the
+    # suite's warm-up), the kernel hands the signal to that thread: holding it by the main
+    # thread's signal mask let it through.
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     fake = InterruptedCreate()
     plan = container.plan_step(settings(), "rosdep")
     session = container.Session(fake, settings(), plan, Path("/tmp/My_Robot"), None,
                                 io.StringIO(), False)
+    other_thread_done = threading.Event()
+    other_thread = threading.Thread(target=other_thread_done.wait)
+    other_thread.start()
     try:
         with pytest.raises(KeyboardInterrupt):
             session.run("image", 0, {}, "sha256:start")
     finally:
+        other_thread_done.set()
+        other_thread.join()
         signal.signal(signal.SIGINT, previous)
     assert len(fake.removed) == 1
 

@@ -58,20 +58,26 @@ DEFAULT_HOST = "unix:///var/run/docker.sock"
 
 @contextlib.contextmanager
 def signals_held() -> Iterator[None]:
-    """Ctrl-C (SIGINT) and SIGTERM wait until the block is done, then raise as usual. Around
+    """Ctrl-C (SIGINT) and SIGTERM wait until the block is done, then arrive as usual. Around
     the creation of a container and the assignment of it to the variable a `finally` removes:
     a signal between the engine's answer and the assignment left the container behind (and
-    `sleep infinity` or COMMAND running in it)."""
+    `sleep infinity` or COMMAND running in it). Held by a Python handler, not the thread's
+    signal mask: with another thread running, the kernel gives a signal to a thread that does
+    not block it, and Python then raises it in the main thread all the same."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, [])  # (only reads the mask)
+    held: List[int] = []
+    held_signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {number: signal.signal(number, lambda number, _frame: held.append(number))
+                for number in held_signals}
     try:
-        # (inside the try: a signal handled as this call returns still restores the mask)
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        for number, handler in previous.items():
+            signal.signal(number, signal.SIG_DFL if handler is None else handler)
+        if held:
+            signal.raise_signal(held[0])
 
 
 # The engine the images are in when it is not the CLI's (bind): a docker-driver builder of
