@@ -20,6 +20,9 @@ What GitHub does and this harness does too:
   As its default `persist-credentials: true` does, the token stays in the checkout's
   `.git/config` (`http.https://github.com/.extraheader`, `AUTHORIZATION: basic <base64>`).
 - docker/setup-qemu-action: nothing (binfmt handlers come from scripts/setup.sh); recorded.
+- docker/setup-docker-action: its `daemon-config` must turn on the containerd image store and
+  `set-host` must be true; the engine it hands the later steps (DOCKER_HOST) is this machine's
+  engine on that store, which the test names (run_action's containerd_engine).
 - gacts/github-slug: its output `slug` made as its v1 (v1.3.5) makes it, by npm's slugify 1.6.8
   (the version its lock file bundles; scripts/setup.sh installs it) run by node.
 Any other `uses:` or an expression outside the small grammar below makes the harness fail
@@ -140,8 +143,10 @@ def read_pairs(path: Path) -> Dict[str, str]:
 
 
 def run_action(action_dir: Path, inputs: Mapping[str, str], event: Event, work: Path,
-               base_env: Mapping[str, str]) -> Run:
-    """Run action.yml of action_dir with `with:` inputs for event; work holds the workspace."""
+               base_env: Mapping[str, str], containerd_engine: str = "") -> Run:
+    """Run action.yml of action_dir with `with:` inputs for event; work holds the workspace.
+    containerd_engine: the address of an engine on the containerd image store, what
+    docker/setup-docker-action sets up."""
     action = yaml.safe_load((action_dir / "action.yml").read_text())
     if action["runs"]["using"] != "composite":
         raise HarnessError("only composite actions are reproduced")
@@ -188,9 +193,11 @@ def run_action(action_dir: Path, inputs: Mapping[str, str], event: Event, work: 
             run.skipped.append(name)
             continue
         if "uses" in step:
-            with_ = {k: substitute(str(v), contexts) for k, v in (step.get("with") or {}).items()}
+            with_ = {k: substitute(as_string(v), contexts)
+                     for k, v in (step.get("with") or {}).items()}
             run.replaced.append({"uses": step["uses"], "with": with_})
-            result = replaced_step(step["uses"], with_, event, workspace)
+            result = replaced_step(step["uses"], with_, event, workspace, containerd_engine)
+            env.update(result.env)
         else:
             result = run_step(step, contexts, env, workspace, work / f"step{index}")
         if step.get("id"):
@@ -210,6 +217,7 @@ class StepResult:
     log: str
     outputs: Dict[str, str] = field(default_factory=dict)
     summary: str = ""
+    env: Dict[str, str] = field(default_factory=dict)  # (what the action exports to the job)
 
 
 def run_step(step: Mapping[str, Any], contexts: Dict[str, Any], env: Dict[str, str],
@@ -258,8 +266,8 @@ def github_slug_action(text: str) -> str:
                           env={**os.environ, "NODE_PATH": npm_modules()}).stdout
 
 
-def replaced_step(uses: str, with_: Mapping[str, str], event: Event,
-                  workspace: Path) -> StepResult:
+def replaced_step(uses: str, with_: Mapping[str, str], event: Event, workspace: Path,
+                  containerd_engine: str = "") -> StepResult:
     action = uses.split("@", 1)[0]
     if action == "actions/checkout":
         argv = ["git", "clone", "-q", "--branch", event.ref_name, str(event.origin),
@@ -277,6 +285,15 @@ def replaced_step(uses: str, with_: Mapping[str, str], event: Event,
         return StepResult(0, log)
     if action == "docker/setup-qemu-action":
         return StepResult(0, "(binfmt handlers of this machine)\n")
+    if action == "docker/setup-docker-action":
+        features = json.loads(with_.get("daemon-config") or "{}").get("features", {})
+        if features.get("containerd-snapshotter") is not True or with_.get("set-host") != "true":
+            raise HarnessError(f"{uses} with {dict(with_)}: not an engine on the containerd "
+                               "image store that the later steps reach (set-host)")
+        if not containerd_engine:
+            raise HarnessError(f"{uses}: the test named no engine on the containerd image store")
+        return StepResult(0, f"(this machine's engine at {containerd_engine})\n",
+                          {"sock": containerd_engine}, env={"DOCKER_HOST": containerd_engine})
     if action == "gacts/github-slug":  # no `slug` output for an empty `to-slug` (trimmed)
         text = with_.get("to-slug", "").strip()
         slug = github_slug_action(text) if text else ""

@@ -42,7 +42,8 @@ LABELS = "com.example.team=drives, navigation\ncom.example.tier=1\n"
 
 
 @pytest.fixture(scope="module")
-def runs(ros1_base_image: str, auth_registry, tmp_path_factory: pytest.TempPathFactory) -> dict:
+def runs(ros1_base_image: str, auth_registry, engine26: str,
+         tmp_path_factory: pytest.TempPathFactory) -> dict:
     root = tmp_path_factory.mktemp("github")
     base = push_private_base_image(ros1_base_image, auth_registry.address, auth_registry.auth)
     repo = example_repository(root, base)
@@ -57,15 +58,22 @@ def runs(ros1_base_image: str, auth_registry, tmp_path_factory: pytest.TempPathF
            if k not in ("TARGET", "COMMAND", "IMAGE") and not k.startswith(("GITHUB_", "CI_"))}
     env.update({"PATH": f"{shim}{os.pathsep}{env['PATH']}", "DOCKER_CONFIG": str(docker_config)})
     results = {}
-    # main also runs the tests (docker-ros's enable-industrial-ci), into the default folder,
-    # and adds labels of its own (one a line, a value with a comma)
-    for key, branch, extra in (("feature", FEATURE, {"enable-slim": "false"}),
+    # The feature branch's job runs with the defaults: this runner's engine (Engine 20.10)
+    # has the classic image store, so the job sets up an engine on the containerd store
+    # (docker/setup-docker-action; here Engine 26, which has no outbound NAT: hence
+    # build-network host). main keeps the runner's engine (containerd-image-store false), also
+    # runs the tests (docker-ros's enable-industrial-ci), into the default folder, and adds
+    # labels of its own (one a line, a value with a comma).
+    for key, branch, extra in (("feature", FEATURE, {"enable-slim": "false",
+                                                     "build-network": "host"}),
                                ("main", "main", {"enable-industrial-ci": "true",
-                                                 "labels": LABELS})):
+                                                 "labels": LABELS,
+                                                 "containerd-image-store": "false"})):
         forget_local(base)  # each run pulls it
         event = Event(origin=root / "origin.git", repository="Org/Example-Repo", ref_name=branch,
                       actor=auth_registry.user, token=auth_registry.password)
-        results[key] = run_action(REPO, {**inputs, **extra}, event, root / key, env)
+        results[key] = run_action(REPO, {**inputs, **extra}, event, root / key, env,
+                                  containerd_engine=engine26)
     return {"registry": auth_registry, "root": root, "docker_config": docker_config,
             "argv_log": argv_log, **results}
 
@@ -74,13 +82,37 @@ def test_action_runs_every_step(runs: dict) -> None:
     for key in ("feature", "main"):
         run = runs[key]
         assert run.returncode == 0, run.log[-6000:]
-        assert run.skipped == ["Set up QEMU"]  # amd64 on an amd64 runner
         checkout = run.replaced[0]
         assert checkout == {"uses": "actions/checkout@v4",
                             "with": {"submodules": "recursive", "lfs": "true"}}
         branch = FEATURE if key == "feature" else "main"
-        assert run.replaced[1] == {"uses": "gacts/github-slug@v1", "with": {"to-slug": branch}}
+        assert run.replaced[-1] == {"uses": "gacts/github-slug@v1", "with": {"to-slug": branch}}
         assert "docker-ros setup: docker-ros " in run.log
+    # amd64 on an amd64 runner: no QEMU
+    assert runs["feature"].skipped == ["Set up QEMU"]
+    assert runs["main"].skipped == ["Set up Docker with the containerd image store",
+                                    "Set up QEMU"]
+
+
+def test_by_default_the_job_builds_on_an_engine_with_the_containerd_image_store(
+    runs: dict, engine26: str
+) -> None:
+    """The runner's engine has the classic image store: with the defaults the job sets one up
+    on the containerd store, and the build exports a registry cache of every stage (docker-ros's
+    container builder gave that too); with containerd-image-store false it keeps the runner's
+    engine and says why its cache is the inline one."""
+    setup = {"uses": "docker/setup-docker-action@v4",
+             "with": {"daemon-config": '{"features": {"containerd-snapshotter": true}}',
+                      "set-host": "true"}}
+    assert runs["feature"].replaced[1] == setup
+    feature, main = runs["feature"].log, runs["main"].log
+    assert f"(docker driver of the local engine at {engine26}, containerd image store)" in (
+        feature)
+    assert "CACHE_TO: registry cache of every stage (mode=max)" in feature
+    assert "exporting cache to registry" in feature
+    assert setup not in runs["main"].replaced
+    assert ("CACHE_TO: inline cache only (the docker driver of an engine on the classic image "
+            "store cannot export a registry cache") in main
 
 
 def test_feature_branch_gets_the_ci_postfix_and_main_also_latest(runs: dict) -> None:
@@ -91,6 +123,9 @@ def test_feature_branch_gets_the_ci_postfix_and_main_also_latest(runs: dict) -> 
         "latest", "latest-build-state-amd64", "latest-dev", f"latest-dev_{SLUG}_ci",
         "latest-slim", f"latest_{SLUG}_ci",
         f"latest_{SLUG}_ci-build-state-amd64",
+        # the registry cache of every stage, beside the dev image the job pushes (the
+        # feature job's engine has the containerd image store; main's keeps the inline cache)
+        f"latest_{SLUG}_ci-cache-dev-amd64", f"latest_{SLUG}_ci-cache-run-amd64",
     ]
 
 

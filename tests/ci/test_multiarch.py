@@ -273,7 +273,10 @@ def test_action_single_job_multiarch_example(
     image = f"{IMAGE}-action"
     inputs = {"base-image": ros1_base_image, "command": COMMAND, "target": "dev,run",
               "platform": "amd64,arm64", "image-name": f"{auth_registry.address}/{image}",
-              "registry": auth_registry.address}
+              "registry": auth_registry.address,
+              # the runner's engine as it is: the emulated steps are in its cache (the
+              # default's engine on the containerd store is test_github_action's)
+              "containerd-image-store": "false"}
     event = Event(origin=repository.parent / "origin.git", repository="Org/Multiarch",
                   ref_name="main", actor=auth_registry.user, token=auth_registry.password)
     env = {k: v for k, v in os.environ.items()

@@ -87,6 +87,15 @@ def test_engine_push_returns_the_digest_the_engine_names(monkeypatch):
     assert engine.push("reg:5000/x:1") == DIGEST
 
 
+def test_an_engine_on_the_containerd_store_names_the_digest_in_the_status_only():
+    # Engine 26's push stream, as it came (2026-11-29): no `aux` event; the Action's
+    # `digests` output was missing on a runner engine with the containerd image store
+    pushed = {"status": f"1: digest: {DIGEST} size: 855"}
+    assert engine.pushed_digest(pushed) == DIGEST
+    assert engine.pushed_digest({"status": "Pushed", "id": "0fa16e429479"}) == ""
+    assert engine.pushed_digest({"aux": {"Tag": "1", "Digest": DIGEST, "Size": 9}}) == DIGEST
+
+
 ENTRIES = [
     {"kind": "image", "target": "dev", "ref": "reg/robot:1-dev", "platform": "amd64",
      "seconds": 40.54, "size": 812_000_000, "cached": [12, 14], "digest": DIGEST},

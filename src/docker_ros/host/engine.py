@@ -10,6 +10,7 @@ import functools
 import hashlib
 import json
 import os
+import re
 import shlex
 import signal
 import threading
@@ -231,6 +232,21 @@ def tag(source: str, target: str) -> None:
         raise EngineError(f"tagging {source} as {target} failed: {exc}") from None
 
 
+# The push's last status line (`1: digest: sha256:... size: 855`): the only place an engine on
+# the containerd image store (Engine 26) names the digest; the classic store also sends it as
+# the `aux` event's Digest.
+PUSHED_DIGEST = re.compile(r": digest: (sha256:[0-9a-f]{64}) size: \d+")
+
+
+def pushed_digest(event: Mapping[str, Any]) -> str:
+    """The digest a push's progress event names, or ''."""
+    aux = (event.get("aux") or {}).get("Digest")
+    if aux:
+        return str(aux)
+    match = PUSHED_DIGEST.search(str(event.get("status") or ""))
+    return match.group(1) if match else ""
+
+
 def push(ref: str, auth: Optional[Dict[str, str]] = None) -> str:
     """Push ref; the digest of its manifest in the registry ('' if the engine named none).
     Credentials go to the engine in the request, never to a file or command line."""
@@ -242,7 +258,7 @@ def push(ref: str, auth: Optional[Dict[str, str]] = None) -> str:
         for event in events:
             if "error" in event:
                 raise EngineError(f"docker push {ref} failed: {event['error']}")
-            digest = str((event.get("aux") or {}).get("Digest") or digest)
+            digest = pushed_digest(event) or digest
     except sdk().errors.DockerException as exc:
         raise EngineError(f"docker push {ref} failed: {exc}") from None
     return digest
