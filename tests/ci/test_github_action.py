@@ -141,6 +141,8 @@ def test_outputs_name_the_pushed_images_and_their_digests(runs: dict) -> None:
         "build-state-image": f"{name}:latest_{SLUG}_ci-build-state-amd64",
         "dev-digest": digests[f"{name}:latest-dev_{SLUG}_ci"],
         "digest": digests[f"{name}:latest_{SLUG}_ci"],
+        "build-state-digest": registry_digest(auth.address, IMAGE,
+                                              f"latest_{SLUG}_ci-build-state-amd64", auth.auth),
     }
     # IMAGE_TAG is latest already: ENABLE_PUSH_AS_LATEST adds no second push of it
     main = runs["main"].outputs["docker-ros"]
@@ -152,6 +154,11 @@ def test_outputs_name_the_pushed_images_and_their_digests(runs: dict) -> None:
         assert registry_digest(auth.address, IMAGE, pushed.rpartition(":")[2],
                                auth.auth) == digest, pushed
     assert main["slim-digest"] == json.loads(main["digests"])[f"{name}:latest-slim"]
+    # the build state's, an output of its own (not in `images`, `digests`)
+    assert main["build-state-image"] == f"{name}:latest-build-state-amd64"
+    assert re.fullmatch(r"sha256:[0-9a-f]{64}", main["build-state-digest"])
+    assert main["build-state-digest"] == registry_digest(
+        auth.address, IMAGE, "latest-build-state-amd64", auth.auth)
 
 
 def test_images_carry_the_oci_labels_and_the_action_s_labels(runs: dict) -> None:

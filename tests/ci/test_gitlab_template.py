@@ -6,11 +6,13 @@ that requires a login, FROM a private base image in it."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
+import time
 import uuid
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Dict
 
 import pytest
 
@@ -26,6 +28,7 @@ from tests.ci.cihelp import (
     gitlab_ci_local,
     index_architectures,
     push_private_base_image,
+    registry_digest,
     registry_tags,
 )
 
@@ -66,6 +69,18 @@ image-check:
 """
 
 
+def dotenv_reports(repo: Path, since: float) -> Dict[str, str]:
+    """The variables of the dotenv reports a pipeline's jobs left (gitlab-ci-local's artifacts;
+    an earlier pipeline's are older than since), merged as a later job that needs them all
+    reads them (the names are the same in each; the digests each job's own pushes)."""
+    found: Dict[str, str] = {}
+    artifacts = repo / ".gitlab-ci-local" / "artifacts"
+    for report in sorted(artifacts.glob("*/.gitlab-ci-reports/dotenv/docker-ros-images.env")):
+        if report.stat().st_mtime >= since:
+            found.update(line.split("=", 1) for line in report.read_text().splitlines())
+    return found
+
+
 @pytest.fixture(scope="module")
 def pipelines(ros1_base_image: str, auth_registry, docker_ros_wheel: Path,
               tmp_path_factory: pytest.TempPathFactory) -> dict:
@@ -95,20 +110,24 @@ def pipelines(ros1_base_image: str, auth_registry, docker_ros_wheel: Path,
     env = {k: v for k, v in os.environ.items() if k not in ("TARGET", "COMMAND", "IMAGE")}
     env.update({"PATH": f"{shim}{os.pathsep}{env['PATH']}", "DOCKER_CONFIG": str(docker_config),
                 "TMPDIR": str(runner_tmp)})
-    results = {}
+    results, reports = {}, {}
     git(repo, "checkout", "-q", "-b", FEATURE)
     # GIT_HTTPS_PASSWORD: GitLab's job token by default, which gitlab-ci-local does not set
     secrets = {"REGISTRY_PASSWORD": auth_registry.password,
                "GIT_HTTPS_PASSWORD": f"glpat-{uuid.uuid4().hex}"}
+    began = time.time()
     results["feature"] = gitlab_ci_local(repo, variables, secrets=secrets, env=env)
+    reports["feature"] = dotenv_reports(repo, began)
     git(repo, "checkout", "-q", "main")
     forget_local(base)  # the main pipeline pulls it again
     # On main, as docker-ros's defaults: tests and the slim image.
+    began = time.time()
     results["main"] = gitlab_ci_local(repo, {**variables, "ENABLE_SLIM": "true",
                                              "ENABLE_INDUSTRIAL_CI": "true"},
                                      secrets=secrets, env=env)
+    reports["main"] = dotenv_reports(repo, began)
     return {"registry": auth_registry, "repo": repo, "env": env, "variables": variables,
-            "secrets": secrets,
+            "secrets": secrets, "reports": reports,
             "docker_config": docker_config, "argv_log": argv_log, "runner_tmp": runner_tmp,
             **results}
 
@@ -139,6 +158,35 @@ def test_feature_branch_and_main_push_docker_ros_tags(pipelines: dict) -> None:
         "latest_feature-gitlab--test_ci-build-state-amd64",
     ]
     assert index_architectures(auth.address, IMAGE, "latest", auth.auth) == ["amd64"]
+
+
+def test_the_pushing_jobs_dotenv_reports_give_the_digests(pipelines: dict) -> None:
+    """The jobs that push give each pushed name's registry digest in their dotenv report:
+    build-amd64 those of its `-amd64` images and its build state, Push those of the manifest
+    lists, each the digest the registry serves the name under."""
+    auth = pipelines["registry"]
+    name = f"{auth.address}/{IMAGE}"
+
+    def served(tag: str) -> str:
+        digest = registry_digest(auth.address, IMAGE, tag, auth.auth)
+        assert re.fullmatch(r"sha256:[0-9a-f]{64}", digest), (tag, digest)
+        return digest
+
+    main = pipelines["reports"]["main"]
+    assert main["_IMAGE_RUN_CI"] == f"{name}:latest"
+    for kind, tag in (("RUN", "latest"), ("DEV", "latest-dev"), ("SLIM", "latest-slim")):
+        assert main[f"_IMAGE_{kind}_CI_AMD64_DIGEST"] == served(f"{tag}-amd64"), kind
+        assert main[f"_IMAGE_{kind}_CI_DIGEST"] == main[f"_{kind}_IMAGE_DIGEST"] == served(tag)
+    assert main["_IMAGE_BUILD_STATE_CI_AMD64"] == f"{name}:latest-build-state-amd64"
+    assert main["_IMAGE_BUILD_STATE_CI_AMD64_DIGEST"] == served("latest-build-state-amd64")
+    assert "_IMAGE_RUN_CI_ARM64_DIGEST" not in main  # (no arm64 job)
+    feature = pipelines["reports"]["feature"]
+    assert feature["_IMAGE_RUN_CI_DIGEST"] == served("latest_feature-gitlab--test_ci")
+    assert feature["_IMAGE_DEV_CI_AMD64_DIGEST"] == served(
+        "latest-dev_feature-gitlab--test_ci-amd64")
+    assert feature["_IMAGE_BUILD_STATE_CI_AMD64_DIGEST"] == served(
+        "latest_feature-gitlab--test_ci-build-state-amd64")
+    assert "_RUN_IMAGE_DIGEST" not in feature  # (`latest` is main's: not pushed here)
 
 
 def test_secrets_and_setup_stay_out_of_the_log(pipelines: dict) -> None:

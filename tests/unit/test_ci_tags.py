@@ -8,10 +8,13 @@ from pathlib import Path
 
 import pytest
 
+from docker_ros.cli.tasks import write_image_references
 from docker_ros.core.ci import (
     REF_SLUG,
     Pipeline,
+    build_state_references,
     detect_pipeline,
+    digest_references,
     error_annotation,
     github_default_branch,
     github_slug,
@@ -22,9 +25,10 @@ from docker_ros.core.ci import (
     slugify,
     tag_postfix,
 )
+from docker_ros.core.display import made_images
 from docker_ros.core.loading import load_settings
 from docker_ros.host.config import read_settings
-from docker_ros.host.push import plan_outputs, plan_push, push_targets
+from docker_ros.host.push import plan_manifest, plan_outputs, plan_push, push_targets
 from tests.rosfixtures import make_package
 
 SRC = Path(__file__).resolve().parents[2] / "src"
@@ -342,3 +346,92 @@ def test_ci_dry_run_writes_the_image_variables_as_a_dotenv_file(tmp_path) -> Non
     assert len(lines) == 21
     assert "_IMAGE_RUN_CI=reg.example/g/p:latest_feature-my-thing_ci" in lines
     assert "_IMAGE_RUN_CI_AMD64=reg.example/g/p:latest_feature-my-thing_ci-amd64" in lines
+
+
+def test_pushed_names_get_a_digest_variable_of_their_own() -> None:
+    """`<variable>_DIGEST` for each reference the job pushed, also two variables of one name
+    (`_RUN_IMAGE` and `_IMAGE_RUN_CI` on the default branch); none for a name not pushed or of
+    unknown digest (an empty one would blank another job's in a job that needs both)."""
+    references = [("_RUN_IMAGE", "r/p:latest"), ("_IMAGE_RUN_CI", "r/p:latest"),
+                  ("_IMAGE_RUN_CI_AMD64", "r/p:latest-amd64"), ("_IMAGE_DEV_CI", "r/p:latest-dev"),
+                  ("_IMAGE_RUN_TAG", "")]
+    pushed = {"r/p:latest": "sha256:1", "r/p:latest-dev": "", "r/p:other": "sha256:2"}
+    assert digest_references(references, pushed) == [
+        ("_RUN_IMAGE_DIGEST", "sha256:1"), ("_IMAGE_RUN_CI_DIGEST", "sha256:1")]
+    assert digest_references(references, {}) == []
+    states = {"amd64": "r/p:latest-build-state-amd64", "arm64": "r/p:latest-build-state-arm64"}
+    assert build_state_references(states, ["r/p:latest-build-state-arm64"]) == [
+        ("_IMAGE_BUILD_STATE_CI_ARM64", "r/p:latest-build-state-arm64")]
+    assert build_state_references(states, []) == []
+
+
+def main_pipeline_job(monkeypatch: pytest.MonkeyPatch, **environ: str):
+    env = {**CASES["gitlab-default"], "IMAGE_NAME": "reg.example/g/p", "TARGET": "dev,run",
+           "PLATFORM": "amd64", "BASE_IMAGE": "b:1", "COMMAND": "c", **environ}
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    return load_settings(environ=env, project_dir=Path("/tmp/p"))
+
+
+def test_the_dotenv_report_gives_the_digests_of_what_the_job_pushed(tmp_path,
+                                                                     monkeypatch) -> None:
+    """A single-arch pipeline on the default branch: build-amd64 (`docker-ros ci`, as the
+    template runs it) pushes the `-amd64` images and the build state, Push (`docker-ros
+    manifest`) the lists; each report gives the digests of its own job's pushes."""
+    build = main_pipeline_job(monkeypatch, ENABLE_SINGLEARCH_PUSH="true")
+    names = [argv[-1] for argv in plan_push(build, push_targets(build)) if argv[1] == "push"]
+    assert names == ["reg.example/g/p:latest-dev-amd64", "reg.example/g/p:latest-amd64",
+                     "reg.example/g/p:latest-build-state-amd64",
+                     "reg.example/g/p:latest-slim-amd64"]
+    digests = {name: f"sha256:{n}" for n, name in enumerate(names)}
+    write_image_references(build, str(tmp_path / "build.env"), digests)
+    lines = (tmp_path / "build.env").read_text().splitlines()
+    assert lines[:21] == [f"{k}={v}" for k, v in image_references(
+        {"RUN": ("reg.example/g/p", "latest"), "DEV": ("reg.example/g/p", "latest-dev"),
+         "SLIM": ("reg.example/g/p", "latest-slim")}, "", "")]
+    assert lines[21:] == [
+        "_IMAGE_BUILD_STATE_CI_AMD64=reg.example/g/p:latest-build-state-amd64",
+        "_IMAGE_RUN_CI_AMD64_DIGEST=sha256:1",
+        "_IMAGE_DEV_CI_AMD64_DIGEST=sha256:0",
+        "_IMAGE_SLIM_CI_AMD64_DIGEST=sha256:3",
+        "_IMAGE_BUILD_STATE_CI_AMD64_DIGEST=sha256:2",
+    ]
+    push = main_pipeline_job(monkeypatch)
+    lists = {argv[argv.index("--tag") + 1]: "sha256:" + argv[argv.index("--tag") + 1][-6:]
+             for argv in plan_manifest(push, made_images(push))}
+    assert list(lists) == ["reg.example/g/p:latest-dev", "reg.example/g/p:latest",
+                           "reg.example/g/p:latest-slim"]
+    write_image_references(push, str(tmp_path / "push.env"), lists)
+    assert (tmp_path / "push.env").read_text().splitlines()[21:] == [
+        "_RUN_IMAGE_DIGEST=sha256:latest", "_DEV_IMAGE_DIGEST=sha256:st-dev",
+        "_SLIM_IMAGE_DIGEST=sha256:t-slim",
+        "_IMAGE_RUN_CI_DIGEST=sha256:latest", "_IMAGE_RUN_LATEST_DIGEST=sha256:latest",
+        "_IMAGE_DEV_CI_DIGEST=sha256:st-dev", "_IMAGE_DEV_LATEST_DIGEST=sha256:st-dev",
+        "_IMAGE_SLIM_CI_DIGEST=sha256:t-slim", "_IMAGE_SLIM_LATEST_DIGEST=sha256:t-slim",
+    ]
+
+
+def test_the_manifest_task_reads_its_pushes_digests_back_into_the_report(
+        tmp_path, monkeypatch) -> None:
+    """`docker-ros manifest --dotenv` (the Push jobs): the names push_and_report pushed, with
+    their digests, go through the job's record into the report (`ci` reads it the same way
+    after its tasks' processes)."""
+    from docker_ros.cli.program import main
+    from docker_ros.host import push
+
+    def manifest(settings, targets, *, dry_run):
+        return {push.image_ref(settings, t): f"sha256:{t}" for t in targets}
+
+    monkeypatch.setattr(push, "manifest", manifest)
+    for key in ("REGISTRY_USER", "REGISTRY_PASSWORD", "GITHUB_OUTPUT", "GITHUB_STEP_SUMMARY",
+                "DOCKER_ROS_JOB_RECORD"):
+        monkeypatch.delenv(key, raising=False)
+    main_pipeline_job(monkeypatch, ENABLE_SLIM="false")
+    monkeypatch.chdir(tmp_path)
+    main(["manifest", "--dotenv", str(tmp_path / "images.env")])
+    lines = (tmp_path / "images.env").read_text().splitlines()
+    assert lines[21:] == [
+        "_RUN_IMAGE_DIGEST=sha256:run", "_DEV_IMAGE_DIGEST=sha256:dev",
+        "_IMAGE_RUN_CI_DIGEST=sha256:run", "_IMAGE_RUN_LATEST_DIGEST=sha256:run",
+        "_IMAGE_DEV_CI_DIGEST=sha256:dev", "_IMAGE_DEV_LATEST_DIGEST=sha256:dev",
+    ]

@@ -73,6 +73,21 @@ def test_pushes_give_their_digests_and_the_action_outputs_them(monkeypatch):
         "images": "reg:5000/team/robot:1", "image": "reg:5000/team/robot:1"}
 
 
+def test_the_pushed_build_state_s_digest_is_an_output_of_its_own():
+    """The build state (BUILD_STATE_FROM, one per architecture): `build-state-digest`, not in
+    `images` and `digests` (the images of the user's)."""
+    s = settings(IMAGE="reg:5000/team/robot:1", TARGET="run",
+                 BUILD_STATE_FROM="reg:5000/team/robot:1-build-state")
+    state = "reg:5000/team/robot:1-build-state-amd64"
+    pushed = {"reg:5000/team/robot:1": DIGEST, state: "sha256:" + "b" * 64}
+    assert plan_outputs(s, ["run", "build-state"], list(pushed), pushed) == {
+        "images": "reg:5000/team/robot:1",
+        "image": "reg:5000/team/robot:1", "digest": DIGEST,
+        "build-state-image": state, "build-state-digest": "sha256:" + "b" * 64,
+        "digests": json.dumps({"reg:5000/team/robot:1": DIGEST}),
+    }
+
+
 def test_engine_push_returns_the_digest_the_engine_names(monkeypatch):
     class Images:
         def push(self, repository, **kw):
@@ -106,6 +121,19 @@ ENTRIES = [
     {"kind": "pushed", "name": "reg/robot:1", "digest": DIGEST},
     {"kind": "pushed", "name": "reg/robot:1-slim", "digest": ""},
 ]
+
+
+def test_the_job_s_record_gives_the_pushed_names_with_their_digests(tmp_path):
+    """What `ci` and `manifest` read back after their tasks (each a process of its own)
+    pushed: the dotenv report's digests."""
+    assert jobsummary.pushed_digests(ENTRIES) == {"reg/robot:1": DIGEST, "reg/robot:1-slim": ""}
+    environ = {}
+    with jobsummary.job_record(environ) as path:
+        jobsummary.record({"kind": "pushed", "name": "reg/robot:1-amd64", "digest": DIGEST},
+                          environ)
+        jobsummary.record({"kind": "image", "ref": "reg/robot:1-amd64"}, environ)
+        assert jobsummary.pushed_digests(jobsummary.read_record(path)) == {
+            "reg/robot:1-amd64": DIGEST}
 
 
 def test_the_job_summary_is_a_table_of_the_images_and_one_of_the_digests():

@@ -14,7 +14,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import List
+from typing import List, Mapping
 
 from invoke import Collection, Context, Exit, Task
 
@@ -32,7 +32,9 @@ from docker_ros.cli.settingstask import (
 )
 from docker_ros.core import errors
 from docker_ros.core.ci import (
+    build_state_references,
     detect_pipeline,
+    digest_references,
     docker_tag_part,
     image_references,
     plan_ci_job,
@@ -46,7 +48,8 @@ from docker_ros.core.settings import (
 )
 from docker_ros.in_image.steps import BY_NAME, STEPS
 
-DOTENV: Flag = ("dotenv", "", "Write docker-ros's _IMAGE_* image names to this dotenv file")
+DOTENV: Flag = ("dotenv", "", "Write docker-ros's _IMAGE_* image names, and the digests "
+                 "(`<name>_DIGEST`) of those the job pushed, to this dotenv file")
 
 
 def make_step_task(step: str) -> Task:
@@ -283,15 +286,16 @@ def push_task(c: Context, settings: Settings, *, dry_run: bool) -> None:
 def manifest_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
     # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
     # ~0.1-0.3 s; --help and --list need only the task declarations)
-    from docker_ros.host.jobsummary import job_record  # (start-up, as above)
+    from docker_ros.host import jobsummary  # (start-up, as above)
     from docker_ros.host.pipeline import push_and_report, require_tasks
     from docker_ros.host.push import manifest  # (start-up, as above)
     images = made_images(settings)
     if "slim" in images:
         require_tasks([["slim"]], ns.task_names)
-    with job_record():
+    with jobsummary.job_record() as record:
         push_and_report(settings, images, manifest, dry_run=dry_run)
-    write_image_references(settings, dotenv)
+        pushed = jobsummary.pushed_digests(jobsummary.read_record(record))
+    write_image_references(settings, dotenv, pushed)
 
 
 @settings_task(
@@ -306,7 +310,7 @@ def manifest_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool)
 def ci_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
     # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
     # ~0.1-0.3 s; --help and --list need only the task declarations)
-    from docker_ros.host.jobsummary import job_record  # (start-up, as above)
+    from docker_ros.host import jobsummary  # (start-up, as above)
     from docker_ros.host.pipeline import check_slim_options, require_tasks, run_ci_plan
     host = host_platform()
     plan = plan_ci_job(target=settings.target, enable_industrial_ci=settings.enable_industrial_ci,
@@ -316,17 +320,21 @@ def ci_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> No
         print(slim_skipped(settings.platform, host), flush=True)
     if ["slim"] in plan:
         check_slim_options(settings)
-    with job_record():
+    with jobsummary.job_record() as record:
         run_ci_plan(settings, plan, dry_run=dry_run)
-    write_image_references(settings, dotenv)
+        pushed = jobsummary.pushed_digests(jobsummary.read_record(record))
+    write_image_references(settings, dotenv, pushed)
 
 
-def write_image_references(settings: Settings, path: str) -> None:
-    """docker-ros's `_IMAGE_*` names of this pipeline's images (image_references) written to
-    path, when given, as a dotenv file (GitLab's `artifacts: reports: dotenv:`)."""
+def write_image_references(settings: Settings, path: str, pushed: Mapping[str, str]) -> None:
+    """docker-ros's `_IMAGE_*` names of this pipeline's images (image_references), the build
+    states this job pushed (build_state_references) and, for each name the job pushed (pushed:
+    name -> registry digest, from the job's record), `<variable>_DIGEST` (digest_references),
+    written to path, when given, as a dotenv file (GitLab's `artifacts: reports: dotenv:`)."""
     # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
     # ~0.1-0.3 s; --help and --list need only the task declarations)
     from docker_ros.host.pipeline import TaskError
+    from docker_ros.host.refs import target_ref  # (start-up, as above)
     if not path:
         return
     pipeline = detect_pipeline(os.environ)
@@ -334,13 +342,17 @@ def write_image_references(settings: Settings, path: str) -> None:
     images = {"RUN": (str(settings.image_name), str(settings.image_tag)),
               "DEV": (str(settings.dev_image_name), str(settings.dev_image_tag)),
               "SLIM": (str(settings.slim_image_name), str(settings.slim_image_tag))}
+    states = {p: target_ref(settings, "build-state", p) for p in settings.platform}
+    references = (image_references(images, settings.image_postfix or "", git_tag)
+                  + build_state_references(states, pushed))
     lines = [f"{name}={value}\n" for name, value in
-             image_references(images, settings.image_postfix or "", git_tag)]
+             references + digest_references(references, pushed)]
     try:
         Path(path).write_text("".join(lines))
     except OSError as exc:
         raise TaskError(f"--dotenv {path}: cannot write it: {exc.strerror or exc}") from None
-    print(f"image names (docker-ros's _IMAGE_* variables) written to {path}", flush=True)
+    print(f"image names (docker-ros's _IMAGE_* variables) and the pushed ones' digests "
+          f"written to {path}", flush=True)
 
 
 @settings_task(

@@ -233,3 +233,23 @@ def image_references(
                  f"{name}:{plain[kind][1]}-{git_tag}" if git_tag else ""),
                 (f"_IMAGE_{kind}_TAG", f"{name}:{git_tag}{suffix}" if git_tag else "")]
     return out
+
+
+def build_state_references(states: Mapping[str, str],
+                           pushed: Collection[str]) -> List[Tuple[str, str]]:
+    """`_IMAGE_BUILD_STATE_CI_<ARCH>` for the build states (platform -> name) this job pushed:
+    ours, not docker-ros's, and only when pushed (a run-only pipeline pushes none unless
+    BUILD_STATE_REPOSITORY is set)."""
+    return [(f"_IMAGE_BUILD_STATE_CI_{platform.upper()}", name)
+            for platform, name in states.items() if name in pushed]
+
+
+def digest_references(references: Sequence[Tuple[str, str]],
+                      pushed: Mapping[str, str]) -> List[Tuple[str, str]]:
+    """`<variable>_DIGEST` for each image reference variable (image_references,
+    build_state_references) whose name this job pushed: the registry digest its push gave (a
+    manifest list's for the Push jobs' names). None for a name it did not push or whose digest
+    is unknown: an empty one in a build job's report would blank the Push job's in a later job
+    that needs both."""
+    return [(f"{variable}_DIGEST", pushed[name])
+            for variable, name in references if name and pushed.get(name)]

@@ -34,6 +34,12 @@ def read_record(path: Path) -> List[Dict[str, Any]]:
     return [e for e in entries if isinstance(e, dict)]
 
 
+def pushed_digests(entries: Sequence[Mapping[str, Any]]) -> Dict[str, str]:
+    """Each name the job's tasks pushed -> its registry digest ('' unknown), from the record."""
+    return {str(e.get("name", "")): str(e.get("digest") or "")
+            for e in entries if e.get("kind") == "pushed" and e.get("name")}
+
+
 def megabytes(size: int) -> str:
     return f"{size / 1e6:.0f} MB" if size else "-"
 

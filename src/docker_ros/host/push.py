@@ -218,10 +218,11 @@ def plan_outputs(
     settings: Settings, targets: Sequence[str], pushed: Sequence[str],
     digests: Mapping[str, str] = {},
 ) -> Dict[str, str]:
-    """CI outputs naming the pushed images: `images` (all, comma-separated) and per target
-    `image`/`dev-image`/`slim-image` (its configured name, or `<name>-<arch>` if only that);
-    with their digests (name -> digest) also `digest`/`dev-digest`/`slim-digest` (that image's)
-    and `digests` (JSON: each name of `images` -> its digest)."""
+    """CI outputs naming the pushed images: `images` (all but the build states,
+    comma-separated) and per target `image`/`dev-image`/`slim-image`/`build-state-image` (its
+    configured name, or `<name>-<arch>` if only that); with their digests (name -> digest) also
+    `digest`/`dev-digest`/`slim-digest`/`build-state-digest` (that image's) and `digests`
+    (JSON: each name of `images` -> its digest)."""
     states = [f"{image_ref(settings, 'build-state')}-{p}" for p in settings.platform]
     outputs = {"images": ",".join(n for n in pushed if n not in states)}
     for target in targets:
@@ -230,7 +231,7 @@ def plan_outputs(
         if mine:
             prefix = "" if target == "run" else f"{target}-"
             outputs[f"{prefix}image"] = mine[0]
-            if digests.get(mine[0]) and target != "build-state":
+            if digests.get(mine[0]):
                 outputs[f"{prefix}digest"] = digests[mine[0]]
     known = {name: digests[name] for name in pushed if name not in states and digests.get(name)}
     if known:
