@@ -1,6 +1,7 @@
 """`docker-ros --help`, `inv --list` and `inv build --help` import nothing they do not need:
-the docker SDK (and requests, urllib3 under it), python-dotenv, jsonschema and the host modules
-(build, pipeline, ...) come only with a task that uses them. Asserted on which modules a fresh
+the docker SDK (and requests, urllib3 under it), python-dotenv, jsonschema, the host modules
+(build, pipeline, ...) and the reading of settings (core.loading, core.ci) come only with a task
+that uses them. Asserted on which modules a fresh
 interpreter holds after printing the help, never on a time. And the quick copies of tasks and
 flags that invoke makes as it loads and parses (settingstask's __deepcopy__) are copies."""
 
@@ -22,6 +23,9 @@ SRC = Path(__file__).resolve().parents[2] / "src"
 # Top-level packages that start-up must not import (each costs tens of ms or more).
 DEFERRED = ("docker", "requests", "urllib3", "charset_normalizer", "idna", "certifi",
             "dotenv", "catkin_pkg", "jsonschema")
+# Our modules that only a task's run needs (reading the settings, CI variables; the in-image
+# entry points' start).
+RUN_ONLY = ("docker_ros.core.loading", "docker_ros.core.ci", "docker_ros.in_image.runtime.entry")
 
 
 def loaded_after(script: str, cwd: Path) -> Set[str]:
@@ -44,9 +48,9 @@ def loaded_after(script: str, cwd: Path) -> Set[str]:
 
 
 def heavy(loaded: Set[str]) -> List[str]:
-    """The deferred packages and host modules among loaded."""
+    """The deferred packages, host modules and RUN_ONLY modules among loaded."""
     return sorted({name for name in loaded if name.split(".")[0] in DEFERRED
-                   or name.startswith("docker_ros.host")})
+                   or name.startswith("docker_ros.host") or name in RUN_ONLY})
 
 
 def test_docker_ros_help_imports_no_heavy_module(tmp_path: Path) -> None:

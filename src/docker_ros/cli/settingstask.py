@@ -13,12 +13,8 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from invoke import Argument, Collection, Context, Exit, Task
 
-from docker_ros.core.ci import (
-    error_annotation,
-)
 from docker_ros.core.display import default_doc
 from docker_ros.core.errors import DockerRosError
-from docker_ros.core.loading import has_bare_set, parse_set
 from docker_ros.core.settings import (
     FIELDS,
     SettingsError,
@@ -217,7 +213,10 @@ def settings_task(
 
         def body(c: Context, **kwargs: Any) -> Any:
             # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
-            # ~0.1-0.3 s; --help and --list need only the task declarations)
+            # ~0.1-0.3 s, reading settings (core.loading, core.ci) ~10 ms; --help and --list
+            # need only the task declarations)
+            from docker_ros.core.ci import error_annotation  # (start-up, as above)
+            from docker_ros.core.loading import has_bare_set, parse_set  # (start-up, as above)
             from docker_ros.host import engine, faults
             from docker_ros.host.config import read_settings  # (start-up, as above)
             from docker_ros.host.pipeline import TaskFailed, logged_in_job  # (start-up, as above)

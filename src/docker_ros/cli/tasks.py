@@ -31,15 +31,7 @@ from docker_ros.cli.settingstask import (
     settings_task,
 )
 from docker_ros.core import errors
-from docker_ros.core.ci import (
-    detect_pipeline,
-    docker_tag_part,
-    image_references,
-    plan_ci_job,
-    slim_skipped,
-)
 from docker_ros.core.display import made_images, require, required_for_build
-from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import (
     FIELDS,
     Settings,
@@ -305,7 +297,10 @@ def manifest_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool)
 )
 def ci_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
     # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
-    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    # ~0.1-0.3 s, reading settings and CI variables (core.loading, core.ci) ~10 ms; --help and
+    # --list need only the task declarations)
+    from docker_ros.core.ci import plan_ci_job, slim_skipped  # (start-up, as above)
+    from docker_ros.core.loading import host_platform  # (start-up, as above)
     from docker_ros.host.jobsummary import job_record  # (start-up, as above)
     from docker_ros.host.pipeline import check_slim_options, require_tasks, run_ci_plan
     host = host_platform()
@@ -325,8 +320,10 @@ def write_image_references(settings: Settings, path: str) -> None:
     """docker-ros's `_IMAGE_*` names of this pipeline's images (image_references) written to
     path, when given, as a dotenv file (GitLab's `artifacts: reports: dotenv:`)."""
     # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
-    # ~0.1-0.3 s; --help and --list need only the task declarations)
-    from docker_ros.host.pipeline import TaskError
+    # ~0.1-0.3 s, reading CI variables (core.ci) a few ms; --help and --list need only the task
+    # declarations)
+    from docker_ros.core.ci import detect_pipeline, docker_tag_part, image_references
+    from docker_ros.host.pipeline import TaskError  # (start-up, as above)
     if not path:
         return
     pipeline = detect_pipeline(os.environ)
