@@ -3,6 +3,7 @@ settings loaded before its body, its errors and interruptions as one line and an
 
 from __future__ import annotations
 
+import copy
 import inspect
 import os
 import signal
@@ -12,12 +13,8 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from invoke import Argument, Collection, Context, Exit, Task
 
-from docker_ros.core.ci import (
-    error_annotation,
-)
 from docker_ros.core.display import default_doc
 from docker_ros.core.errors import DockerRosError
-from docker_ros.core.loading import has_bare_set, parse_set
 from docker_ros.core.settings import (
     FIELDS,
     SettingsError,
@@ -122,8 +119,9 @@ class SettingsTask(Task):
 
     def get_arguments(self, ignore_unknown_help: Optional[bool] = None) -> List[Argument]:
         """A repeatable flag with an optional value (--set) starts without a raw value, so that
-        invoke gives a bare one True (invoke would drop it silently): parse_set refuses it. A
-        whole-number flag refuses another value as one line (WholeNumberArgument). The task's
+        invoke gives a bare one True (invoke would drop it silently): parse_set refuses it.
+        Every flag is a TaskArgument (quick to copy); a whole-number flag refuses another value
+        as one line (WholeNumberArgument). The task's
         help texts stay (invoke pops each as it makes the flag: a second parser, the docs'
         reference or a test reading them found none)."""
         kept = dict(self.help)
@@ -134,23 +132,49 @@ class SettingsTask(Task):
         for arg in args:
             if arg.kind is list and arg.optional:
                 arg.raw_value = None
-        return [WholeNumberArgument.of(arg, self.name) if arg.kind is int else arg
+        return [(WholeNumberArgument if arg.kind is int else TaskArgument).of(arg, self.name)
                 for arg in args]
 
+    def __deepcopy__(self, memo: Dict[int, Any]) -> SettingsTask:
+        """A copy sharing the signature, which is immutable: `inv` copies every task as it
+        loads tasks.py, and copy.deepcopy rebuilt each of the ~15 inspect.Parameter objects."""
+        made = type(self).__new__(type(self))
+        made.__dict__.update({key: value if key == "__signature__" else copy.deepcopy(value, memo)
+                              for key, value in vars(self).items()})
+        return made
 
-class WholeNumberArgument(Argument):
-    """An int flag whose value invoke's parser cannot convert (`--seconds abc`) ends the program
-    as one line, exit code 2 (invoke's Argument would raise a ValueError: a traceback)."""
+
+# What TaskArgument shares with its copies (an Argument's names are a tuple of strings).
+IMMUTABLE = (str, int, float, tuple, type, type(None))
+
+
+class TaskArgument(Argument):
+    """invoke's Argument, copied in one step: invoke's parser deep-copies every task's flags
+    (~330) each time it parses a command line, and copy.deepcopy's generic walk over them took
+    as long as the rest of `--help` after the imports. The lists (a repeatable flag's values
+    and default) are copied; the other attributes (names, help, kind...) are immutable and
+    shared."""
 
     task = ""
 
     @classmethod
-    def of(cls, arg: Argument, task: str) -> WholeNumberArgument:
-        made = cls(names=arg.names, kind=arg.kind, default=arg.default, help=arg.help,
-                   positional=arg.positional, optional=arg.optional,
-                   incrementable=arg.incrementable, attr_name=arg.attr_name)
+    def of(cls, arg: Argument, task: str) -> TaskArgument:
+        """arg (as invoke's Task.get_arguments made it) as one of ours, for task."""
+        made = cls.__new__(cls)
+        made.__dict__.update(vars(arg))
         made.task = task
         return made
+
+    def __deepcopy__(self, memo: Dict[int, Any]) -> TaskArgument:
+        made = type(self).__new__(type(self))
+        made.__dict__.update({key: value if isinstance(value, IMMUTABLE) else
+                              copy.deepcopy(value, memo) for key, value in vars(self).items()})
+        return made
+
+
+class WholeNumberArgument(TaskArgument):
+    """An int flag whose value invoke's parser cannot convert (`--seconds abc`) ends the program
+    as one line, exit code 2 (invoke's Argument would raise a ValueError: a traceback)."""
 
     def set_value(self, value: Any, cast: bool = True) -> None:
         try:
@@ -189,7 +213,10 @@ def settings_task(
 
         def body(c: Context, **kwargs: Any) -> Any:
             # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
-            # ~0.1-0.3 s; --help and --list need only the task declarations)
+            # ~0.1-0.3 s, reading settings (core.loading, core.ci) ~10 ms; --help and --list
+            # need only the task declarations)
+            from docker_ros.core.ci import error_annotation  # (start-up, as above)
+            from docker_ros.core.loading import has_bare_set, parse_set  # (start-up, as above)
             from docker_ros.host import engine, faults
             from docker_ros.host.config import read_settings  # (start-up, as above)
             from docker_ros.host.pipeline import TaskFailed, logged_in_job  # (start-up, as above)

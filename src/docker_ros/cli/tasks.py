@@ -31,17 +31,7 @@ from docker_ros.cli.settingstask import (
     settings_task,
 )
 from docker_ros.core import errors
-from docker_ros.core.ci import (
-    build_state_references,
-    detect_pipeline,
-    digest_references,
-    docker_tag_part,
-    image_references,
-    plan_ci_job,
-    slim_skipped,
-)
 from docker_ros.core.display import made_images, require, required_for_build
-from docker_ros.core.loading import host_platform
 from docker_ros.core.settings import (
     FIELDS,
     Settings,
@@ -309,7 +299,10 @@ def manifest_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool)
 )
 def ci_task(c: Context, settings: Settings, *, dotenv: str, dry_run: bool) -> None:
     # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
-    # ~0.1-0.3 s; --help and --list need only the task declarations)
+    # ~0.1-0.3 s, reading settings and CI variables (core.loading, core.ci) ~10 ms; --help and
+    # --list need only the task declarations)
+    from docker_ros.core.ci import plan_ci_job, slim_skipped  # (start-up, as above)
+    from docker_ros.core.loading import host_platform  # (start-up, as above)
     from docker_ros.host import jobsummary  # (start-up, as above)
     from docker_ros.host.pipeline import check_slim_options, require_tasks, run_ci_plan
     host = host_platform()
@@ -332,8 +325,16 @@ def write_image_references(settings: Settings, path: str, pushed: Mapping[str, s
     name -> registry digest, from the job's record), `<variable>_DIGEST` (digest_references),
     written to path, when given, as a dotenv file (GitLab's `artifacts: reports: dotenv:`)."""
     # (start-up: the host modules (build, pipeline and the docker SDK under them) cost
-    # ~0.1-0.3 s; --help and --list need only the task declarations)
-    from docker_ros.host.pipeline import TaskError
+    # ~0.1-0.3 s, reading CI variables (core.ci) a few ms; --help and --list need only the task
+    # declarations)
+    from docker_ros.core.ci import (
+        build_state_references,
+        detect_pipeline,
+        digest_references,
+        docker_tag_part,
+        image_references,
+    )
+    from docker_ros.host.pipeline import TaskError  # (start-up, as above)
     from docker_ros.host.refs import target_ref  # (start-up, as above)
     if not path:
         return

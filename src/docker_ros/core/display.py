@@ -5,7 +5,6 @@ from __future__ import annotations
 import re
 from typing import Dict, Iterable, List, Mapping, Optional
 
-from docker_ros.core.loading import text_of
 from docker_ros.core.settings import (
     FIELDS,
     MASKED,
@@ -14,6 +13,7 @@ from docker_ros.core.settings import (
     env_name,
     flag_name,
     is_secret,
+    text_of,
 )
 
 

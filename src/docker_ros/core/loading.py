@@ -23,6 +23,7 @@ from docker_ros.core.settings import (
     env_name,
     is_secret,
     kind_of,
+    text_of,
 )
 
 
@@ -491,14 +492,3 @@ def host_platform() -> str:
     """This machine's architecture as Docker names it (amd64, arm64, ...)."""
     machine = os.uname().machine.lower()
     return {"x86_64": "amd64", "aarch64": "arm64"}.get(machine, machine)
-
-
-def text_of(value: object) -> str:
-    """A value as a variable would give it: true/false, a list joined with commas."""
-    if value is None:
-        return ""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, tuple):
-        return ",".join(value)
-    return str(value)

@@ -466,6 +466,17 @@ def kind_of(name: str) -> str:
     return "str"
 
 
+def text_of(value: object) -> str:
+    """A value as a variable would give it: true/false, a list joined with commas."""
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):
+        return ",".join(value)
+    return str(value)
+
+
 def is_secret(name: str) -> bool:
     return bool(FIELDS[name].metadata["secret"])
 

@@ -32,8 +32,8 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.core.display import missing_required
 from docker_ros.core.errors import DockerRosError
-from docker_ros.core.loading import host_platform, text_of
-from docker_ros.core.settings import FIELDS, Settings, env_name, is_secret
+from docker_ros.core.loading import host_platform
+from docker_ros.core.settings import FIELDS, Settings, env_name, is_secret, text_of
 from docker_ros.host import devshell, engine
 from docker_ros.host.config import input_problems
 from docker_ros.host.refs import target_ref

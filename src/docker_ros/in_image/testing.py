@@ -18,14 +18,10 @@ from pathlib import Path
 from typing import Dict, Iterable, Iterator, List, NamedTuple, Optional, Sequence, Tuple
 
 from docker_ros.core.loading import load_settings
+from docker_ros.in_image.runtime.entry import image_main
 from docker_ros.in_image.runtime.process import run_tee
 from docker_ros.in_image.runtime.rosenv import ros_setup_files, sourced_env
-from docker_ros.in_image.runtime.workspace import (
-    DEFAULT_WORKSPACE,
-    StepError,
-    Workspace,
-    image_main,
-)
+from docker_ros.in_image.runtime.workspace import DEFAULT_WORKSPACE, StepError, Workspace
 from docker_ros.in_image.steps import colcon
 from docker_ros.in_image.steps.blacklist import blacklisted_packages
 from docker_ros.in_image.steps.colcon import SEE_ABOVE

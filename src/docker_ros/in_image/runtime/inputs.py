@@ -10,11 +10,12 @@ from pathlib import Path
 from typing import List
 
 from docker_ros.core.settings import Settings
+from docker_ros.in_image.runtime.entry import image_main
 from docker_ros.in_image.runtime.files import find_special_files, repository_path, walk
 from docker_ros.in_image.runtime.lockfile import LOCK_FILE, is_locked
 from docker_ros.in_image.runtime.packages import package_search_dirs
 from docker_ros.in_image.runtime.requirements import read_requirement_file
-from docker_ros.in_image.runtime.workspace import IGNORE_MARKERS, Workspace, image_main
+from docker_ros.in_image.runtime.workspace import IGNORE_MARKERS, Workspace
 
 # What the collect phases of scripts, rosdep, debs, pip, files and custom read: package
 # manifests and ignore markers anywhere, and the files and folder the path settings name.

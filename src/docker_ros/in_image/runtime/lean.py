@@ -23,11 +23,12 @@ from pathlib import Path
 from typing import Dict, Iterable, List, Mapping, Sequence, Set, Tuple, Union
 
 from docker_ros.core.settings import Settings
+from docker_ros.in_image.runtime.entry import image_main
 from docker_ros.in_image.runtime.lockapt import lock_lean
 from docker_ros.in_image.runtime.lockfile import LOCK_FILE, LockError
 from docker_ros.in_image.runtime.process import probe
 from docker_ros.in_image.runtime.rosenv import sourced_env, workspace_setup_files
-from docker_ros.in_image.runtime.workspace import LOG, StepError, Workspace, image_main
+from docker_ros.in_image.runtime.workspace import LOG, StepError, Workspace
 
 STEP = "lean"
 DPKG_INFO = Path("/var/lib/dpkg/info")

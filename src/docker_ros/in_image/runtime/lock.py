@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
 from docker_ros.core.settings import Settings
+from docker_ros.in_image.runtime.entry import entry_parser, image_main
 from docker_ros.in_image.runtime.lockapt import (
     apt_closure,
     apt_pins,
@@ -29,7 +30,7 @@ from docker_ros.in_image.runtime.lockfile import (
     stale_inputs,
 )
 from docker_ros.in_image.runtime.lockpip import check_pip_available, pip_constraints, pip_report
-from docker_ros.in_image.runtime.workspace import StepError, Workspace, entry_parser, image_main
+from docker_ros.in_image.runtime.workspace import StepError, Workspace
 
 
 def locked_arguments(

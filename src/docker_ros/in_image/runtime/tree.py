@@ -10,8 +10,9 @@ from pathlib import Path
 from typing import List, Optional
 
 from docker_ros.core.settings import Settings
+from docker_ros.in_image.runtime.entry import image_main
 from docker_ros.in_image.runtime.files import remove_tree, repository_path
-from docker_ros.in_image.runtime.workspace import Workspace, image_main
+from docker_ros.in_image.runtime.workspace import Workspace
 
 LOG = logging.getLogger(__name__)
 

@@ -11,13 +11,8 @@ from typing import List, Optional
 
 from docker_ros.core.loading import load_settings
 from docker_ros.core.settings import SettingsError
-from docker_ros.in_image.runtime.workspace import (
-    PHASES,
-    StepError,
-    Workspace,
-    entry_parser,
-    setup_logging,
-)
+from docker_ros.in_image.runtime.entry import entry_parser
+from docker_ros.in_image.runtime.workspace import PHASES, StepError, Workspace, setup_logging
 from docker_ros.in_image.steps import IMAGE_STEPS, OPTIONS, STEPS, run_step, step_options
 
 
