@@ -61,7 +61,7 @@ def test_pushes_give_their_digests_and_the_action_outputs_them(monkeypatch):
                               ["docker", "push", "reg:5000/team/robot:1"]],
                           dry_run=False, label="push")
     assert pushed == {"reg:5000/team/robot:1-dev": "", "reg:5000/team/robot:1": DIGEST}
-    outputs = plan_outputs(s, ["dev", "run"], list(pushed), pushed)
+    outputs = plan_outputs(s, ["dev", "run"], pushed)
     assert outputs == {
         "images": "reg:5000/team/robot:1-dev,reg:5000/team/robot:1",
         "dev-image": "reg:5000/team/robot:1-dev",
@@ -69,7 +69,7 @@ def test_pushes_give_their_digests_and_the_action_outputs_them(monkeypatch):
         "digests": json.dumps({"reg:5000/team/robot:1": DIGEST}),
     }
     assert "\n" not in outputs["digests"]  # (one `key=value` line of GITHUB_OUTPUT)
-    assert plan_outputs(s, ["run"], ["reg:5000/team/robot:1"]) == {
+    assert plan_outputs(s, ["run"], {"reg:5000/team/robot:1": ""}) == {
         "images": "reg:5000/team/robot:1", "image": "reg:5000/team/robot:1"}
 
 
@@ -80,7 +80,7 @@ def test_the_pushed_build_state_s_digest_is_an_output_of_its_own():
                  BUILD_STATE_FROM="reg:5000/team/robot:1-build-state")
     state = "reg:5000/team/robot:1-build-state-amd64"
     pushed = {"reg:5000/team/robot:1": DIGEST, state: "sha256:" + "b" * 64}
-    assert plan_outputs(s, ["run", "build-state"], list(pushed), pushed) == {
+    assert plan_outputs(s, ["run", "build-state"], pushed) == {
         "images": "reg:5000/team/robot:1",
         "image": "reg:5000/team/robot:1", "digest": DIGEST,
         "build-state-image": state, "build-state-digest": "sha256:" + "b" * 64,

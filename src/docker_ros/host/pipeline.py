@@ -457,7 +457,7 @@ def push_and_report(
         print(f"pushed {name}" + (f" ({digest})" if digest else ""))
         jobsummary.record({"kind": "pushed", "name": name, "digest": digest}, os.environ)
     if pushed:
-        write_outputs(plan_outputs(settings, targets, list(pushed), pushed), os.environ)
+        write_outputs(plan_outputs(settings, targets, pushed), os.environ)
 
 
 @contextlib.contextmanager

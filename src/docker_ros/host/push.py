@@ -215,14 +215,13 @@ def slim_left_out(settings: Settings) -> Dict[str, str]:
 
 
 def plan_outputs(
-    settings: Settings, targets: Sequence[str], pushed: Sequence[str],
-    digests: Mapping[str, str] = {},
+    settings: Settings, targets: Sequence[str], pushed: Mapping[str, str]
 ) -> Dict[str, str]:
     """CI outputs naming the pushed images: `images` (all but the build states,
     comma-separated) and per target `image`/`dev-image`/`slim-image`/`build-state-image` (its
-    configured name, or `<name>-<arch>` if only that); with their digests (name -> digest) also
-    `digest`/`dev-digest`/`slim-digest`/`build-state-digest` (that image's) and `digests`
-    (JSON: each name of `images` -> its digest)."""
+    configured name, or `<name>-<arch>` if only that); for those whose digest is known (pushed:
+    name -> digest, '' unknown) also `digest`/`dev-digest`/`slim-digest`/`build-state-digest`
+    (that image's) and `digests` (JSON: each name of `images` -> its digest)."""
     states = [f"{image_ref(settings, 'build-state')}-{p}" for p in settings.platform]
     outputs = {"images": ",".join(n for n in pushed if n not in states)}
     for target in targets:
@@ -231,9 +230,9 @@ def plan_outputs(
         if mine:
             prefix = "" if target == "run" else f"{target}-"
             outputs[f"{prefix}image"] = mine[0]
-            if digests.get(mine[0]):
-                outputs[f"{prefix}digest"] = digests[mine[0]]
-    known = {name: digests[name] for name in pushed if name not in states and digests.get(name)}
+            if pushed[mine[0]]:
+                outputs[f"{prefix}digest"] = pushed[mine[0]]
+    known = {name: digest for name, digest in pushed.items() if name not in states and digest}
     if known:
         outputs["digests"] = json.dumps(known, sort_keys=True)
     return outputs
@@ -286,7 +285,7 @@ def execute(argv: List[str], settings: Settings) -> str:
             engine.tag(argv[2], argv[3])
             return ""
         if argv[:2] == ["docker", "push"]:
-            return engine.push(argv[2], auth_config(settings, argv[2])) or ""
+            return engine.push(argv[2], auth_config(settings, argv[2]))
     except engine.EngineError as exc:
         raise BuildError(str(exc) + auth_hint(str(exc))) from None
     proc = subprocess.run(argv, capture_output=True, text=True)
