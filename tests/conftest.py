@@ -76,7 +76,9 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     for item in session.items:
         item.user_properties.append(("tier", tier(item)))
     docker_items = [item for item in session.items if tier(item) == "docker"]
-    if docker_items:  # (the first docker test needs the ROS 1 base: foreign_cache_record)
+    # (the first docker test needs the ROS 1 base: foreign_cache_record; --collect-only runs
+    # no test, so nothing is made)
+    if docker_items and not session.config.getoption("collectonly"):
         needed = {"ros1_base_image"}.union(
             *(getattr(item, "fixturenames", ()) for item in docker_items))
         WARMUP.start((name, locked(job)) for name, job in WARM_JOBS if name in needed)

@@ -91,7 +91,7 @@ def engine26_dockerd() -> Path:
 
 
 class Daemon:
-    """A private dockerd (see private_engine) that can be stopped as `systemctl stop docker`
+    """A private dockerd (made by private_daemon) that can be stopped as `systemctl stop docker`
     stops one (SIGTERM: it stops its containers and exits) and started again on the same data
     root; its DOCKER_HOST is .host."""
 

@@ -49,19 +49,28 @@ def acquire(handle: IO[str], seconds: float, say: Callable[[str], None],
 
 
 _HELD: list = []  # this process's open, locked handle (kept until the process ends)
+_GAVE_UP: list = []  # the Busy of this process's wait that ran out (asked again: at once)
 _HOLDING = threading.Lock()
 
 
 def hold(seconds: float, say: Callable[[str], None]) -> None:
     """Take the lock for this process unless it holds it already (the warm-up thread and the
     first docker test both ask: a second flock of the same file from this process, through
-    another handle, would wait for itself). Busy as acquire."""
+    another handle, would wait for itself). Busy as acquire; once this process's wait ran out,
+    every later call raises that Busy at once (each warm-up job and the first docker test ask:
+    they waited an hour each)."""
     with _HOLDING:
         if _HELD:
             return
+        if _GAVE_UP:
+            raise _GAVE_UP[0]
         handle = LOCK.open("a+")
         try:
             acquire(handle, seconds, say)
+        except Busy as exc:
+            handle.close()
+            _GAVE_UP.append(exc)
+            raise
         except BaseException:
             handle.close()
             raise

@@ -17,7 +17,6 @@ import docker
 import pytest
 import yaml
 
-from tests import engines
 from tests.docker.buildhelp import EXAMPLE, remove_image, run_until, write_env
 
 REPO = Path(__file__).resolve().parents[2]
@@ -111,26 +110,6 @@ def push_private_base_image(source: str, registry: str, auth: Mapping[str, str],
     for event in client.images.push(ref, auth_config=dict(auth), stream=True, decode=True):
         assert "error" not in event, event
     forget_local(ref)
-    return ref
-
-
-def push_private_multiarch_base(sources: Mapping[str, str], registry: str,
-                                auth: Mapping[str, str], work: Path) -> str:
-    """The local images of sources (architecture: image) pushed to an authenticated registry as
-    `-<arch>` images joined by one manifest list, as a multi-arch `ros:*` image; its name."""
-    ref = f"{registry}/docker-ros-test/private-base:multiarch"
-    arch_refs = [push_private_base_image(source, registry, auth, f"{ref}-{arch}")
-                 for arch, source in sources.items()]
-    config = work / "docker-config"  # (the login of this command only)
-    env = {**os.environ, **engines.buildx_config(config, "current")}
-    pair = base64.b64encode(f"{auth['username']}:{auth['password']}".encode()).decode()
-    (config / "config.json").write_text(json.dumps({"auths": {registry: {"auth": pair}}}))
-    try:
-        joined = subprocess.run(["docker", "buildx", "imagetools", "create", "--tag", ref,
-                                 *arch_refs], env=env, capture_output=True, text=True)
-    finally:
-        shutil.rmtree(config)
-    assert joined.returncode == 0, joined.stderr
     return ref
 
 

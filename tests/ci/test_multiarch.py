@@ -266,10 +266,11 @@ def test_action_single_job_multiarch_example(
 ) -> None:
     """docker-ros's README example "Build multi-arch images" through the Action as it is
     (dev and run, both architectures, slim left at its default: on), plus where to push: a
-    registry that wants a login. The job builds each architecture FROM its base (the local
-    amd64 image and its `-arm64` sibling, as the GitLab jobs: the emulated steps come from
-    their cache), logs in, pushes one manifest list per name, slims the runner's architecture
-    only, and passes; the password is in no log."""
+    registry that wants a login, and the runner's engine kept (containerd-image-store false:
+    the default's engine on the containerd store is test_github_action's). The job builds
+    each architecture FROM its base (the local amd64 image and its `-arm64` sibling, as the
+    GitLab jobs: the emulated steps come from their cache), logs in, pushes one manifest list
+    per name, slims the runner's architecture only, and passes; the password is in no log."""
     image = f"{IMAGE}-action"
     inputs = {"base-image": ros1_base_image, "command": COMMAND, "target": "dev,run",
               "platform": "amd64,arm64", "image-name": f"{auth_registry.address}/{image}",

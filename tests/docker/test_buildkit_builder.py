@@ -5,7 +5,8 @@ Engine 26 (Engine 20.10 here cannot start the privileged container it needs).
 
 Building there, pushing with a registry cache of every stage and an empty builder (a fresh
 runner's) taking every step from that cache: tests/ci/test_multiarch.py's container builder
-test, for both platforms at once (one cold builder build per run, not two)."""
+test, for both platforms at once, TARGET=run (one cold builder build per run, not two; dev
+goes through the same OCI layouts of the tools and imports images)."""
 
 from __future__ import annotations
 

@@ -123,7 +123,7 @@ ENTRIES = [
 ]
 
 
-def test_the_job_s_record_gives_the_pushed_names_with_their_digests(tmp_path):
+def test_the_job_s_record_gives_the_pushed_names_with_their_digests():
     """What `ci` and `manifest` read back after their tasks (each a process of its own)
     pushed: the dotenv report's digests."""
     assert jobsummary.pushed_digests(ENTRIES) == {"reg/robot:1": DIGEST, "reg/robot:1-slim": ""}

@@ -248,7 +248,8 @@ def test_a_step_honours_the_entry_of_the_platform_it_runs_on(tmp_path: Path, mon
     """A locked arm64 build: its steps run on an aarch64 machine (QEMU's, as an arm64 image
     says `uname -m`: test_multiarch's GitLab test) and honour the arm64 entries; the host
     gives that build the arm64 entries' prepare pins and base image. (Was a locked arm64 image
-    build of 5 minutes under QEMU; a locked build installing its entry is test_lock.py's.)"""
+    build of 5 minutes under QEMU; a locked build installing its entry is
+    tests/docker/test_lock.py's.)"""
     import os
 
     from docker_ros.core.loading import load_settings
