@@ -48,11 +48,17 @@ def docs(session: nox.Session) -> None:
                 "docs", str(ROOT / "build" / "docs" / "html"))
 
 
+# The whole suite runs on two processes (pytest-xdist): a docker test waits on the engine, the
+# registry or apt as often as it computes. A module's tests stay in one process, in order; the
+# longest modules start first (tests/conftest.py, module_rank).
+WORKERS = ("-n", "2", "--dist", "loadfile", "--no-loadscope-reorder")
+
+
 @nox.session
 def tests(session: nox.Session) -> None:
-    """The whole suite, every tier; arguments after `--` go to pytest."""
+    """The whole suite, every tier, on two processes; arguments after `--` go to pytest."""
     session.install("-e", ".[test]")
-    session.run("pytest", *session.posargs)
+    session.run("pytest", *WORKERS, *session.posargs)
 
 
 # One tier at a time, for a quick loop while developing (`nox -s docker -- -k slim`); `nox`

@@ -18,7 +18,7 @@ import urllib.request
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, Iterator, Optional
+from typing import Callable, Dict, Iterator, Optional, Tuple
 
 import docker
 import pytest
@@ -39,6 +39,7 @@ HOST_CA_BUNDLE = Path("/etc/ssl/certs/ca-certificates.crt")
 SETUP_HINT = "run `bash scripts/setup.sh` first"
 REPO = Path(__file__).resolve().parents[1]
 DOCKER_CONFIG_KEY = pytest.StashKey[tuple]()
+DANGLING_KEY = pytest.StashKey[dict]()
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -72,20 +73,44 @@ def tier(item: pytest.Item) -> str:
     return next((name for name in ("docker", "host") if item.get_closest_marker(name)), "unit")
 
 
+def worker() -> str:
+    """This process's xdist worker id (gw0, gw1, ...), "" in a run of one process."""
+    return os.environ.get("PYTEST_XDIST_WORKER", "")
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """The controller of a run on several processes (`pytest -n`, pytest-xdist, as `nox`
+    runs the suite) takes the suite lock before it starts the workers, for all of them
+    (suitelock), and removes what a killed run left (only_run_on_this_machine)."""
+    if session.config.pluginmanager.hasplugin("dsession"):
+        try:
+            suitelock.hold_for_workers(3600, say=lambda text: print(text, file=sys.__stderr__))
+        except suitelock.Busy as exc:
+            raise pytest.UsageError(str(exc)) from None
+        remove_killed_runs_images()
+        session.config.stash[DANGLING_KEY] = dangling_images()
+
+
 def pytest_collection_finish(session: pytest.Session) -> None:
     for item in session.items:
         item.user_properties.append(("tier", tier(item)))
     docker_items = [item for item in session.items if tier(item) == "docker"]
     # (the first docker test needs the ROS 1 base: foreign_cache_record; --collect-only runs
-    # no test, so nothing is made)
-    if docker_items and not session.config.getoption("collectonly"):
+    # no test, so nothing is made; of a run's workers, the first makes them in the background,
+    # the others wait for a fixture's own when they need it: suitelock.once)
+    if docker_items and not session.config.getoption("collectonly") and worker() in ("", "gw0"):
         needed = {"ros1_base_image"}.union(
             *(getattr(item, "fixturenames", ()) for item in docker_items))
         WARMUP.start((name, locked(job)) for name, job in WARM_JOBS if name in needed)
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
+    """The warm-up stops; the controller of a run's processes removes what they left
+    (this_runs_images), below its temporary folder, which holds theirs."""
     WARMUP.stop()
+    if DANGLING_KEY in session.config.stash:
+        remove_run_images(session.config._tmp_path_factory.getbasetemp(),  # type: ignore
+                          session.config.stash[DANGLING_KEY])
 
 
 def lock_the_suite() -> None:
@@ -149,17 +174,29 @@ def docker_client() -> Iterator[docker.DockerClient]:
 LATE_FIXTURES = ("ros1_arm64_base_image", "buildkit_image")
 
 
-def module_rank(items: list) -> Dict[str, int]:
-    """Each module's place in the run: unit, host, docker, then docker modules that need what
-    the warm-up makes last, so that it is made while the others run. A module's tests stay
-    together (its fixtures are made once) and in their order."""
-    rank: Dict[str, int] = {}
+# Minutes the slowest docker modules took in the last full run (README, "Tests"): a run on
+# several processes starts them first, longest first, so that no long one runs alone at its end
+MINUTES = {"tests/ci/test_multiarch.py": 13.2, "tests/docker/test_engine26.py": 9.7,
+           "tests/ci/test_github_action.py": 5.6, "tests/docker/test_faults.py": 2.4,
+           "tests/docker/test_lock.py": 2.1, "tests/docker/test_slim.py": 2.0,
+           "tests/docker/test_in_container.py": 1.9, "tests/ci/test_gitlab_template.py": 1.9,
+           "tests/docker/test_buildx_versions.py": 1.8, "tests/docker/test_image_build.py": 1.8,
+           "tests/docker/test_secrets.py": 1.5, "tests/docker/test_fast_rebuilds.py": 1.4}
+
+
+def module_rank(items: list, workers: bool = False) -> Dict[str, Tuple[int, float]]:
+    """Each module's place in the run: unit, host, docker, and then, in a run of one process,
+    docker modules that need what the warm-up makes last, so that it is made while the others
+    run; in a run on several processes (workers), the docker modules longest first (MINUTES).
+    A module's tests stay together (its fixtures are made once) and in their order."""
+    rank: Dict[str, Tuple[int, float]] = {}
     for item in items:
         own = TIERS.index(tier(item))
-        if own == 2 and any(name in item.fixturenames for name in LATE_FIXTURES):
-            own = 3
         module = item.nodeid.split("::", 1)[0]
-        rank[module] = max(rank.get(module, 0), own)
+        if own == 2 and not workers and any(name in item.fixturenames
+                                            for name in LATE_FIXTURES):
+            own = 3
+        rank[module] = max(rank.get(module, (0, 0.0)), (own, -MINUTES.get(module, 0.0)))
     return rank
 
 
@@ -167,7 +204,7 @@ def pytest_collection_modifyitems(items: list) -> None:
     """Unit and host tests first, then the docker modules (module_rank). Every docker test runs
     while this run is the machine's only one, after the foreign cache record exists, and before
     the images the run leaves are removed."""
-    rank = module_rank(items)
+    rank = module_rank(items, workers=bool(worker()))
     items.sort(key=lambda item: rank[item.nodeid.split("::", 1)[0]])
     for item in items:
         if item.get_closest_marker("docker"):
@@ -185,13 +222,18 @@ def only_run_on_this_machine() -> Iterator[None]:
     if not engines.buildx_plugin("current").is_file():
         pytest.fail(f"no current buildx at {engines.buildx_plugin('current')}; {SETUP_HINT}")
     try:
-        lock_the_suite()  # (the warm-up thread may hold it already: then at once)
+        lock_the_suite()  # (the warm-up thread or the run's controller may hold it: at once)
     except suitelock.Busy as exc:
         pytest.fail(str(exc))
+    if not worker():  # (the controller of a run's workers did it before it started them)
+        remove_killed_runs_images()
+    yield
+
+
+def remove_killed_runs_images() -> None:
     for host in (None, engines.ENGINE26_HOST):
         with ENGINE_DOWN, engine_client(host) as client:
             leftovers.remove_killed_runs_images(client)
-    yield
 
 
 # An engine that does not answer: the docker SDK's errors, and requests' (OSError) for a socket
@@ -204,13 +246,26 @@ def this_runs_images(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]
     """At the end of the run, on the shared engine and on Engine 26: the imports images of the
     repositories this run made (they are under pytest's temporary folder) and the images its
     rebuilds untagged (see leftovers.py). Another repository's stay; an engine that did not
-    answer at the start is left alone."""
+    answer at the start is left alone. In a run on several processes, their controller does it
+    when all have ended (an image another process is building is dangling until tagged)."""
+    if worker():
+        yield
+        return
+    before = dangling_images()
+    yield
+    remove_run_images(tmp_path_factory.getbasetemp(), before)
+
+
+def dangling_images() -> Dict[Optional[str], set]:
+    """leftovers.untagged of the shared engine (None) and Engine 26, of those that answer."""
     before = {}
     for host in (None, engines.ENGINE26_HOST):
         with ENGINE_DOWN, engine_client(host) as client:
             before[host] = leftovers.untagged(client)
-    yield
-    root = tmp_path_factory.getbasetemp()
+    return before
+
+
+def remove_run_images(root: Path, before: Dict[Optional[str], set]) -> None:
     for host, dangling in before.items():
         with ENGINE_DOWN, engine_client(host) as client:
             leftovers.remove_run_images(client, root, dangling)
@@ -267,30 +322,43 @@ def cache_mount_id(marker: str) -> str:
                  if description.startswith(f"cached mount {marker} ")), "")
 
 
+# Each made once per run (suitelock.once: a second process of the run waits for the first,
+# then finds the image made)
+@suitelock.made_once("ros1-base")
 def make_ros1() -> str:
     return baseimage.bootstrap("ros1", tag=ROS1_BASE_IMAGE)
 
 
+@suitelock.made_once("ros1-arm64-base")
 def make_ros1_arm64() -> str:
     return baseimage.bootstrap("ros1", tag=ROS1_BASE_IMAGE, platform="arm64")
 
 
+@suitelock.made_once("ros2-base")
 def make_ros2() -> str:
     return baseimage.bootstrap("ros2", tag=ROS2_BASE_IMAGE)
 
 
+@suitelock.made_once("ros1-ubuntu-base")
 def make_ros1_ubuntu() -> str:
     bundle = Path(ssl.get_default_verify_paths().openssl_cafile)
     return baseimage.bootstrap("ros1-ubuntu", tag=ROS1_UBUNTU_BASE_IMAGE,
                                ca_bundle=bundle if bundle.is_file() else None)
 
 
+@suitelock.made_once("buildkit-image")
 def make_buildkit_image() -> str:
     if not engines.answers(engines.ENGINE26_HOST):
         raise RuntimeError(f"no Engine 26 answers at {engines.ENGINE26_HOST}; {SETUP_HINT}")
-    if not engines.has_image(engines.ENGINE26_HOST, ROS2_BASE_IMAGE):
-        engines.copy_image(make_ros2(), engines.ENGINE26_HOST)
+    copy_to_engine26(make_ros2())
     return engines.buildkit_image(engines.ENGINE26_HOST, ROS2_BASE_IMAGE)
+
+
+def copy_to_engine26(ref: str) -> None:
+    """ref of the shared engine into Engine 26, unless it holds it already."""
+    with suitelock.once("engine26-copy"):
+        if not engines.has_image(engines.ENGINE26_HOST, ref):
+            engines.copy_image(ref, engines.ENGINE26_HOST)
 
 
 # What the warm-up makes (tests/warmup.py), in the order the run needs it: fixture -> job
@@ -476,8 +544,7 @@ def engine26(ros1_base_image: str) -> str:
     starts beside the shared engine, holding the ROS 1 base image (copied once)."""
     if not engines.answers(engines.ENGINE26_HOST):
         pytest.fail(f"no Engine 26 answers at {engines.ENGINE26_HOST}; {SETUP_HINT}")
-    if not engines.has_image(engines.ENGINE26_HOST, ros1_base_image):
-        engines.copy_image(ros1_base_image, engines.ENGINE26_HOST)
+    copy_to_engine26(ros1_base_image)
     return engines.ENGINE26_HOST
 
 
@@ -494,7 +561,8 @@ def buildkit_image(engine26: str, ros2_base_image: str) -> str:
 def kept_builder(engine26: str, buildkit_image: str) -> str:
     """The docker-container builder on Engine 26 that is kept between runs (tests.engines
     .kept_container_builder); its name."""
-    return engines.kept_container_builder(engine26, buildkit_image)
+    with suitelock.once("kept-builder"):
+        return engines.kept_container_builder(engine26, buildkit_image)
 
 
 @pytest.fixture(scope="session")
@@ -503,6 +571,7 @@ def docker_ros_wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     DOCKER_ROS_PIP_SPEC allows) in seconds, and jobs that run at once do not build in the same
     source tree (pip builds a local folder in place: two builds at once break each other)."""
     folder = tmp_path_factory.mktemp("wheel")
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet",
-                    "--disable-pip-version-check", "-w", str(folder), str(REPO)], check=True)
+    with suitelock.once(suitelock.SOURCE_TREE_BUILD):
+        subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet",
+                        "--disable-pip-version-check", "-w", str(folder), str(REPO)], check=True)
     return next(folder.glob("docker_ros-*.whl"))

@@ -119,6 +119,14 @@ class Daemon:
         self.process = None
 
 
+def free_subnet() -> str:
+    """A 172.30.X.1/24 of no interface of this machine's (a private engine's bridge: two
+    engines on one subnet, in this process or another of the run, would route each other's)."""
+    used = subprocess.run(["ip", "-4", "-o", "addr"], capture_output=True, text=True).stdout
+    free = [x for x in range(1, 255) if f" 172.30.{x}." not in used]
+    return f"172.30.{free[uuid.uuid4().int % len(free)]}.1/24"
+
+
 @contextlib.contextmanager
 def private_daemon(images: Sequence[str] = (), *, modern: bool = False,
                    data_root: Optional[Path] = None) -> Iterator[Daemon]:
@@ -130,7 +138,7 @@ def private_daemon(images: Sequence[str] = (), *, modern: bool = False,
     small file system), else a folder of its own."""
     work = Path(f"/tmp/docker-ros-test-engine-{uuid.uuid4().hex[:8]}")
     bridge = f"drt{work.name[-8:]}"[:15]
-    subnet = f"172.30.{(os.getpid() + (1 if modern else 0)) % 250}.1/24"
+    subnet = free_subnet()
     subprocess.run(["ip", "link", "add", bridge, "type", "bridge"], check=True)
     subprocess.run(["ip", "addr", "add", subnet, "dev", bridge], check=True)
     subprocess.run(["ip", "link", "set", bridge, "up"], check=True)

@@ -36,25 +36,27 @@ def remove(client: docker.DockerClient, ref: str) -> None:
         client.images.remove(ref)
 
 
-def untagged(client: docker.DockerClient) -> Set[str]:
+def untagged(client: docker.DockerClient, label: str = RECIPE_LABEL) -> Set[str]:
     """The IDs of the dangling images (no tag left) built on a base image of docker-ros's
-    recipe: taken when a run begins, those stay (they were not made dangling by it)."""
-    images = client.api.images(filters={"dangling": True, "label": RECIPE_LABEL})
+    recipe (label): taken when a run begins, those stay (they were not made dangling by it)."""
+    images = client.api.images(filters={"dangling": True, "label": label})
     return {str(image["Id"]) for image in images}
 
 
-def remove_run_images(client: docker.DockerClient, root: Path, before: Set[str]) -> None:
-    """The imports images of the repositories below root (at most 4 levels down), and the
-    images that became dangling since the run began (before: `untagged` then): the run's
-    rebuilds untagged them, its own or a previous run's under the same test names. The raw
-    lists: images.list() inspects each image and fails when another user of the engine
-    removes one meanwhile."""
-    owners = {imports_owner(folder) for folder in folders(root, 4)}
+def remove_run_images(client: docker.DockerClient, root: Path, before: Set[str],
+                      label: str = RECIPE_LABEL) -> None:
+    """The imports images of the repositories below root (at most 5 levels down: a run on
+    several processes has a folder per process), and the images of label that became dangling
+    since the run began (before: `untagged` then): the run's rebuilds untagged them, its own or
+    a previous run's under the same test names. Called when the run's builds are over: an image
+    being built is dangling until it is tagged. The raw lists: images.list() inspects each
+    image and fails when another user of the engine removes one meanwhile."""
+    owners = {imports_owner(folder) for folder in folders(root, 5)}
     for image in client.api.images(filters={"label": IMPORTS_LABEL}):
         if (image.get("Labels") or {}).get(IMPORTS_LABEL) in owners:
             for tag in image.get("RepoTags") or []:
                 remove(client, tag)
-    for image_id in sorted(untagged(client) - before):
+    for image_id in sorted(untagged(client, label) - before):
         remove(client, image_id)
 
 

@@ -18,7 +18,8 @@ T = TypeVar("T")
 
 class Warmup:
     """Jobs run one after another in one background thread; `result` waits for a job, or runs
-    it in the caller when it was not started (a run that did not predict its need)."""
+    it in the caller when it was not started (a run that did not predict its need, or a job
+    still queued: the caller need not wait for the jobs before it)."""
 
     def __init__(self) -> None:
         self._pool: Optional[ThreadPoolExecutor] = None
@@ -34,8 +35,12 @@ class Warmup:
         return tuple(self._jobs)
 
     def result(self, name: str, job: Callable[[], T]) -> T:
+        """The job's result; a job still queued behind others runs in the caller at once (its
+        own lock, suitelock.once, keeps the two from making the same thing twice)."""
         future = self._jobs.get(name)
-        return future.result() if future is not None else job()
+        if future is None or future.cancel():
+            return job()
+        return future.result()
 
     def stop(self) -> None:
         """Drop the jobs not begun; wait for the one running (a bootstrap half done would leave

@@ -168,9 +168,13 @@ def test_a_run_removes_the_images_it_left_and_nothing_else(
     run go (a rebuild untagged them: made by the run, or by an earlier run under the same test
     name); another repository's imports image and an image dangling before the run stay."""
     name = f"docker-ros-test/leftovers-{uuid.uuid4().hex[:8]}"
+    # (the test's own label: the other processes of the run build on the same base meanwhile,
+    # and an image of theirs is dangling until they tag it)
+    label = f"org.docker-ros.test.leftovers={name}"
 
     def build(tag: str) -> str:
-        dockerfile = f"FROM {ros1_base_image}\nRUN echo {uuid.uuid4().hex} > /leftover\n"
+        dockerfile = (f"FROM {ros1_base_image}\nLABEL {label}\n"
+                      f"RUN echo {uuid.uuid4().hex} > /leftover\n")
         subprocess.run(["docker", "build", "-q", "-t", f"{name}:{tag}", "-"], input=dockerfile,
                        text=True, capture_output=True, check=True)
         return str(docker_client.images.get(f"{name}:{tag}").id)
@@ -183,7 +187,7 @@ def test_a_run_removes_the_images_it_left_and_nothing_else(
     old = build("old")
     build("old")  # untags `old` before the run begins
     earlier = build("earlier")  # an earlier run's image under a test name
-    before = leftovers.untagged(docker_client)
+    before = leftovers.untagged(docker_client, label)
     build("earlier")  # untags `earlier`: the run did
     rebuilt = build("rebuilt")
     build("rebuilt")  # untags `rebuilt`, made by the run
@@ -193,7 +197,7 @@ def test_a_run_removes_the_images_it_left_and_nothing_else(
     other = imports_image("other", tmp_path / "elsewhere")
     try:
         assert old in before and earlier not in before
-        leftovers.remove_run_images(docker_client, root, before)
+        leftovers.remove_run_images(docker_client, root, before, label)
         left = {image["Id"] for image in docker_client.api.images(all=True)}
         assert earlier not in left and rebuilt not in left and mine not in left
         assert old in left and other in left

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from docker_ros.in_image.runtime.process import executable_argv, tool_path
+from tests import suitelock
 from tests.rosfixtures import make_git_repo, write_repos
 
 pytestmark = pytest.mark.host
@@ -24,7 +25,8 @@ def venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
                    check=True)
     pip = [str(path / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps",
            "--ignore-installed"]
-    subprocess.run([*pip, "vcstool>=0.3", str(ROOT)], check=True, capture_output=True)
+    with suitelock.once(suitelock.SOURCE_TREE_BUILD):
+        subprocess.run([*pip, "vcstool>=0.3", str(ROOT)], check=True, capture_output=True)
     assert (path / "bin" / "vcs").is_file() and (path / "bin" / "docker-ros").is_file()
     return path
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -52,3 +54,43 @@ def test_a_free_lock_is_taken_at_once_without_a_word(tmp_path: Path) -> None:
     with lock.open("a+") as handle:
         suitelock.acquire(handle, 0, said.append)
     assert said == [] and lock.read_text() == str(os.getpid())
+
+
+def test_the_workers_of_the_run_that_holds_the_lock_go_on_and_no_other_process_does(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    lock = tmp_path / "run.lock"
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(lock), "30"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        monkeypatch.setenv(suitelock.HOLDER, str(holder.pid))
+        assert suitelock.held_by_this_run(lock)
+        monkeypatch.setenv(suitelock.HOLDER, str(os.getpid()))  # alive, but not the holder
+        assert not suitelock.held_by_this_run(lock)
+        monkeypatch.setenv(suitelock.HOLDER, str(holder.pid))
+    finally:
+        holder.kill()
+        holder.wait()
+        assert holder.stdout is not None
+        holder.stdout.close()
+    assert not suitelock.held_by_this_run(lock)  # the holder ended
+
+
+def test_a_step_made_once_per_run_waits_for_the_one_making_it(tmp_path: Path) -> None:
+    order: list = []
+    inside = threading.Event()
+
+    def first() -> None:
+        with suitelock.once("step", tmp_path):
+            order.append("first in")
+            inside.set()
+            time.sleep(0.3)
+            order.append("first out")
+
+    thread = threading.Thread(target=first)
+    thread.start()
+    assert inside.wait(10)
+    with suitelock.once("step", tmp_path):
+        order.append("second in")
+    thread.join()
+    assert order == ["first in", "first out", "second in"]

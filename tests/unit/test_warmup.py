@@ -1,5 +1,6 @@
 """The suite's warm-up (tests/warmup.py): jobs run in order in one background thread, a fixture
-waits for its own job, one not started runs in the caller, a failure reaches the caller."""
+waits for its own job, one not started (or still queued) runs in the caller, a failure reaches
+the caller."""
 
 from __future__ import annotations
 
@@ -27,14 +28,19 @@ def test_jobs_run_in_order_in_one_background_thread_and_each_result_waits_for_it
         return run
 
     warmup = Warmup()
-    warmup.start([("first", job("first", wait=True)), ("second", job("second"))])
-    assert warmup.started() == ("first", "second")
+    warmup.start([("first", job("first", wait=True)), ("second", job("second")),
+                  ("third", job("third"))])
+    assert warmup.started() == ("first", "second", "third")
     time.sleep(0.1)
-    assert ran == []  # the first waits, the second is behind it
+    assert ran == []  # the first waits, the others are behind it
+    # a job still queued runs in the caller at once, and not again in the background
+    assert warmup.result("second", job("second in the caller")) == "SECOND IN THE CALLER"
+    assert ran == ["second in the caller"]
     release.set()
-    assert warmup.result("second", job("never")) == "SECOND"
-    assert ran == ["first", "second"]
-    assert len(threads) == 1 and threading.current_thread().name not in threads
+    assert warmup.result("first", job("never")) == "FIRST"
+    assert warmup.result("third", job("never")) == "THIRD"
+    assert ran == ["second in the caller", "first", "third"]
+    assert len(threads) == 2 and threading.current_thread().name in threads
     assert warmup.result("other", lambda: "in the caller") == "in the caller"
     warmup.stop()
 
