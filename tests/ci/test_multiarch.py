@@ -350,9 +350,9 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
     a registry cache of every stage, and the pulled arm64 image runs its talker and listener.
     A new, empty builder (a fresh CI runner's) then takes every step of both platforms from
     that cache: the tools and imports images it gets have the digests of the first, and
-    nothing runs under QEMU. (The first builder is the one kept between runs: only a machine's
-    first run builds the arm64 steps under QEMU; what it pushes is the registry cache of every
-    stage whether it built the steps or had them cached.)"""
+    nothing runs under QEMU. (The first builder is the one kept between runs; its cache does
+    not serve a later run yet, see tests.engines.kept_container_builder. What it pushes is the
+    registry cache of every stage whether it built the steps or had them cached.)"""
     if not engines.has_image(engine26, ros1_arm64_base_image):
         engines.copy_image(ros1_arm64_base_image, engine26)
     env26 = env_for(engine26)
