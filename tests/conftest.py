@@ -109,8 +109,8 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
     (this_runs_images), below its temporary folder, which holds theirs."""
     WARMUP.stop()
     if DANGLING_KEY in session.config.stash:
-        remove_run_images(session.config._tmp_path_factory.getbasetemp(),  # type: ignore
-                          session.config.stash[DANGLING_KEY])
+        remove_this_runs_images(session.config._tmp_path_factory.getbasetemp(),  # type: ignore
+                                session.config.stash[DANGLING_KEY])
 
 
 def lock_the_suite() -> None:
@@ -253,7 +253,7 @@ def this_runs_images(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]
         return
     before = dangling_images()
     yield
-    remove_run_images(tmp_path_factory.getbasetemp(), before)
+    remove_this_runs_images(tmp_path_factory.getbasetemp(), before)
 
 
 def dangling_images() -> Dict[Optional[str], set]:
@@ -265,7 +265,8 @@ def dangling_images() -> Dict[Optional[str], set]:
     return before
 
 
-def remove_run_images(root: Path, before: Dict[Optional[str], set]) -> None:
+def remove_this_runs_images(root: Path, before: Dict[Optional[str], set]) -> None:
+    """leftovers.remove_run_images on each engine of before (dangling_images)."""
     for host, dangling in before.items():
         with ENGINE_DOWN, engine_client(host) as client:
             leftovers.remove_run_images(client, root, dangling)
@@ -350,15 +351,8 @@ def make_ros1_ubuntu() -> str:
 def make_buildkit_image() -> str:
     if not engines.answers(engines.ENGINE26_HOST):
         raise RuntimeError(f"no Engine 26 answers at {engines.ENGINE26_HOST}; {SETUP_HINT}")
-    copy_to_engine26(make_ros2())
+    engines.copy_once(make_ros2(), engines.ENGINE26_HOST)
     return engines.buildkit_image(engines.ENGINE26_HOST, ROS2_BASE_IMAGE)
-
-
-def copy_to_engine26(ref: str) -> None:
-    """ref of the shared engine into Engine 26, unless it holds it already."""
-    with suitelock.once("engine26-copy"):
-        if not engines.has_image(engines.ENGINE26_HOST, ref):
-            engines.copy_image(ref, engines.ENGINE26_HOST)
 
 
 # What the warm-up makes (tests/warmup.py), in the order the run needs it: fixture -> job
@@ -544,7 +538,7 @@ def engine26(ros1_base_image: str) -> str:
     starts beside the shared engine, holding the ROS 1 base image (copied once)."""
     if not engines.answers(engines.ENGINE26_HOST):
         pytest.fail(f"no Engine 26 answers at {engines.ENGINE26_HOST}; {SETUP_HINT}")
-    copy_to_engine26(ros1_base_image)
+    engines.copy_once(ros1_base_image, engines.ENGINE26_HOST)
     return engines.ENGINE26_HOST
 
 

@@ -17,6 +17,7 @@ import uuid
 from pathlib import Path
 from typing import Any, Dict, Iterator, Mapping, Optional, Sequence
 
+from tests import suitelock
 from tests.processes import stop
 
 # Where scripts/setup.sh puts Engine 26 (see CONTRIBUTING.md, "Setting up a machine").
@@ -84,6 +85,14 @@ def copy_image(ref: str, host: str) -> None:
     subprocess.run(["docker", "load", "-q"], stdin=save.stdout, env=env_for(host), check=True,
                    capture_output=True)
     assert save.wait() == 0, f"docker save {ref} failed"
+
+
+def copy_once(ref: str, host: str) -> None:
+    """copy_image, unless the engine at host holds ref already (has_image); once per run
+    (suitelock.once: another process of the run copying into an engine waits, then finds it)."""
+    with suitelock.once("engine-copy"):
+        if not has_image(host, ref):
+            copy_image(ref, host)
 
 
 def engine26_dockerd() -> Path:

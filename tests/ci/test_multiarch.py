@@ -353,8 +353,7 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
     nothing runs under QEMU. (The first builder is the one kept between runs; its cache does
     not serve a later run yet, see tests.engines.kept_container_builder. What it pushes is the
     registry cache of every stage whether it built the steps or had them cached.)"""
-    if not engines.has_image(engine26, ros1_arm64_base_image):
-        engines.copy_image(ros1_arm64_base_image, engine26)
+    engines.copy_once(ros1_arm64_base_image, engine26)
     env26 = env_for(engine26)
     suffix = uuid.uuid4().hex[:8]
     # (the base's name holds this run's registry port; BuildKit's cache knows it by digest)

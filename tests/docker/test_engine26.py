@@ -311,8 +311,7 @@ def test_a_build_without_network_on_engine26_names_build_network_host(
     nothing else needs the network before the hook) without apt sources: apt-get update then
     has nothing to look up (each look-up waits out the resolver here, 20 s, and apt only
     warns), so the hook's own look-up is what fails."""
-    if not engines.has_image(engine26, ros2_base_image):
-        engines.copy_image(ros2_base_image, engine26)
+    engines.copy_once(ros2_base_image, engine26)
     env = engines.env_for(engine26)
     base = f"docker-ros-test/ros2-no-apt-sources:{uuid.uuid4().hex[:12]}"
     (tmp_path / "base").mkdir()
