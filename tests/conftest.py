@@ -39,6 +39,7 @@ HOST_CA_BUNDLE = Path("/etc/ssl/certs/ca-certificates.crt")
 SETUP_HINT = "run `bash scripts/setup.sh` first"
 REPO = Path(__file__).resolve().parents[1]
 DOCKER_CONFIG_KEY = pytest.StashKey[tuple]()
+OWN_ENV = ("DOCKER_CONFIG", "XDG_CACHE_HOME", "PIP_CACHE_DIR")  # (pytest_configure sets them)
 DANGLING_KEY = pytest.StashKey[dict]()
 
 
@@ -47,22 +48,28 @@ def pytest_configure(config: pytest.Config) -> None:
     Docker's own packages, Docker Desktop and CI runners, whatever buildx the machine has: every
     docker command of the run (the tool's, the tests', the CI harnesses') finds it through a
     DOCKER_CONFIG of the run's own, which also keeps the user's logins and contexts out of it.
-    test_buildx_versions.py checks that it is current and also builds with Debian's 0.13."""
+    test_buildx_versions.py checks that it is current and also builds with Debian's 0.13.
+    The records of builds the tool keeps (host/unchanged.py) go to that folder too, not to the
+    user's cache folder (pip's cache stays where it was)."""
     if not engines.buildx_plugin("current").is_file():
         return  # every docker test then fails (only_run_on_this_machine): never the machine's own
     folder = Path(tempfile.mkdtemp(prefix="docker-ros-test-docker-config-"))
-    config.stash[DOCKER_CONFIG_KEY] = (folder, os.environ.get("DOCKER_CONFIG"))
-    os.environ.update(engines.buildx_config(folder, "current"))
+    config.stash[DOCKER_CONFIG_KEY] = (folder, {name: os.environ.get(name) for name in OWN_ENV})
+    cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    os.environ.setdefault("PIP_CACHE_DIR", str(Path(cache) / "pip"))
+    os.environ.update({**engines.buildx_config(folder, "current"),
+                       "XDG_CACHE_HOME": str(folder / "cache")})
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
     if DOCKER_CONFIG_KEY in config.stash:
         folder, previous = config.stash[DOCKER_CONFIG_KEY]
         shutil.rmtree(folder, ignore_errors=True)
-        if previous is None:
-            os.environ.pop("DOCKER_CONFIG", None)
-        else:
-            os.environ["DOCKER_CONFIG"] = previous
+        for name, value in previous.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 TIERS = ("unit", "host", "docker")

@@ -92,11 +92,12 @@ def resolve_keys(base_image: str, keys: Sequence[str]) -> Dict[str, List[str]]:
 
 def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = (),
             timed: Optional[List[Tuple[float, str]]] = None,
-            task: str = "build") -> tuple[float, str]:
+            task: str = "build", extra_env: Optional[Dict[str, str]] = None
+            ) -> tuple[float, str]:
     """`python -m docker_ros TASK ARGS` in project, as a user runs it; (seconds, output).
     timed: receives each output line with the wall time it arrived."""
     argv = [sys.executable, "-m", "docker_ros", task, *args]
-    env = clean_environ()
+    env = {**clean_environ(), **(extra_env or {})}
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO / "src"), env.get("PYTHONPATH")]))
     began = time.monotonic()
     proc = subprocess.Popen(argv, cwd=project, env=env, stdout=subprocess.PIPE,

@@ -75,7 +75,8 @@ class Bench:
         print(f"[bench] {text}", flush=True)
 
     def build(self, name: str, root: Optional[Path] = None,
-              invocations: Sequence[Sequence[str]] = ((),), task: str = "build") -> Scenario:
+              invocations: Sequence[Sequence[str]] = ((),), task: str = "build",
+              extra_env: Optional[Dict[str, str]] = None) -> Scenario:
         """One scenario: the CLI's build (or TASK), or several one after the other
         (invocations: their extra arguments), timed together. self.output: what they printed."""
         self.say(f"{name} ...")
@@ -83,7 +84,7 @@ class Bench:
         seconds, output, timed = 0.0, "", []  # type: float, str, List[Tuple[float, str]]
         for args in invocations:
             took, out = run_cli(root or self.root, self.log, verbose=self.args.verbose,
-                                args=args, timed=timed, task=task)
+                                args=args, timed=timed, task=task, extra_env=extra_env)
             seconds, output = seconds + took, output + out
         row = Scenario(name, seconds, compiled_units(output), dependency_layers(output),
                        changed_sources=changed_sources(output),
@@ -129,13 +130,18 @@ class Bench:
         if image_id(SLIM_IMAGE):  # the defaults a user gets: a local build does not slim
             self.check(row, False, f"the default build made {SLIM_IMAGE}")
 
-    def no_change(self) -> None:
+    def no_change(self, empty_cache: Path) -> None:
+        """2: the default (the record of the last build: BuildKit not started); 2b: BuildKit's
+        cache alone (an empty cache folder, no record: every step resolved, all cached)."""
         before = {ref: image_id(ref) for ref in (DEV_IMAGE, IMAGE)}
-        row = self.build("2  no-change rebuild")
-        after = {ref: image_id(ref) for ref in (DEV_IMAGE, IMAGE)}
-        same = before == after
-        self.check(row, same, "dev and run image ids unchanged" if same else
-                   f"image ids changed: {before} -> {after}")
+        for name, env in (("2  no-change rebuild", None),
+                          ("2b no-change, no record (BuildKit)",
+                           {"XDG_CACHE_HOME": str(empty_cache)})):
+            row = self.build(name, extra_env=env)
+            after = {ref: image_id(ref) for ref in (DEV_IMAGE, IMAGE)}
+            same = before == after
+            self.check(row, same, "dev and run image ids unchanged" if same else
+                       f"image ids changed: {before} -> {after}")
 
     def change_last(self) -> None:
         last = self.count - 1
@@ -384,6 +390,8 @@ def run_all(args: argparse.Namespace, tmp: Path) -> Tuple[List[Scenario], Dict[s
     resolved = resolve_keys(args.base_image, [args.key, args.add_key])
     print(f"[bench] rosdep keys (offline, in {args.base_image}): {resolved}", flush=True)
     run_id = f"{os.getpid()}-{time.time_ns()}"
+    # (the records of builds, host/unchanged.py, go with the bench's folder)
+    os.environ["XDG_CACHE_HOME"] = str(tmp / "cache")
     write_workspace(root, count=args.packages, chain=args.chain, depth=args.depth,
                     key=args.key, base_image=args.base_image, cmake_args=args.cmake_args,
                     run_id=run_id)
@@ -400,7 +408,7 @@ def run_all(args: argparse.Namespace, tmp: Path) -> Tuple[List[Scenario], Dict[s
                     key=args.key, base_image=args.base_image, cmake_args=args.cmake_args,
                     run_id=run_id + "-separate", image=SEPARATE_IMAGE)
     bench.separate_cold(separate)
-    bench.no_change()
+    bench.no_change(tmp / "cache-empty")
     bench.change_last()
     bench.limit()
     bench.floor(tmp / "floor")

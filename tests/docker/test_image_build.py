@@ -17,7 +17,9 @@ proves (each line: where; "image" = a test here):
 - the dev image has the sources and builds them: image, test_dev_image_has_sources_and_builds_them
 - a source edit rebuilds without installing and ships the change: image,
   test_rebuild_after_source_edit_installs_nothing_and_ships_the_change
-- a rebuild with no change is fully cached: image, test_no_change_rebuild_is_fully_cached
+- a rebuild with no change is up to date without starting BuildKit (the record of the last
+  build), and fully cached by BuildKit without that record: image,
+  test_no_change_rebuild_is_up_to_date_and_fully_cached
 - user mapping owns files written in mounts; a collision warns and goes on: image,
   test_host_user_mapping_owns_files_written_in_mounts, test_user_mapping_collision_warns_...
 - `docker exec -it ... bash` has the workspace environment: image,
@@ -52,6 +54,7 @@ proves (each line: where; "image" = a test here):
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import time
 import uuid
@@ -60,6 +63,7 @@ from pathlib import Path
 import pytest
 
 from docker_ros.core.loading import host_platform
+from docker_ros.host import engine
 from tests.docker.buildhelp import (
     STAGE,
     cached_vertices,
@@ -233,13 +237,28 @@ def test_rebuild_after_source_edit_installs_nothing_and_ships_the_change(
         remove_image(edited_image)
 
 
-def test_no_change_rebuild_is_fully_cached(example: dict) -> None:
+def test_no_change_rebuild_is_up_to_date_and_fully_cached(example: dict, tmp_path: Path) -> None:
+    """Nothing changed since the module's build: the rebuild finds the record of that build
+    (host/unchanged.py) and does not start BuildKit; the image stays the one built. Without
+    the record (another cache folder: a user who cleared it), BuildKit runs and takes every
+    step from its cache."""
+    image_id = engine.inspect_image(example["run"])["Id"]
     result = docker_ros(example["project"], "build", "--target", "run")
+    assert result.returncode == 0, result.stdout[-3000:]
+    assert ("==> docker-ros build (amd64) run: up to date, built from these same inputs "
+            f"({example['run']}); not rebuilt (NO_CACHE=true rebuilds)") in result.stdout
+    assert "exporting to image" not in result.stdout and not cached_vertices(result.stdout)
+    assert re.search(r"latest +amd64 +\d+ MB +up to date", result.stdout), result.stdout
+    assert engine.inspect_image(example["run"])["Id"] == image_id
+
+    result = docker_ros(example["project"], "build", "--target", "run",
+                        env={"XDG_CACHE_HOME": str(tmp_path)})
     assert result.returncode == 0, result.stdout[-3000:]
     # Every RUN came from cache: no step started, and the log does show the steps.
     assert "Starting >>>" not in result.stdout, result.stdout[-3000:]
     steps = [n for n in cached_vertices(result.stdout) if STAGE.match(n) and " RUN " in n]
     assert len(steps) >= 5 and not_from_cache(result.stdout) == [], result.stdout[-3000:]
+    assert engine.inspect_image(example["run"])["Id"] == image_id
 
 
 def test_host_user_mapping_owns_files_written_in_mounts(example: dict, tmp_path: Path) -> None:

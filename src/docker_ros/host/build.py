@@ -17,7 +17,7 @@ from typing import IO, Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from docker_ros.core.errors import BuildError
 from docker_ros.core.settings import Settings
-from docker_ros.host import builder, buildlog, buildmeta, buildstate, engine, faults
+from docker_ros.host import builder, buildlog, buildmeta, buildstate, engine, faults, unchanged
 from docker_ros.host.buildcontext import (
     _kept,
     ensure_imports_image,
@@ -208,6 +208,14 @@ def build_images_locked(
                 raise BuildError(str(exc)) from None
             del specs["build-state"]
             built.append(BuiltImage("build-state", targets["build-state"], platform, 0.0))
+        record, inputs = Path(), {}  # type: Tuple[Path, Dict[str, str]]
+        if unchanged.applies(settings, targets, push=push, output=output,
+                             own_buildkit=layouts is not None):
+            record, inputs = recorded_inputs(settings, specs, platform, dockerfile, environ,
+                                             {"base": base, "tools": tools, "imports": imports})
+            kept = up_to_date(record, inputs, targets, platform, out)
+            if kept:
+                return kept, imports
         allow = bake_grants(buildx, settings, tmp) if bake else None
         if allow is not None:
             definition_file = Path(tmp) / "docker-ros.bake.json"
@@ -234,7 +242,50 @@ def build_images_locked(
             cached = buildlog.cached_steps(lines)
             built += [BuiltImage(t, targets[t], platform, seconds, digests.get(t, ""), cached)
                       for t in names]
+    if inputs:
+        unchanged.write(record, {image.ref: {"inputs": inputs[image.ref], "digest": image.digest,
+                                             "id": image_id(image.ref)} for image in built})
     return built, imports
+
+
+def image_id(ref: str) -> str:
+    """The id of the local image ref ("" none, or no engine to ask: then the build runs)."""
+    try:
+        return str((engine.inspect_image(ref) or {}).get("Id", "")) if ref else ""
+    except engine.EngineError:
+        return ""
+
+
+def recorded_inputs(settings: Settings, specs: Mapping[str, Dict[str, Any]], platform: str,
+                    dockerfile: Path, environ: Mapping[str, str], images: Mapping[str, str]
+                    ) -> Tuple[Path, Dict[str, str]]:
+    """The record of this repository's builds and each tag's inputs (see unchanged); no inputs
+    when an image the build starts from is not in the engine (a base only in a registry: its
+    tag may name a newer image there)."""
+    ids = {name: image_id(ref) for name, ref in images.items()}
+    if not all(ids.values()):
+        return Path(), {}
+    context = Path(settings.build_context)
+    staged = b"".join(p.read_bytes() for p in sorted(dockerfile.parent.glob("Dockerfile*")))
+    shared = unchanged.shared_inputs(staged, buildstate.inputs_fingerprint(context, {}, left_out),
+                                     ids)
+    record = unchanged.record_path(engine.cli_host(environ), context, platform, environ)
+    return record, {spec["tags"][0]: unchanged.target_inputs(spec, str(dockerfile.parent), shared)
+                    for spec in specs.values()}
+
+
+def up_to_date(record: Path, inputs: Mapping[str, str], targets: Mapping[str, str],
+               platform: str, out: IO[str]) -> List[BuiltImage]:
+    """The images of targets as they are, when the record says they were built from these
+    same inputs (and says so on out); [] when they must be built."""
+    kept = unchanged.read(record)
+    if not unchanged.up_to_date(kept, inputs, {tag: image_id(tag) for tag in inputs}):
+        return []
+    print(f"==> docker-ros build ({platform}) {', '.join(targets)}: up to date, built from these "
+          f"same inputs ({', '.join(targets.values())}); not rebuilt (NO_CACHE=true rebuilds)",
+          file=out)
+    return [BuiltImage(t, tag, platform, 0.0, kept["images"][tag].get("digest", ""),
+                       reused=True) for t, tag in targets.items()]
 
 
 def with_built(error: BuildError, built: Sequence[BuiltImage]) -> BuildError:
@@ -329,6 +380,6 @@ def summary_table(images: Sequence[BuiltImage]) -> str:
         name, _, tag = image.ref.rpartition(":")
         size = image_size(image.ref)
         rows.append((name, tag, image.platform, f"{size / 1e6:.0f} MB" if size else "-",
-                     f"{image.seconds:.1f} s"))
+                     "up to date" if image.reused else f"{image.seconds:.1f} s"))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)
