@@ -351,8 +351,9 @@ class Settings:
     )
     no_cache: bool = setting(
         False,
-        "Build every stage anew, reusing no layer of the builder's cache (`--no-cache`); the"
-        " cache mounts stay (apt's downloads, the colcon build/ cache of this repository)",
+        "Build every stage anew, reusing no layer of the builder's cache (`--no-cache`), even"
+        " when nothing changed since the last build; the cache mounts stay (apt's downloads,"
+        " the colcon build/ cache of this repository)",
         group="ours", build="tool",
     )
     builder: Optional[str] = setting(
