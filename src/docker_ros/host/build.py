@@ -267,6 +267,8 @@ def recorded_inputs(settings: Settings, specs: Mapping[str, Dict[str, Any]], pla
         return Path(), {}
     context = Path(settings.build_context)
     staged = b"".join(p.read_bytes() for p in sorted(dockerfile.parent.glob("Dockerfile*")))
+    # (buildx passes SOURCE_DATE_EPOCH from the environment to the build as an argument)
+    ids["SOURCE_DATE_EPOCH"] = environ.get("SOURCE_DATE_EPOCH", "")
     shared = unchanged.shared_inputs(staged, buildstate.inputs_fingerprint(context, {}, left_out),
                                      ids)
     record = unchanged.record_path(engine.cli_host(environ), context, platform, environ)

@@ -6,10 +6,10 @@ stops there, as BuildKit's cache would have given the same images, only later.
 
 The inputs are what BuildKit's cache keys follow: the target's bake definition (build
 arguments, labels, secrets' ids, the Dockerfile), the build context's files (path, mode,
-content, as buildstate.inputs_fingerprint reads them), and the ids of the base, tools and
-imports images. A secret's value is not an input (BuildKit's cache ignores it too). Builds
-that push, export a cache, seed from a build state, write an --output, run on a BuildKit of
-their own or set NO_CACHE always run."""
+content, as buildstate.inputs_fingerprint reads them), the ids of the base, tools and
+imports images, and SOURCE_DATE_EPOCH (buildx passes it on). A secret's value is not an
+input (BuildKit's cache ignores it too). Builds that push, export a cache, seed from a build
+state, write an --output, run on a BuildKit of their own or set NO_CACHE always run."""
 
 from __future__ import annotations
 
@@ -51,11 +51,11 @@ def target_inputs(spec: Mapping[str, Any], temporary: str, shared: str) -> str:
     return hashlib.sha256(f"{shared}\0{text}".encode()).hexdigest()
 
 
-def shared_inputs(dockerfile: bytes, context_digest: str, image_ids: Mapping[str, str]) -> str:
+def shared_inputs(dockerfile: bytes, context_digest: str, others: Mapping[str, str]) -> str:
     """The inputs every target of the build has: its Dockerfile, its context's files and the
-    ids of the images it starts from (base, tools, imports)."""
+    others (the ids of the images it starts from: base, tools, imports; SOURCE_DATE_EPOCH)."""
     parts = [hashlib.sha256(dockerfile).hexdigest(), context_digest,
-             *(f"{name}={image_id}" for name, image_id in sorted(image_ids.items()))]
+             *(f"{name}={value}" for name, value in sorted(others.items()))]
     return hashlib.sha256("\0".join(parts).encode()).hexdigest()
 
 
