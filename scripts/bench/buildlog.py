@@ -90,6 +90,9 @@ def resolve_keys(base_image: str, keys: Sequence[str]) -> Dict[str, List[str]]:
     return found
 
 
+UP_TO_DATE = ": up to date, built from these same inputs"
+
+
 def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = (),
             timed: Optional[List[Tuple[float, str]]] = None,
             task: str = "build", extra_env: Optional[Dict[str, str]] = None
@@ -158,7 +161,8 @@ def compiled_units(output: str) -> List[str]:
 
 
 def dependency_layers(output: str) -> str:
-    """'rebuilt' when a dependencies-{dev,run} RUN executed, 'reused' when all came from cache.
+    """'rebuilt' when a dependencies-{dev,run} RUN executed, 'reused' when all came from cache,
+    'kept' when the images were up to date (BuildKit not started: host/unchanged.py).
     Vertex numbers restart with every buildx invocation."""
     names: Dict[str, str] = {}
     cached: Dict[str, bool] = {}
@@ -184,7 +188,7 @@ def dependency_layers(output: str) -> str:
         elif not cached.get(match.group(1)):
             ran = True
     if not seen:
-        return "?"
+        return "kept" if UP_TO_DATE in output else "?"
     return "rebuilt" if ran else "reused"
 
 

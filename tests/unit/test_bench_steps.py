@@ -9,7 +9,12 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / "scripts"))
 
-from bench.buildlog import stage_count, steps_resolved  # noqa: E402
+import io  # noqa: E402
+
+import pytest  # noqa: E402
+from bench.buildlog import dependency_layers, stage_count, steps_resolved  # noqa: E402
+
+from docker_ros.host import build, unchanged  # noqa: E402
 
 # Lines as `docker buildx bake` prints them (two invocations: vertex numbers restart)
 LOG = """\
@@ -39,3 +44,16 @@ def test_the_stages_are_the_dockerfile_s_from_lines():
     text = dockerfile.read_text()
     froms = [line for line in text.splitlines() if line.upper().startswith("FROM ")]
     assert stage_count(dockerfile) == len(froms) > 20
+
+
+def test_images_up_to_date_read_as_kept(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """What the tool prints when the record says the images are up to date (BuildKit not
+    started) is what the bench reads as 'kept'."""
+    record = tmp_path / "record.json"
+    unchanged.write(record, {"x:1": {"inputs": "a", "id": "sha256:1", "digest": ""}})
+    monkeypatch.setattr(build, "image_id", lambda ref: "sha256:1")
+    out = io.StringIO()
+    kept = build.up_to_date(record, {"x:1": "a"}, {"run": "x:1"}, "amd64", out)
+    assert [image.reused for image in kept] == [True]
+    assert dependency_layers(out.getvalue()) == "kept"
+    assert dependency_layers(LOG) == "?"  # (no dependencies RUN in it)
