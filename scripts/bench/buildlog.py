@@ -16,6 +16,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 from bench import REPO, BenchError
 from bench.workspace import COMPILE_MARK, DEV_IMAGE, IMAGE
 from docker_ros.core.settings import FIELDS, env_name
+from docker_ros.host.build import UP_TO_DATE
 from docker_ros.host.buildlog import cached_steps
 
 # bake puts the target before the stage: `#12 [dev upstream 2/2] RUN ...`
@@ -88,9 +89,6 @@ def resolve_keys(base_image: str, keys: Sequence[str]) -> Dict[str, List[str]]:
             )
         found[key] = packages
     return found
-
-
-UP_TO_DATE = ": up to date, built from these same inputs"
 
 
 def run_cli(project: Path, log: Path, *, verbose: bool, args: Sequence[str] = (),

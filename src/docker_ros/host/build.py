@@ -62,7 +62,7 @@ class BuiltImage:
     seconds: float
     digest: str = ""  # buildx's metadata file's (buildmeta), '' unknown
     cached: Tuple[int, int] = (0, 0)  # stage steps of its buildx run: (from the cache, in all)
-    reused: bool = False  # (slim) the slim image was up to date
+    reused: bool = False  # the image was up to date: not built again (unchanged, slim)
 
 
 def seed_builds(settings: Settings, specs: Dict[str, Dict[str, Any]], platform: str,
@@ -266,7 +266,8 @@ def recorded_inputs(settings: Settings, specs: Mapping[str, Dict[str, Any]], pla
     if not all(ids.values()):
         return Path(), {}
     context = Path(settings.build_context)
-    staged = b"".join(p.read_bytes() for p in sorted(dockerfile.parent.glob("Dockerfile*")))
+    # (stage_dockerfile's two files: the Dockerfile and the dockerignore BuildKit reads)
+    staged = b"".join(p.read_bytes() for p in (dockerfile, dockerfile.with_suffix(".dockerignore")))
     # (buildx passes SOURCE_DATE_EPOCH from the environment to the build as an argument)
     ids["SOURCE_DATE_EPOCH"] = environ.get("SOURCE_DATE_EPOCH", "")
     shared = unchanged.shared_inputs(staged, buildstate.inputs_fingerprint(context, {}, left_out),
@@ -276,6 +277,10 @@ def recorded_inputs(settings: Settings, specs: Mapping[str, Dict[str, Any]], pla
                     for spec in specs.values()}
 
 
+# How a build says its images were up to date (the bench reads it)
+UP_TO_DATE = ": up to date, built from these same inputs"
+
+
 def up_to_date(record: Path, inputs: Mapping[str, str], targets: Mapping[str, str],
                platform: str, out: IO[str]) -> List[BuiltImage]:
     """The images of targets as they are, when the record says they were built from these
@@ -283,9 +288,8 @@ def up_to_date(record: Path, inputs: Mapping[str, str], targets: Mapping[str, st
     kept = unchanged.read(record)
     if not unchanged.up_to_date(kept, inputs, {tag: image_id(tag) for tag in inputs}):
         return []
-    print(f"==> docker-ros build ({platform}) {', '.join(targets)}: up to date, built from these "
-          f"same inputs ({', '.join(targets.values())}); not rebuilt (NO_CACHE=true rebuilds)",
-          file=out)
+    print(f"==> docker-ros build ({platform}) {', '.join(targets)}{UP_TO_DATE} "
+          f"({', '.join(targets.values())}); not rebuilt (NO_CACHE=true rebuilds)", file=out)
     return [BuiltImage(t, tag, platform, 0.0, kept["images"][tag].get("digest", ""),
                        reused=True) for t, tag in targets.items()]
 
