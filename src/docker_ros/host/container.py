@@ -37,8 +37,10 @@ STEP_MODULE = ("python3", "-m", "docker_ros.in_image.steps")
 LIB = "/docker-ros/lib"
 WORKDIR = "/docker-ros/ws"
 TARGET_DIR = "/docker-ros/ws/src/target"
-# As every RUN of the Dockerfile: trust EXTRA_CA_CERTS for this command only, then the step.
-CA_WRAPPER = ("bash", "-c", f'source {LIB}/docker_ros/docker/ca-certs.sh && exec "$@"', "bash")
+# As every RUN of the Dockerfile: trust EXTRA_CA_CERTS for this command only, then the step, its
+# stderr (the step's log) on stdout: the engine reads two streams apart, which can reorder them.
+CA_WRAPPER = ("bash", "-c", f'source {LIB}/docker_ros/docker/ca-certs.sh && exec "$@" 2>&1',
+              "bash")
 STATE_LABEL = ours("state")
 # the steps the dependency stages install with (their apply phases)
 INSTALL_STEPS = tuple(s for s in PHASED if BY_NAME[s].stage == "dependencies-dev")
