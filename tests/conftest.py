@@ -4,6 +4,7 @@ host's CA bundle. Tests that need Docker are marked `@pytest.mark.docker`."""
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import secrets
 import shutil
@@ -447,11 +448,12 @@ def auth_registry(
 
 @contextlib.contextmanager
 def serve_registry(docker_client: docker.DockerClient, work: Path,
-                   auth: Optional[dict] = None) -> Iterator[str]:
+                   auth: Optional[dict] = None, port: int = 0) -> Iterator[str]:
+    """A `docker-registry` serving work/storage; on port when given, else on a free one."""
     executable = shutil.which("docker-registry")
     if executable is None:
         pytest.fail(f"docker-registry (Debian package) is not installed; {SETUP_HINT}")
-    address = f"{REGISTRY_HOST}:{free_port()}"
+    address = f"{REGISTRY_HOST}:{port or free_port()}"
     config = {
         "version": 0.1,
         "log": {"level": "warn"},
@@ -479,10 +481,20 @@ def serve_registry(docker_client: docker.DockerClient, work: Path,
         shutil.rmtree(work / "storage", ignore_errors=True)
 
 
-def free_port() -> int:
+def free_port(preferred: int = 0) -> int:
+    """preferred when it is free, else a port the system picks."""
     with socket.socket() as probe:
-        probe.bind((REGISTRY_HOST, 0))
+        try:
+            probe.bind((REGISTRY_HOST, preferred))
+        except OSError:
+            probe.bind((REGISTRY_HOST, 0))
         return int(probe.getsockname()[1])
+
+
+def stable_port(name: str) -> int:
+    """The same free port in every run for name (a registry whose address is in the names of
+    the images a kept BuildKit caches), or any free port when that one is taken."""
+    return free_port(20000 + int(hashlib.sha256(name.encode()).hexdigest(), 16) % 20000)
 
 
 def wait_for_registry(address: str, server: subprocess.Popen, log_path: Path) -> None:

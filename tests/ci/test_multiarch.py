@@ -47,12 +47,15 @@ import json
 import os
 import platform
 import re
+import shutil
 import subprocess
+import tempfile
 import time
 import uuid
 from pathlib import Path
-from typing import Dict, List, Mapping, Optional, Tuple
+from typing import Dict, Iterator, List, Mapping, Optional, Tuple
 
+import docker
 import pytest
 
 from docker_ros.host import engine
@@ -70,6 +73,7 @@ from tests.ci.cihelp import (
     registry_tags,
 )
 from tests.ci.github_harness import Event, run_action
+from tests.conftest import serve_registry, stable_port
 from tests.docker.buildhelp import (
     cached_vertices,
     docker_ros,
@@ -338,9 +342,31 @@ def last_step(vertex: str, target: str) -> bool:
     return bool(match) and match.group(1) == match.group(2)
 
 
+@pytest.fixture(scope="module")
+def builder_registry(docker_client: docker.DockerClient,
+                     tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """A registry of this module on the same port in every run where that port is free: the
+    images' names hold it, and so do the kept builder's cache keys (BASE_IMAGE is an ARG of
+    the steps, the cache mount ids follow it and IMAGE)."""
+    with serve_registry(docker_client, tmp_path_factory.mktemp("builder-registry"),
+                        port=stable_port("docker-ros-test-container-builder")) as address:
+        yield address
+
+
+@pytest.fixture
+def stable_checkout(repository: Path) -> Iterator[Path]:
+    """A clone of the repository at the same path in every run (the colcon cache mount's id
+    follows the checkout's path), removed afterwards. (The suite's lock: one run at a time.)"""
+    path = Path(tempfile.gettempdir()) / f"docker-ros-test-container-builder-{os.getuid()}"
+    shutil.rmtree(path, ignore_errors=True)
+    subprocess.run(["git", "clone", "-q", str(repository), str(path)], check=True)
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
 def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_its_cache(
-    repository: Path, ros1_base_image: str, ros1_arm64_base_image: str, engine26: str,
-    buildkit_image: str, kept_builder: str, local_registry: str
+    stable_checkout: Path, ros1_base_image: str, ros1_arm64_base_image: str, engine26: str,
+    buildkit_image: str, kept_builder: str, builder_registry: str
 ) -> None:
     """What a GitHub workflow with docker/setup-qemu-action and docker/setup-buildx-action
     gets: a docker-container builder (its own BuildKit, QEMU through the kernel's binfmt
@@ -351,14 +377,14 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
     A new, empty builder (a fresh CI runner's) then takes every step of both platforms from
     that cache: the tools and imports images it gets have the digests of the first, and
     nothing runs under QEMU. (The first builder is the one kept between runs; its cache does
-    not serve a later run yet, see tests.engines.kept_container_builder. What it pushes is the
-    registry cache of every stage whether it built the steps or had them cached.)"""
+    serves a later run of the same code: the same registry port, checkout path and names. What
+    it pushes is the registry cache of every stage whether it built the steps or had them
+    cached.)"""
     engines.copy_once(ros1_arm64_base_image, engine26)
     env26 = env_for(engine26)
-    suffix = uuid.uuid4().hex[:8]
-    # (the base's name holds this run's registry port; BuildKit's cache knows it by digest)
-    base = f"{local_registry}/docker-ros-test/multiarch-base:bookworm"
-    name = f"{local_registry}/{IMAGE}-builder-{suffix}"
+    base = f"{builder_registry}/docker-ros-test/multiarch-base:bookworm"
+    # (this module's registry is new in every run: no name of an earlier run is in it)
+    name = f"{builder_registry}/{IMAGE}-builder"
     settings = {"DOCKER_HOST": engine26, "BASE_IMAGE": base, "IMAGE": f"{name}:latest",
                 "TARGET": "run", "PLATFORM": "amd64,arm64", "CACHE_TO": f"{name}:cache"}
     try:
@@ -372,7 +398,7 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
                                 capture_output=True, text=True)
         assert joined.returncode == 0, joined.stderr
         began = time.monotonic()
-        result = docker_ros(repository, "push", env={**settings, "BUILDER": kept_builder})
+        result = docker_ros(stable_checkout, "push", env={**settings, "BUILDER": kept_builder})
         print(f"push through a docker-container builder, PLATFORM=amd64,arm64: "
               f"{time.monotonic() - began:.0f} s")
         assert result.returncode == 0, result.stdout[-6000:]
@@ -380,7 +406,7 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
         assert "CACHE_TO: registry cache of every stage (mode=max)" in result.stdout
         assert manifest_architectures(f"{name}:latest") == ["amd64", "arm64"]
         assert {"latest", "cache-run-amd64", "cache-run-arm64"} <= set(
-            registry_tags(local_registry, name.split("/", 1)[1]))
+            registry_tags(builder_registry, name.split("/", 1)[1]))
         ref = f"{name}:latest"
         assert pulled_architecture(ref, "arm64") == "arm64"
         out = run_until(ref, HEARD, 120)
@@ -388,7 +414,7 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
 
         subprocess.run(["docker", "rmi", ref], env=env26, capture_output=True)
         with engines.container_builder(engine26, buildkit_image) as empty:
-            again = docker_ros(repository, "build", env={**settings, "BUILDER": empty})
+            again = docker_ros(stable_checkout, "build", env={**settings, "BUILDER": empty})
         assert again.returncode == 0, again.stdout[-6000:]
         built = built_targets(again.stdout)
         assert set(built) == {("amd64", "run"), ("arm64", "run")}, again.stdout[-3000:]
@@ -403,7 +429,8 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
         assert "Starting >>> " not in again.stdout
     finally:
         remove_image(f"{name}:latest")
-        subprocess.run(["docker", "rmi", f"{name}:latest", f"{base}-amd64", f"{base}-arm64"],
+        subprocess.run(["docker", "rmi", f"{name}:latest", f"{name}:latest-amd64",
+                        f"{name}:latest-arm64", f"{base}-amd64", f"{base}-arm64"],
                        env=env26, capture_output=True)
 
 
