@@ -8,7 +8,6 @@ import hashlib
 import os
 import secrets
 import shutil
-import socket
 import ssl
 import subprocess
 import sys
@@ -28,6 +27,7 @@ import yaml
 from docker_ros.host import baseimage
 from tests import engines, leftovers, suitelock
 from tests.processes import stop
+from tests.rosfixtures import free_port
 from tests.warmup import Warmup
 
 ROS1_BASE_IMAGE = "docker-ros-test/ros1:bookworm"
@@ -479,16 +479,6 @@ def serve_registry(docker_client: docker.DockerClient, work: Path,
         # its storage is of no use any more (a few GB: the run's folder is kept for its logs)
         leftovers.remove_registry_images(docker_client, address)
         shutil.rmtree(work / "storage", ignore_errors=True)
-
-
-def free_port(preferred: int = 0) -> int:
-    """preferred when it is free, else a port the system picks."""
-    with socket.socket() as probe:
-        try:
-            probe.bind((REGISTRY_HOST, preferred))
-        except OSError:
-            probe.bind((REGISTRY_HOST, 0))
-        return int(probe.getsockname()[1])
 
 
 def stable_port(name: str) -> int:

@@ -277,11 +277,11 @@ def buildkit_image(host: str, base_image: str) -> str:
 def kept_container_builder(host: str, image: str) -> str:
     """A docker-container builder of the engine at host (image: buildkit_image) that is kept
     between runs, as the base images are: its BuildKit keeps its cache for a later run of the
-    same code. That needs the same cache keys: BASE_IMAGE is an ARG of the steps and the cache
-    mount ids follow it, IMAGE and the checkout's path, so the container-builder test keeps
-    its registry's port and its checkout's path from run to run (2026-11-29: its push build
-    45 s instead of 217 to 248 s). Named after the image, so a new BuildKit makes a new one. A
-    builder that must start empty (a fresh CI runner's) is container_builder's."""
+    same code. That needs the same cache keys: BASE_IMAGE is an ARG of the steps, so the
+    container-builder test keeps its registry's port from run to run (2026-11-29: its push
+    build 45 s instead of 217 to 248 s; the cache mount ids, which follow IMAGE and the
+    checkout's path, are not part of the keys). Named after the image, so a new BuildKit makes
+    a new one. A builder that must start empty (a fresh CI runner's) is container_builder's."""
     name = f"docker-ros-test-bk-kept-{hashlib.sha256(image.encode()).hexdigest()[:8]}"
     env = env_for(host)
     # (each run has a DOCKER_CONFIG of its own: buildx then knows no builder, and `create`

@@ -284,9 +284,13 @@ def git_http_server(root: Union[str, Path], user: str, password: str) -> Threadi
     return server
 
 
-def free_port() -> int:
+def free_port(preferred: int = 0) -> int:
+    """A free port of 127.0.0.1: preferred when it is free, else one the system picks."""
     with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
+        try:
+            probe.bind(("127.0.0.1", preferred))
+        except OSError:
+            probe.bind(("127.0.0.1", 0))
         return int(probe.getsockname()[1])
 
 

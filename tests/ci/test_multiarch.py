@@ -47,9 +47,7 @@ import json
 import os
 import platform
 import re
-import shutil
 import subprocess
-import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -346,26 +344,15 @@ def last_step(vertex: str, target: str) -> bool:
 def builder_registry(docker_client: docker.DockerClient,
                      tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A registry of this module on the same port in every run where that port is free: the
-    images' names hold it, and so do the kept builder's cache keys (BASE_IMAGE is an ARG of
-    the steps, the cache mount ids follow it and IMAGE)."""
+    base image's name holds it, and so do the kept builder's cache keys (BASE_IMAGE is an ARG
+    of the steps)."""
     with serve_registry(docker_client, tmp_path_factory.mktemp("builder-registry"),
                         port=stable_port("docker-ros-test-container-builder")) as address:
         yield address
 
 
-@pytest.fixture
-def stable_checkout(repository: Path) -> Iterator[Path]:
-    """A clone of the repository at the same path in every run (the colcon cache mount's id
-    follows the checkout's path), removed afterwards. (The suite's lock: one run at a time.)"""
-    path = Path(tempfile.gettempdir()) / f"docker-ros-test-container-builder-{os.getuid()}"
-    shutil.rmtree(path, ignore_errors=True)
-    subprocess.run(["git", "clone", "-q", str(repository), str(path)], check=True)
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
-
-
 def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_its_cache(
-    stable_checkout: Path, ros1_base_image: str, ros1_arm64_base_image: str, engine26: str,
+    repository: Path, ros1_base_image: str, ros1_arm64_base_image: str, engine26: str,
     buildkit_image: str, kept_builder: str, builder_registry: str
 ) -> None:
     """What a GitHub workflow with docker/setup-qemu-action and docker/setup-buildx-action
@@ -376,10 +363,9 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
     a registry cache of every stage, and the pulled arm64 image runs its talker and listener.
     A new, empty builder (a fresh CI runner's) then takes every step of both platforms from
     that cache: the tools and imports images it gets have the digests of the first, and
-    nothing runs under QEMU. (The first builder is the one kept between runs; its cache does
-    serves a later run of the same code: the same registry port, checkout path and names. What
-    it pushes is the registry cache of every stage whether it built the steps or had them
-    cached.)"""
+    nothing runs under QEMU. (The first builder is the one kept between runs; its cache serves
+    a later run of the same code: its registry keeps its port, hence the names. What it pushes
+    is the registry cache of every stage whether it built the steps or had them cached.)"""
     engines.copy_once(ros1_arm64_base_image, engine26)
     env26 = env_for(engine26)
     base = f"{builder_registry}/docker-ros-test/multiarch-base:bookworm"
@@ -398,7 +384,7 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
                                 capture_output=True, text=True)
         assert joined.returncode == 0, joined.stderr
         began = time.monotonic()
-        result = docker_ros(stable_checkout, "push", env={**settings, "BUILDER": kept_builder})
+        result = docker_ros(repository, "push", env={**settings, "BUILDER": kept_builder})
         print(f"push through a docker-container builder, PLATFORM=amd64,arm64: "
               f"{time.monotonic() - began:.0f} s")
         assert result.returncode == 0, result.stdout[-6000:]
@@ -414,7 +400,7 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
 
         subprocess.run(["docker", "rmi", ref], env=env26, capture_output=True)
         with engines.container_builder(engine26, buildkit_image) as empty:
-            again = docker_ros(stable_checkout, "build", env={**settings, "BUILDER": empty})
+            again = docker_ros(repository, "build", env={**settings, "BUILDER": empty})
         assert again.returncode == 0, again.stdout[-6000:]
         built = built_targets(again.stdout)
         assert set(built) == {("amd64", "run"), ("arm64", "run")}, again.stdout[-3000:]
