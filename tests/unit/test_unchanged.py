@@ -37,6 +37,32 @@ def test_only_a_plain_local_build_stands_on_its_record(change: dict, applies: bo
                                  own_buildkit=False)
 
 
+def test_in_a_ci_job_cache_exports_seeds_and_the_build_state_stand_on_the_jobs_record(
+    tmp_path: Path
+) -> None:
+    """`docker-ros ci` runs build, test, slim, then push: push's build of the same inputs
+    stands on the job's record (the images the job tested are pushed, not a rebuild of them),
+    which is kept beside the job's record, not in the user's cache (an earlier job's is never
+    read)."""
+    ci = dataclasses.replace(Settings(), cache_to="r/x:cache", build_state_from=("r/x:s",))
+    targets = {"dev": "x:1-dev", "run": "x:1", "build-state": "x:1-build-state-amd64"}
+    assert not unchanged.applies(ci, targets, push=False, output="", own_buildkit=False)
+    assert unchanged.applies(ci, targets, push=False, output="", own_buildkit=False,
+                             in_job=True)
+    for kept_out in ({"no_cache": True},):
+        assert not unchanged.applies(dataclasses.replace(ci, **kept_out), targets, push=False,
+                                     output="", own_buildkit=False, in_job=True)
+    assert not unchanged.applies(ci, targets, push=False, output="", own_buildkit=True,
+                                 in_job=True)
+    assert not unchanged.applies(ci, {"test-results": "t"}, push=False, output="",
+                                 own_buildkit=False, in_job=True)
+    job = {"XDG_CACHE_HOME": str(tmp_path / "cache"),
+           "DOCKER_ROS_JOB_RECORD": str(tmp_path / "job" / "record.jsonl")}
+    assert unchanged.in_job(job) and not unchanged.in_job({})
+    path = unchanged.record_path("unix:///a.sock", tmp_path / "repo", "amd64", job)
+    assert path.parent == tmp_path / "job" / "builds"
+
+
 def test_a_targets_inputs_leave_out_the_temporary_folder_and_follow_everything_else() -> None:
     shared = unchanged.shared_inputs(b"FROM b", "ctx", {"base": "sha256:1"})
     digest = unchanged.target_inputs(SPEC, "/tmp/docker-ros-build-abc", shared)

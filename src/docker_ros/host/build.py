@@ -209,13 +209,14 @@ def build_images_locked(
             del specs["build-state"]
             built.append(BuiltImage("build-state", targets["build-state"], platform, 0.0))
         record, inputs = Path(), {}  # type: Tuple[Path, Dict[str, str]]
+        job = unchanged.in_job(environ)
         if unchanged.applies(settings, targets, push=push, output=output,
-                             own_buildkit=layouts is not None):
+                             own_buildkit=layouts is not None, in_job=job):
             record, inputs = recorded_inputs(settings, specs, platform, dockerfile, environ,
                                              {"base": base, "tools": tools, "imports": imports})
-            kept = up_to_date(record, inputs, targets, platform, out)
+            kept = up_to_date(record, inputs, {t: targets[t] for t in specs}, platform, out)
             if kept:
-                return kept, imports
+                return built + kept, imports
         allow = bake_grants(buildx, settings, tmp) if bake else None
         if allow is not None:
             definition_file = Path(tmp) / "docker-ros.bake.json"
@@ -261,8 +262,10 @@ def recorded_inputs(settings: Settings, specs: Mapping[str, Dict[str, Any]], pla
                     ) -> Tuple[Path, Dict[str, str]]:
     """The record of this repository's builds and each tag's inputs (see unchanged); no inputs
     when an image the build starts from is not in the engine (a base only in a registry: its
-    tag may name a newer image there)."""
-    ids = {name: image_id(ref) for name, ref in images.items()}
+    tag may name a newer image there), except in a CI job: there its name stands for it (the
+    job's own build pulled it minutes before)."""
+    job = unchanged.in_job(environ)
+    ids = {name: image_id(ref) or (ref if job else "") for name, ref in images.items()}
     if not all(ids.values()):
         return Path(), {}
     context = Path(settings.build_context)

@@ -9,7 +9,13 @@ arguments, labels, secrets' ids, the Dockerfile), the build context's files (pat
 content, as buildstate.inputs_fingerprint reads them), the ids of the base, tools and
 imports images, and SOURCE_DATE_EPOCH (buildx passes it on). A secret's value is not an
 input (BuildKit's cache ignores it too). Builds that push, export a cache, seed from a build
-state, write an --output, run on a BuildKit of their own or set NO_CACHE always run."""
+state, write an --output, run on a BuildKit of their own or set NO_CACHE always run.
+
+In a CI job (`docker-ros ci`, whose tasks share a record: jobsummary.RECORD_ENV) the record
+is the job's own, kept beside it, and also holds builds that export a cache or seed from a
+build state, and the build state: the job's `push` after `build`, `test` and `slim` then
+pushes the images the job built and tested, not a rebuild of them (an inline cache alone gives
+a rebuild new image ids, and slim then ran again)."""
 
 from __future__ import annotations
 
@@ -22,26 +28,36 @@ from typing import Any, Mapping, Optional
 
 from docker_ros.core.settings import Settings
 from docker_ros.host import buildmeta
+from docker_ros.host.jobsummary import RECORD_ENV
 
 TARGETS = ("dev", "run")
 
 
 def applies(settings: Settings, targets: Mapping[str, str], *, push: bool, output: str,
-            own_buildkit: bool) -> bool:
+            own_buildkit: bool, in_job: bool = False) -> bool:
     """Whether this build may stand on its record: dev and/or run loaded into an engine, with
-    no cache export, build-state seed, NO_CACHE or BuildKit of its own."""
-    return (bool(targets) and set(targets) <= set(TARGETS) and not push and not output
-            and not own_buildkit and not settings.cache_to and not settings.no_cache
-            and not settings.build_state_from)
+    no NO_CACHE or BuildKit of its own, and no cache export or build-state seed unless in a CI
+    job (in_job; there the build state too)."""
+    allowed = TARGETS + (("build-state",) if in_job else ())
+    return (bool(targets) and set(targets) <= set(allowed) and not push and not output
+            and not own_buildkit and not settings.no_cache
+            and (in_job or not (settings.cache_to or settings.build_state_from)))
+
+
+def in_job(environ: Mapping[str, str]) -> bool:
+    """Whether this task runs in a CI job's `docker-ros ci` (which keeps a record)."""
+    return bool(environ.get(RECORD_ENV))
 
 
 def record_path(host: str, context: Path, platform: str,
                 environ: Mapping[str, str]) -> Path:
     """The record of builds of the repository at context for platform in the engine at host:
-    $XDG_CACHE_HOME/docker-ros/builds/<digest>.json (~/.cache unless set)."""
-    cache = Path(environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    $XDG_CACHE_HOME/docker-ros/builds/<digest>.json (~/.cache unless set); in a CI job, the
+    job's own, beside its record (gone with it)."""
+    cache = Path(environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "docker-ros"
+    folder = Path(environ[RECORD_ENV]).parent if in_job(environ) else cache
     key = hashlib.sha256(f"{host}\0{context.resolve()}\0{platform}".encode()).hexdigest()
-    return cache / "docker-ros" / "builds" / f"{key[:32]}.json"
+    return folder / "builds" / f"{key[:32]}.json"
 
 
 def target_inputs(spec: Mapping[str, Any], temporary: str, shared: str) -> str:
