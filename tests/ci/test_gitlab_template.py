@@ -148,6 +148,16 @@ def test_pipelines_pass(pipelines: dict) -> None:
     assert "Slim run-amd64" not in pipelines["feature"].stdout  # ENABLE_SLIM=false there
 
 
+def test_the_job_pushes_the_images_it_built_and_tested(pipelines: dict) -> None:
+    """build-amd64's push builds and slims nothing again: on this engine (the classic store,
+    inline cache) a rebuild had new image ids, and slim ran a second time."""
+    log = pipelines["main"].stdout
+    push = log.split("docker-ros ci: docker-ros push", 1)[1]
+    assert "dev, run, build-state: up to date, built from these same inputs" in push, push[:3000]
+    assert "is up to date (made from" in push
+    assert log.count("==> docker-ros slim ") == 1
+
+
 def test_feature_branch_and_main_push_docker_ros_tags(pipelines: dict) -> None:
     auth = pipelines["registry"]
     assert registry_tags(auth.address, IMAGE, auth.auth) == [

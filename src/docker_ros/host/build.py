@@ -244,8 +244,10 @@ def build_images_locked(
             built += [BuiltImage(t, targets[t], platform, seconds, digests.get(t, ""), cached)
                       for t in names]
     if inputs:
+        # (not a build state the seed found built from these inputs: it was tagged, not built)
         unchanged.write(record, {image.ref: {"inputs": inputs[image.ref], "digest": image.digest,
-                                             "id": image_id(image.ref)} for image in built})
+                                             "id": image_id(image.ref)}
+                                 for image in built if image.ref in inputs})
     return built, imports
 
 
