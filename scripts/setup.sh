@@ -194,7 +194,9 @@ else
     fi
     "${SUDO[@]}" ip link set "$ENGINE26_BRIDGE" up
     "${SUDO[@]}" mkdir -p "$ENGINE26_RUN" "$ENGINE26_DATA"
-    echo '{"features": {"containerd-snapshotter": true}}' \
+    # (its build cache kept under 10 GB: the suite's images change with every run of new code)
+    echo '{"features": {"containerd-snapshotter": true},
+          "builder": {"gc": {"enabled": true, "defaultKeepStorage": "10GB"}}}' \
         | "${SUDO[@]}" tee "$ENGINE26_DATA/daemon.json" >/dev/null
     "${SUDO[@]}" env PATH="$ENGINE26_ROOT/usr/bin:$ENGINE26_ROOT/usr/sbin:$PATH" setsid \
         "$ENGINE26_ROOT/usr/sbin/dockerd" --config-file "$ENGINE26_DATA/daemon.json" \
