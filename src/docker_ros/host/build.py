@@ -213,7 +213,8 @@ def build_images_locked(
         if unchanged.applies(settings, targets, push=push, output=output,
                              own_buildkit=layouts is not None, in_job=job):
             record, inputs = recorded_inputs(settings, specs, platform, dockerfile, environ,
-                                             {"base": base, "tools": tools, "imports": imports})
+                                             {"base": base, "tools": tools, "imports": imports},
+                                             in_job=job)
             kept = up_to_date(record, inputs, {t: targets[t] for t in specs}, platform, out)
             if kept:
                 return built + kept, imports
@@ -260,14 +261,13 @@ def image_id(ref: str) -> str:
 
 
 def recorded_inputs(settings: Settings, specs: Mapping[str, Dict[str, Any]], platform: str,
-                    dockerfile: Path, environ: Mapping[str, str], images: Mapping[str, str]
-                    ) -> Tuple[Path, Dict[str, str]]:
+                    dockerfile: Path, environ: Mapping[str, str], images: Mapping[str, str],
+                    *, in_job: bool = False) -> Tuple[Path, Dict[str, str]]:
     """The record of this repository's builds and each tag's inputs (see unchanged); no inputs
     when an image the build starts from is not in the engine (a base only in a registry: its
     tag may name a newer image there), except in a CI job: there its name stands for it (the
     job's own build pulled it minutes before)."""
-    job = unchanged.in_job(environ)
-    ids = {name: image_id(ref) or (ref if job else "") for name, ref in images.items()}
+    ids = {name: image_id(ref) or (ref if in_job else "") for name, ref in images.items()}
     if not all(ids.values()):
         return Path(), {}
     context = Path(settings.build_context)
