@@ -1,6 +1,7 @@
 """CI on empty runners (issue 21): the build state travels through the registry next to the
 run image; the next build, on a build cache that holds nothing of this project, compiles only
-what changed, and builds everything, saying why, when the state does not fit or is missing."""
+what changed, and builds everything, saying why, when the state does not fit or is missing.
+A build state built after its build/ cache was pruned is built again, not pushed empty."""
 
 from __future__ import annotations
 
@@ -30,9 +31,14 @@ def cache_ids() -> Iterator[List[str]]:
     ids: List[str] = []
     yield ids
     for each in ids:
-        for record in cache_record_ids(f"docker-ros-build-{each}"):
-            subprocess.run(["docker", "buildx", "prune", "-f", "--filter", f"id={record}"],
-                           capture_output=True, check=False)
+        prune_build_cache(each)
+
+
+def prune_build_cache(each: str) -> None:
+    """The build/ cache mount of cache id `each` gone, as BuildKit's GC can remove it."""
+    for record in cache_record_ids(f"docker-ros-build-{each}"):
+        subprocess.run(["docker", "buildx", "prune", "-f", "--filter", f"id={record}"],
+                       capture_output=True, check=False)
 
 
 def runner(source: Path, destination: Path, ids: List[str], **env: str) -> Path:
@@ -67,9 +73,24 @@ def test_build_state_from_the_registry_compiles_only_the_changed_package(
     secret = f"secret-{uuid.uuid4().hex}"
     try:
         first = runner(repo, tmp_path / "job1", cache_ids, **env)
+        # built before without a build state, then with one file edited, then that edit undone:
+        # push's build RUN is cached (the first build's), its build/ cache holds the edited
+        # build; the state is brought back to the sources (pushed as it was, it would hold what
+        # no image has been built from, or nothing after BuildKit's GC pruned the cache)
+        write_env(first, **{k: v for k, v in env.items() if k != "BUILD_STATE_FROM"})
+        source = first / "pkg_b" / "main.cpp"
+        original = source.read_text()
+        for text in (original, original.replace('"pkg_b', '"pkg_b edited'), original):
+            source.write_text(text)
+            built = docker_ros(first, "build")
+            assert built.returncode == 0, built.stdout[-4000:]
+            assert "build-state ->" not in built.stdout
+        write_env(first, **env)
         pushed = docker_ros(first, "push", env={"GIT_HTTPS_PASSWORD": secret})
         assert pushed.returncode == 0, pushed.stdout[-4000:]
-        assert "full build: no build state" in pushed.stdout
+        assert re.search(r"^#\d+ [\d.]+ build-state: the build cache holds another build's",
+                         pushed.stdout, re.MULTILINE), pushed.stdout[-4000:]
+        assert "colcon: pkg_b changed: building them and their dependents only" in pushed.stdout
         # (the state's own name, not a longer one; its registry digest follows when known)
         assert re.search(rf"^pushed {re.escape(state)}-amd64( \(sha256:[0-9a-f]+\))?$",
                          pushed.stdout, re.MULTILINE), pushed.stdout[-3000:]
