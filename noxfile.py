@@ -7,7 +7,7 @@ from typing import List
 
 import nox
 
-nox.options.sessions = ["lint", "typecheck", "docs", "tests"]
+nox.options.sessions = ["checks", "tests"]
 nox.options.reuse_existing_virtualenvs = True
 
 ROOT = Path(__file__).parent
@@ -25,27 +25,49 @@ def python_paths(candidates: tuple) -> List[str]:
     return found
 
 
-@nox.session
-def lint(session: nox.Session) -> None:
-    """ruff over the code and the tests."""
-    session.install("ruff>=0.5")
+def run_lint(session: nox.Session) -> None:
     session.run("ruff", "check", *python_paths(LINT_PATHS))
 
 
-@nox.session
-def typecheck(session: nox.Session) -> None:
-    """mypy with the settings in pyproject.toml."""
-    session.install("-e", ".[test]")
+def run_typecheck(session: nox.Session) -> None:
     session.run("mypy", *python_paths(TYPECHECK_PATHS))
 
 
+def run_docs(session: nox.Session) -> None:
+    session.run("sphinx-build", "-W", "--keep-going", "-n", "-E", "-b", "html",
+                "docs", str(ROOT / "build" / "docs" / "html"))
+
+
 @nox.session
+def checks(session: nox.Session) -> None:
+    """lint, typecheck and docs in one environment (one install): what `nox` runs before the
+    tests."""
+    session.install("-e", ".[test,docs]")
+    run_lint(session)
+    run_typecheck(session)
+    run_docs(session)
+
+
+@nox.session(default=False)
+def lint(session: nox.Session) -> None:
+    """ruff over the code and the tests."""
+    session.install("ruff>=0.5")
+    run_lint(session)
+
+
+@nox.session(default=False)
+def typecheck(session: nox.Session) -> None:
+    """mypy with the settings in pyproject.toml."""
+    session.install("-e", ".[test]")
+    run_typecheck(session)
+
+
+@nox.session(default=False)
 def docs(session: nox.Session) -> None:
     """The documentation site (Sphinx + MyST), strict: a warning, a broken link, a missing page
     or an unknown reference fails. HTML in build/docs/html (`nox -s docs`)."""
     session.install("-e", ".[docs]")
-    session.run("sphinx-build", "-W", "--keep-going", "-n", "-E", "-b", "html",
-                "docs", str(ROOT / "build" / "docs" / "html"))
+    run_docs(session)
 
 
 # The whole suite runs on two processes (pytest-xdist): a docker test waits on the engine, the
