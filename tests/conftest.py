@@ -18,7 +18,7 @@ import urllib.request
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, Iterator, Optional, Tuple
+from typing import Any, Callable, Dict, Iterator, Optional, Tuple
 
 import docker
 import pytest
@@ -433,16 +433,37 @@ def auth_registry(
 ) -> Iterator[AuthRegistry]:
     """A `docker-registry` that requires authentication; the password is new for every run
     (tests search logs and command lines for it)."""
+    with serve_auth_registry(docker_client, tmp_path_factory.mktemp("auth-registry")) as registry:
+        yield registry
+
+
+def module_auth_registry(name: str) -> Any:
+    """A module fixture: a registry with a login, the module's own and empty, on the same port
+    in every run where that port is free (stable_port(name)). A private base pushed there has
+    the port in its name, and so have the cache keys of the jobs that build FROM it: the engine
+    keeps them from run to run, and the jobs' builds are cached."""
+    @pytest.fixture(scope="module")
+    def fixture(docker_client: docker.DockerClient,
+                tmp_path_factory: pytest.TempPathFactory) -> Iterator[AuthRegistry]:
+        with serve_auth_registry(docker_client, tmp_path_factory.mktemp("registry"),
+                                 port=stable_port(name)) as registry:
+            yield registry
+    return fixture
+
+
+@contextlib.contextmanager
+def serve_auth_registry(docker_client: docker.DockerClient, work: Path,
+                        port: int = 0) -> Iterator[AuthRegistry]:
+    """serve_registry with a login (user docker-ros-ci, a new password)."""
     htpasswd = shutil.which("htpasswd")
     if htpasswd is None:
         pytest.fail(f"htpasswd (Debian package apache2-utils) is not installed; {SETUP_HINT}")
-    work = tmp_path_factory.mktemp("auth-registry")
     user, password = "docker-ros-ci", f"pw-{secrets.token_hex(16)}"
     entry = subprocess.run([htpasswd, "-iBn", user], input=password, capture_output=True,
                            text=True, check=True).stdout
     (work / "htpasswd").write_text(entry)
     auth = {"htpasswd": {"realm": "docker-ros-test", "path": str(work / "htpasswd")}}
-    with serve_registry(docker_client, work, auth=auth) as address:
+    with serve_registry(docker_client, work, auth=auth, port=port) as address:
         yield AuthRegistry(address, user, password)
 
 

@@ -287,6 +287,8 @@ def git_http_server(root: Union[str, Path], user: str, password: str) -> Threadi
 def free_port(preferred: int = 0) -> int:
     """A free port of 127.0.0.1: preferred when it is free, else one the system picks."""
     with socket.socket() as probe:
+        # (as a server binds: a port whose last connections are in TIME_WAIT is free)
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             probe.bind(("127.0.0.1", preferred))
         except OSError:
