@@ -95,23 +95,6 @@ def copy_once(ref: str, host: str) -> None:
             copy_image(ref, host)
 
 
-def empty_again(host: str, keep: str) -> None:
-    """A private engine (one private_daemon started, never the shared one) as a fresh runner
-    finds it: every image but keep removed, and its whole build cache (cache mounts too). A
-    second fresh runner without a second daemon, whose copy of the base takes half a minute."""
-    env = env_for(host)
-    kept = subprocess.run(["docker", "image", "inspect", "-f", "{{.Id}}", keep], env=env,
-                          capture_output=True, text=True, check=True).stdout.strip()
-    listed = subprocess.run(["docker", "images", "-aq", "--no-trunc"], env=env,
-                            capture_output=True, text=True, check=True).stdout.split()
-    others = sorted(set(listed) - {kept})
-    if others:
-        subprocess.run(["docker", "rmi", "-f", *others], env=env, capture_output=True,
-                       check=True)
-    subprocess.run(["docker", "builder", "prune", "-af"], env=env, capture_output=True,
-                   check=True)
-
-
 def engine26_dockerd() -> Path:
     return ENGINE26_ROOT / "usr" / "sbin" / "dockerd"
 

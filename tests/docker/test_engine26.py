@@ -33,7 +33,7 @@ from tests.ci.cihelp import (
 from tests.ci.test_gitlab_template import gitlab_ci_local
 from tests.docker.buildhelp import cached_vertices, docker_ros, not_from_cache, write_env
 from tests.docker.test_fast_rebuilds import compiled_objects
-from tests.engines import ENGINE26_HOST, empty_again
+from tests.engines import ENGINE26_HOST, private_engine
 
 pytestmark = pytest.mark.docker
 
@@ -157,8 +157,7 @@ def assert_every_step_cached(log: str) -> None:
 def test_after_a_one_file_edit_engine26_compiles_it_then_caches_every_stage(
     first_pipeline: dict, empty_engine26: str, tmp_path: Path
 ) -> None:
-    """Two fresh runners (an empty Engine 26, then emptied again: engines.empty_again), on a
-    clone of the repository (the module's own
+    """Two fresh runners (empty Engine 26s), on a clone of the repository (the module's own
     stays as the first pipeline built it):
     1. one .cpp edited: the job builds over the pulled build state and compiles that file only;
     2. nothing changed since: every stage of dev and run comes from the registry cache, the
@@ -189,9 +188,9 @@ def test_after_a_one_file_edit_engine26_compiles_it_then_caches_every_stage(
     assert [len(o) for o in compiled_objects(run).values()] == [1], compiled_objects(run)
 
     before = pushed_state(registry)
-    empty_again(empty_engine26, first_pipeline["base"])
-    again = pipeline(repo, registry, empty_engine26, first_pipeline["wheel"],
-                     ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
+    with private_engine([first_pipeline["base"]], modern=True) as host:
+        again = pipeline(repo, registry, host, first_pipeline["wheel"],
+                         ENABLE_SLIM="false", ENABLE_INDUSTRIAL_CI="false")
     assert again.returncode == 0, again.stdout[-6000:]
     log = build_log(repo)
     assert f"seeding as that build was ({registry}/{IMAGE}@sha256:" in log
