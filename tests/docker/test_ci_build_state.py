@@ -1,7 +1,8 @@
 """CI on empty runners (issue 21): the build state travels through the registry next to the
 run image; the next build, on a build cache that holds nothing of this project, compiles only
 what changed, and builds everything, saying why, when the state does not fit or is missing.
-A build state built after its build/ cache was pruned is built again, not pushed empty."""
+A build state whose build/ cache holds another build's sources (the build RUN cached, the
+cache pruned or used since) is built again from its own sources before it is pushed."""
 
 from __future__ import annotations
 
@@ -31,14 +32,9 @@ def cache_ids() -> Iterator[List[str]]:
     ids: List[str] = []
     yield ids
     for each in ids:
-        prune_build_cache(each)
-
-
-def prune_build_cache(each: str) -> None:
-    """The build/ cache mount of cache id `each` gone, as BuildKit's GC can remove it."""
-    for record in cache_record_ids(f"docker-ros-build-{each}"):
-        subprocess.run(["docker", "buildx", "prune", "-f", "--filter", f"id={record}"],
-                       capture_output=True, check=False)
+        for record in cache_record_ids(f"docker-ros-build-{each}"):
+            subprocess.run(["docker", "buildx", "prune", "-f", "--filter", f"id={record}"],
+                           capture_output=True, check=False)
 
 
 def runner(source: Path, destination: Path, ids: List[str], **env: str) -> Path:
