@@ -274,10 +274,12 @@ def dangling_images() -> Dict[Optional[str], set]:
 
 
 def remove_this_runs_images(root: Path, before: Dict[Optional[str], set]) -> None:
-    """leftovers.remove_run_images on each engine of before (dangling_images)."""
+    """leftovers.remove_run_images on each engine of before (dangling_images), for the
+    repositories below root and below STABLE_ROOT (stable_folder)."""
     for host, dangling in before.items():
         with ENGINE_DOWN, engine_client(host) as client:
-            leftovers.remove_run_images(client, root, dangling)
+            for folder in (root, STABLE_ROOT):
+                leftovers.remove_run_images(client, folder, dangling)
 
 
 def engine_client(host: Optional[str]) -> contextlib.closing:
@@ -449,6 +451,34 @@ def module_auth_registry(name: str) -> Any:
                                  port=stable_port(name)) as registry:
             yield registry
     return fixture
+
+
+def module_registry(name: str) -> Any:
+    """module_auth_registry without a login: the image names pushed there hold the same
+    address in every run, and so does the build cache id docker-ros derives from them."""
+    @pytest.fixture(scope="module")
+    def fixture(docker_client: docker.DockerClient,
+                tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+        with serve_registry(docker_client, tmp_path_factory.mktemp("registry"),
+                            port=stable_port(name)) as address:
+            yield address
+    return fixture
+
+
+STABLE_ROOT = Path(tempfile.gettempdir()) / "docker-ros-test-stable"
+
+
+def stable_folder(name: str) -> Path:
+    """An empty folder at the same path in every run (STABLE_ROOT/name; what an earlier run
+    left there is removed first, the imports images of its repositories at the run's end).
+    docker-ros's colcon build cache id holds the build context's path and the image name
+    (buildplan.cache_id), and Engine 20.10's BuildKit keys the build step on the cache id: a
+    repository at a new path in each run is compiled again in each run (under QEMU for arm64:
+    25 s for one Python package)."""
+    folder = STABLE_ROOT / name
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    return folder
 
 
 @contextlib.contextmanager

@@ -30,7 +30,7 @@ from tests.ci.cihelp import (
     registry_tags,
 )
 from tests.ci.github_harness import Event, run_action
-from tests.conftest import AuthRegistry, module_auth_registry
+from tests.conftest import AuthRegistry, module_auth_registry, stable_folder
 
 pytestmark = pytest.mark.docker
 
@@ -47,9 +47,8 @@ own_registry = module_auth_registry("docker-ros-test-github-action")
 
 
 @pytest.fixture(scope="module")
-def runs(ros1_base_image: str, own_registry: AuthRegistry, engine26: str,
-         tmp_path_factory: pytest.TempPathFactory) -> dict:
-    root = tmp_path_factory.mktemp("github")
+def runs(ros1_base_image: str, own_registry: AuthRegistry, engine26: str) -> dict:
+    root = stable_folder("github-action")  # (the build cache id: see conftest.stable_folder)
     base = push_private_base_image(ros1_base_image, own_registry.address, own_registry.auth)
     repo = example_repository(root, base)
     git(repo, "push", "-q", "origin", f"main:{FEATURE}")

@@ -31,7 +31,7 @@ from tests.ci.cihelp import (
     registry_digest,
     registry_tags,
 )
-from tests.conftest import AuthRegistry, module_auth_registry
+from tests.conftest import AuthRegistry, module_auth_registry, stable_folder
 
 pytestmark = pytest.mark.docker
 
@@ -87,11 +87,11 @@ own_registry = module_auth_registry("docker-ros-test-gitlab-template")
 
 
 @pytest.fixture(scope="module")
-def pipelines(ros1_base_image: str, own_registry: AuthRegistry, docker_ros_wheel: Path,
-              tmp_path_factory: pytest.TempPathFactory) -> dict:
+def pipelines(ros1_base_image: str, own_registry: AuthRegistry,
+              docker_ros_wheel: Path) -> dict:
     """One pipeline on a feature branch, one on main; jobs log in to a registry that requires
     it, build FROM a private image there, and run docker with a recorded command line."""
-    root = tmp_path_factory.mktemp("gitlab")
+    root = stable_folder("gitlab-template")  # (the build cache id: see conftest.stable_folder)
     base = push_private_base_image(ros1_base_image, own_registry.address, own_registry.auth)
     repo = example_repository(root, base)
     (repo / ".gitlab-ci").mkdir()
