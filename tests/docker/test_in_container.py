@@ -3,6 +3,7 @@ a stage, and `--shell-on-failure` with and without a terminal, on the example wo
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import shlex
@@ -35,7 +36,9 @@ SUFFIXES = [f"after-{s}" for s in ("blacklist", "rosdep", "files", "custom")] + 
 
 def step_block(log: str, step: str) -> List[str]:
     """The lines of the step's last run (Starting >>> to Finished <<<): in a BuildKit log only
-    its RUN's lines (`#N 1.23 ` prefix, stripped: stages run in parallel); without the time."""
+    its RUN's lines (`#N 1.23 ` prefix, stripped: stages run in parallel), up to the next step
+    or the RUN's end (its standard output, apart from standard error, may come after
+    Finished); without the time."""
     lines = log.splitlines()
     begin = max(i for i, line in enumerate(lines) if line.endswith(f"Starting >>> {step}"))
     vertex = re.match(r"#\d+ ", lines[begin])
@@ -45,7 +48,11 @@ def step_block(log: str, step: str) -> List[str]:
     else:
         lines = lines[begin:]
     end = next(i for i, line in enumerate(lines) if line.startswith(f"Finished <<< {step}"))
-    return lines[:end] + [re.sub(r" \[.*\]$", "", lines[end])]
+    block = lines[:end] + [re.sub(r" \[.*\]$", "", lines[end])]
+    if vertex:  # the RUN's standard output may reach the log after the step's last line
+        block += itertools.takewhile(lambda line: not line.startswith(("Starting >>> ", "#")),
+                                     lines[end + 1:])
+    return block
 
 
 def by_stream(lines: List[str], step: str) -> Tuple[List[str], List[str]]:
