@@ -439,30 +439,26 @@ def auth_registry(
         yield registry
 
 
-def module_auth_registry(name: str) -> Any:
-    """A module fixture: a registry with a login, the module's own and empty, on the same port
-    in every run where that port is free (stable_port(name)). A private base pushed there has
-    the port in its name, and so have the cache keys of the jobs that build FROM it: the engine
-    keeps them from run to run, and the jobs' builds are cached."""
+def module_registry(name: str, login: bool = False) -> Any:
+    """A module fixture: a registry of the module's own, empty, on the same port in every run
+    where that port is free (stable_port(name)); with login, one that wants a user and
+    password (an AuthRegistry). The image names pushed there hold the same address in every
+    run. A private base pushed there has the port in its name, and so have the cache keys of
+    the jobs that build FROM it; so has docker-ros's build cache id (see stable_folder): the
+    engine keeps them from run to run, and the jobs' builds are cached."""
     @pytest.fixture(scope="module")
     def fixture(docker_client: docker.DockerClient,
-                tmp_path_factory: pytest.TempPathFactory) -> Iterator[AuthRegistry]:
-        with serve_auth_registry(docker_client, tmp_path_factory.mktemp("registry"),
-                                 port=stable_port(name)) as registry:
+                tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
+        serve = serve_auth_registry if login else serve_registry
+        with serve(docker_client, tmp_path_factory.mktemp("registry"),
+                   port=stable_port(name)) as registry:
             yield registry
     return fixture
 
 
-def module_registry(name: str) -> Any:
-    """module_auth_registry without a login: the image names pushed there hold the same
-    address in every run, and so does the build cache id docker-ros derives from them."""
-    @pytest.fixture(scope="module")
-    def fixture(docker_client: docker.DockerClient,
-                tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-        with serve_registry(docker_client, tmp_path_factory.mktemp("registry"),
-                            port=stable_port(name)) as address:
-            yield address
-    return fixture
+def module_auth_registry(name: str) -> Any:
+    """module_registry with a login."""
+    return module_registry(name, login=True)
 
 
 STABLE_ROOT = Path(tempfile.gettempdir()) / "docker-ros-test-stable"
