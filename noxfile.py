@@ -71,9 +71,9 @@ def docs(session: nox.Session) -> None:
 
 
 # The whole suite runs on three processes (pytest-xdist) on 2 cores: a docker test waits on the
-# engine, a registry or apt as often as it computes (with three, the cores were idle 3% of the
-# docker tests' time; 25.1 minutes warm against 25.8 to 29.3 with two). A module's tests stay
-# in one process, in order; the longest modules start first (tests/conftest.py, module_rank).
+# engine, a registry or apt as often as it computes (CONTRIBUTING.md has the figures). A
+# module's tests stay in one process, in order; the longest modules start first
+# (tests/conftest.py, module_rank).
 WORKERS = ("-n", "3", "--dist", "loadfile", "--no-loadscope-reorder")
 
 

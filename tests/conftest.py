@@ -278,8 +278,7 @@ def remove_this_runs_images(root: Path, before: Dict[Optional[str], set]) -> Non
     repositories below root and below STABLE_ROOT (stable_folder)."""
     for host, dangling in before.items():
         with ENGINE_DOWN, engine_client(host) as client:
-            for folder in (root, STABLE_ROOT):
-                leftovers.remove_run_images(client, folder, dangling)
+            leftovers.remove_run_images(client, (root, STABLE_ROOT), dangling)
 
 
 def engine_client(host: Optional[str]) -> contextlib.closing:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import re
 from pathlib import Path
-from typing import Callable, Iterator, Set
+from typing import Callable, Iterable, Iterator, Set
 
 import docker
 
@@ -43,15 +43,15 @@ def untagged(client: docker.DockerClient, label: str = RECIPE_LABEL) -> Set[str]
     return {str(image["Id"]) for image in images}
 
 
-def remove_run_images(client: docker.DockerClient, root: Path, before: Set[str],
+def remove_run_images(client: docker.DockerClient, roots: Iterable[Path], before: Set[str],
                       label: str = RECIPE_LABEL) -> None:
-    """The imports images of the repositories below root (at most 5 levels down: a run on
+    """The imports images of the repositories below the roots (at most 5 levels down: a run on
     several processes has a folder per process), and the images of label that became dangling
     since the run began (before: `untagged` then): the run's rebuilds untagged them, its own or
     a previous run's under the same test names. Called when the run's builds are over: an image
     being built is dangling until it is tagged. The raw lists: images.list() inspects each
     image and fails when another user of the engine removes one meanwhile."""
-    owners = {imports_owner(folder) for folder in folders(root, 5)}
+    owners = {imports_owner(folder) for root in roots for folder in folders(root, 5)}
     for image in client.api.images(filters={"label": IMPORTS_LABEL}):
         if (image.get("Labels") or {}).get(IMPORTS_LABEL) in owners:
             for tag in image.get("RepoTags") or []:

@@ -87,6 +87,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     else:
         docker("image", "rm", "-f", IMAGE, DEV_IMAGE, LEAN_IMAGE, SLIM_IMAGE)
         # the imports images of its workspaces (in tmp) and the images its rebuilds untagged
-        leftovers.remove_run_images(engine.client(), tmp, before)
+        leftovers.remove_run_images(engine.client(), [tmp], before)
         shutil.rmtree(tmp, ignore_errors=True)
     return 1 if failed else 0

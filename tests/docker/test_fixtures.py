@@ -197,7 +197,7 @@ def test_a_run_removes_the_images_it_left_and_nothing_else(
     other = imports_image("other", tmp_path / "elsewhere")
     try:
         assert old in before and earlier not in before
-        leftovers.remove_run_images(docker_client, root, before, label)
+        leftovers.remove_run_images(docker_client, [root], before, label)
         left = {image["Id"] for image in docker_client.api.images(all=True)}
         assert earlier not in left and rebuilt not in left and mine not in left
         assert old in left and other in left

@@ -55,10 +55,11 @@ def step_block(log: str, step: str) -> List[str]:
     return block
 
 
-def by_stream(lines: List[str], step: str) -> Tuple[List[str], List[str]]:
-    """A step block's lines of the step's log (standard error) and the rest (its commands'
+def step_streams(log: str, step: str) -> Tuple[List[str], List[str]]:
+    """The step block's lines of the step's log (standard error) and the rest (its commands'
     standard output), each in order. A BuildKit RUN carries the two streams apart, and its log
     may show a command's output before the step's line naming the command."""
+    lines = step_block(log, step)
     logged = [line for line in lines
               if line.startswith((f"{step}:", "Starting >>> ", "Finished <<< "))]
     return logged, [line for line in lines if line not in logged]
@@ -114,13 +115,11 @@ def test_step_in_container_has_the_output_of_the_full_build(good: Dict) -> None:
     # resumed on top of rosdep's state: debs..files ran here, scripts and rosdep did not again
     assert f"starting from {good['image']}-after-rosdep" in custom.stdout
     assert "Starting >>> rosdep" not in custom.stdout and "Starting >>> debs" in custom.stdout
-    assert (by_stream(step_block(custom.stdout, "custom"), "custom")
-            == by_stream(step_block(good["full"], "custom"), "custom"))
+    assert step_streams(custom.stdout, "custom") == step_streams(good["full"], "custom")
     assert "custom says hi from /docker-ros/ws\n" in custom.stdout
     blacklist = docker_ros(good["path"], "blacklist", "--in-container")
     assert blacklist.returncode == 0, blacklist.stdout[-3000:]
-    assert (by_stream(step_block(blacklist.stdout, "blacklist"), "blacklist")
-            == by_stream(step_block(good["full"], "blacklist"), "blacklist"))
+    assert step_streams(blacklist.stdout, "blacklist") == step_streams(good["full"], "blacklist")
     assert "'no_such_pkg' matches no package" in blacklist.stdout
     tag = f"{good['image']}-after-custom"
     assert f"tagged {tag}" in custom.stdout
