@@ -310,8 +310,8 @@ def test_gitlab_job_of_another_architecture_decides_to_register_qemu(
         tmp_path: Path, platform: str, handlers: dict, said: str, docker_argv: object) -> None:
     """The build jobs' QEMU snippet's decision, run by sh on this amd64 machine with a
     `docker` that only writes its command line: the default image's exact command. The
-    registration itself runs for real in tests/ci/test_multiarch.py, with an image standing in
-    for tonistiigi/binfmt (Docker Hub, out of this machine's reach)."""
+    registration itself runs for real in tests/ci/test_multiarch_builder.py, with an image
+    standing in for tonistiigi/binfmt (Docker Hub, out of this machine's reach)."""
     template = load(TEMPLATE)
     snippet = template[".docker-ros-qemu"]["script"][0]
     binfmt = tmp_path / "binfmt"

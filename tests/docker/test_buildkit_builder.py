@@ -4,7 +4,7 @@ Debian's source (tests.engines.buildkit_image: moby/buildkit cannot be pulled he
 Engine 26 (Engine 20.10 here cannot start the privileged container it needs).
 
 Building there, pushing with a registry cache of every stage and an empty builder (a fresh
-runner's) taking every step from that cache: tests/ci/test_multiarch.py's container builder
+runner's) taking every step from that cache: tests/ci/test_multiarch_builder.py's container builder
 test, for both platforms at once, TARGET=run (one cold builder build per run, not two; dev
 goes through the same OCI layouts of the tools and imports images)."""
 

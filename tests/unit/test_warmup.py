@@ -1,6 +1,6 @@
-"""The suite's warm-up (tests/warmup.py): jobs run in order in one background thread, a fixture
-waits for its own job, one not started (or still queued) runs in the caller, a failure reaches
-the caller."""
+"""The suite's warm-up (tests/warmup.py): a lane's jobs run in order in one background thread,
+lanes side by side, a fixture waits for its own job, one not started (or still queued) runs in
+the caller, a failure reaches the caller."""
 
 from __future__ import annotations
 
@@ -42,6 +42,19 @@ def test_jobs_run_in_order_in_one_background_thread_and_each_result_waits_for_it
     assert ran == ["second in the caller", "first", "third"]
     assert len(threads) == 2 and threading.current_thread().name in threads
     assert warmup.result("other", lambda: "in the caller") == "in the caller"
+    warmup.stop()
+
+
+def test_a_lane_of_its_own_runs_beside_the_others():
+    release = threading.Event()
+    warmup = Warmup()
+    warmup.start([("ros1", lambda: release.wait(10) and "ros1")])
+    warmup.start([("arm64", lambda: threading.current_thread().name)], lane="arm64")
+    # the arm64 job ends while the other lane's first job still waits
+    assert warmup.result("arm64", lambda: "not run").startswith("docker-ros-test-warmup-arm64")
+    assert not release.is_set()
+    release.set()
+    assert warmup.result("ros1", lambda: "not run") == "ros1"
     warmup.stop()
 
 
