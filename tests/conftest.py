@@ -180,12 +180,14 @@ def docker_client() -> Iterator[docker.DockerClient]:
     client.close()
 
 
-# Modules whose tests need what the warm-up makes last (the arm64 base, the BuildKit image)
+# Modules whose tests need what the warm-up takes longest to make (the arm64 base, the BuildKit
+# image)
 LATE_FIXTURES = ("ros1_arm64_base_image", "buildkit_image")
 
 
-# Minutes the slowest docker modules took in the last full run (README, "Tests"): a run on
-# several processes starts them first, longest first, so that no long one runs alone at its end
+# Minutes the slowest docker modules took in a full run (CONTRIBUTING.md, "Warm engine", has
+# the last figures): a run on several processes starts them first, longest first, so that no
+# long one runs alone at its end
 MINUTES = {"tests/ci/test_multiarch.py": 8.5, "tests/docker/test_engine26.py": 9.7,
            "tests/ci/test_multiarch_builder.py": 3.0,
            "tests/ci/test_github_action.py": 5.6, "tests/docker/test_faults.py": 2.4,

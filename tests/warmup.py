@@ -47,8 +47,8 @@ class Warmup:
         return future.result()
 
     def stop(self) -> None:
-        """Drop the jobs not begun; wait for the one running (a bootstrap half done would leave
-        its temporary rootfs image)."""
+        """Drop the jobs not begun; wait for the one running in each lane (a bootstrap half
+        done would leave its temporary rootfs image)."""
         for pool in self._pools.values():
             pool.shutdown(wait=True, cancel_futures=True)
         self._pools = {}
