@@ -4,7 +4,9 @@ host's CA bundle. Tests that need Docker are marked `@pytest.mark.docker`."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
+import json
 import os
 import secrets
 import shutil
@@ -18,7 +20,7 @@ import urllib.request
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterator, Optional, Tuple
+from typing import Callable, Dict, Iterator, Optional, Tuple
 
 import docker
 import pytest
@@ -97,6 +99,7 @@ def pytest_sessionstart(session: pytest.Session) -> None:
             raise pytest.UsageError(str(exc)) from None
         remove_killed_runs_images()
         session.config.stash[DANGLING_KEY] = dangling_images()
+        share_registries(session.config)
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
@@ -118,6 +121,8 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
     """The warm-up stops; the controller of a run's processes removes what they left
     (this_runs_images), below its temporary folder, which holds theirs."""
     WARMUP.stop()
+    if REGISTRIES_KEY in session.config.stash:
+        session.config.stash[REGISTRIES_KEY].close()
     if DANGLING_KEY in session.config.stash:
         remove_this_runs_images(session.config._tmp_path_factory.getbasetemp(),  # type: ignore
                                 session.config.stash[DANGLING_KEY])
@@ -415,15 +420,6 @@ def ros1_ubuntu_base_image(docker_client: docker.DockerClient) -> str:
     return warm("ros1_ubuntu_base_image")
 
 
-@pytest.fixture(scope="session")
-def local_registry(
-    docker_client: docker.DockerClient, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[str]:
-    """A private `docker-registry` on 127.0.0.1 with throwaway storage; yields its address."""
-    with serve_registry(docker_client, tmp_path_factory.mktemp("registry")) as address:
-        yield address
-
-
 @dataclass(frozen=True)
 class AuthRegistry:
     """A registry that answers only with a user and password (htpasswd), as a CI's does."""
@@ -438,36 +434,72 @@ class AuthRegistry:
         return {"username": self.user, "password": self.password}
 
 
+# The run's two registries, a plain one and one that wants a login (REGISTRIES), serve all its
+# processes and modules; each module pushes under repository names of its own. One for the run,
+# not one per module: Engine 20.10 compresses the layers it pushes anew for each registry
+# (within one, it mounts them from a repository that has them), and the ROS bases are most of
+# every push. Their ports are the same in every run where they are free (stable_port): the
+# images pushed there hold the address in their names, and so do the cache keys of the builds
+# FROM them (a private base) and docker-ros's build cache ids (see stable_folder), which the
+# engines keep from run to run.
+REGISTRIES = "DOCKER_ROS_TEST_REGISTRIES"  # (a file naming them, for a run's processes)
+REGISTRIES_KEY = pytest.StashKey[contextlib.ExitStack]()
+
+
+@contextlib.contextmanager
+def serve_registries(work: Path) -> Iterator[Tuple[str, AuthRegistry]]:
+    """The plain registry and the one with a login, their storage and logs below work."""
+    with serve_registry(work / "plain", port=stable_port("docker-ros-test-registry")) as plain, \
+            serve_auth_registry(work / "login",
+                                port=stable_port("docker-ros-test-login-registry")) as login:
+        yield plain, login
+
+
+def share_registries(config: pytest.Config) -> None:
+    """The controller of a run's processes serves its registries before it starts them and
+    names them in the file REGISTRIES points to (only its owner reads it: it holds the
+    password); pytest_sessionfinish stops them. Without docker-registry or htpasswd, the
+    processes' fixtures fail, saying what is missing."""
+    if not (shutil.which("docker-registry") and shutil.which("htpasswd")):
+        return
+    work = config._tmp_path_factory.getbasetemp() / "registries"  # type: ignore[attr-defined]
+    stack = contextlib.ExitStack()
+    try:
+        plain, login = stack.enter_context(serve_registries(work))
+    except pytest.fail.Exception as exc:
+        raise pytest.UsageError(str(exc)) from None
+    config.stash[REGISTRIES_KEY] = stack
+    named = work / "registries.json"
+    named.touch(mode=0o600)
+    named.write_text(json.dumps({"plain": plain, "login": dataclasses.asdict(login)}))
+    os.environ[REGISTRIES] = str(named)
+
+
 @pytest.fixture(scope="session")
-def auth_registry(
-    docker_client: docker.DockerClient, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[AuthRegistry]:
-    """A `docker-registry` that requires authentication; the password is new for every run
-    (tests search logs and command lines for it)."""
-    with serve_auth_registry(docker_client, tmp_path_factory.mktemp("auth-registry")) as registry:
-        yield registry
+def registries(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Tuple[str, AuthRegistry]]:
+    """The run's registries: its controller's (share_registries), or in a run of one process
+    its own."""
+    if os.environ.get(REGISTRIES):
+        named = json.loads(Path(os.environ[REGISTRIES]).read_text())
+        yield named["plain"], AuthRegistry(**named["login"])
+        return
+    with serve_registries(tmp_path_factory.mktemp("registries")) as both:
+        yield both
 
 
-def module_registry(name: str, login: bool = False) -> Any:
-    """A module fixture: a registry of the module's own, empty, on the same port in every run
-    where that port is free (stable_port(name)); with login, one that wants a user and
-    password (an AuthRegistry). The image names pushed there hold the same address in every
-    run. A private base pushed there has the port in its name, and so have the cache keys of
-    the jobs that build FROM it; so has docker-ros's build cache id (see stable_folder): the
-    engine keeps them from run to run, and the jobs' builds are cached."""
-    @pytest.fixture(scope="module")
-    def fixture(docker_client: docker.DockerClient,
-                tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
-        serve = serve_auth_registry if login else serve_registry
-        with serve(docker_client, tmp_path_factory.mktemp("registry"),
-                   port=stable_port(name)) as registry:
-            yield registry
-    return fixture
+@pytest.fixture(scope="session")
+def local_registry(registries: Tuple[str, AuthRegistry]) -> str:
+    """A private `docker-registry` on 127.0.0.1, this run's (registries); yields its address.
+    Push under a repository name of the test's module: the run's modules share it."""
+    return registries[0]
 
 
-def module_auth_registry(name: str) -> Any:
-    """module_registry with a login."""
-    return module_registry(name, login=True)
+@pytest.fixture(scope="session")
+def auth_registry(registries: Tuple[str, AuthRegistry]) -> AuthRegistry:
+    """A `docker-registry` that requires authentication, this run's (registries); its password
+    is new in every run (tests search logs and command lines for it). Push under a repository
+    name of the test's module: the run's modules share it."""
+    return registries[1]
 
 
 STABLE_ROOT = Path(tempfile.gettempdir()) / "docker-ros-test-stable"
@@ -487,28 +519,28 @@ def stable_folder(name: str) -> Path:
 
 
 @contextlib.contextmanager
-def serve_auth_registry(docker_client: docker.DockerClient, work: Path,
-                        port: int = 0) -> Iterator[AuthRegistry]:
+def serve_auth_registry(work: Path, port: int = 0) -> Iterator[AuthRegistry]:
     """serve_registry with a login (user docker-ros-ci, a new password)."""
     htpasswd = shutil.which("htpasswd")
     if htpasswd is None:
         pytest.fail(f"htpasswd (Debian package apache2-utils) is not installed; {SETUP_HINT}")
+    work.mkdir(parents=True, exist_ok=True)
     user, password = "docker-ros-ci", f"pw-{secrets.token_hex(16)}"
     entry = subprocess.run([htpasswd, "-iBn", user], input=password, capture_output=True,
                            text=True, check=True).stdout
     (work / "htpasswd").write_text(entry)
     auth = {"htpasswd": {"realm": "docker-ros-test", "path": str(work / "htpasswd")}}
-    with serve_registry(docker_client, work, auth=auth, port=port) as address:
+    with serve_registry(work, auth=auth, port=port) as address:
         yield AuthRegistry(address, user, password)
 
 
 @contextlib.contextmanager
-def serve_registry(docker_client: docker.DockerClient, work: Path,
-                   auth: Optional[dict] = None, port: int = 0) -> Iterator[str]:
+def serve_registry(work: Path, auth: Optional[dict] = None, port: int = 0) -> Iterator[str]:
     """A `docker-registry` serving work/storage; on port when given, else on a free one."""
     executable = shutil.which("docker-registry")
     if executable is None:
         pytest.fail(f"docker-registry (Debian package) is not installed; {SETUP_HINT}")
+    work.mkdir(parents=True, exist_ok=True)
     address = f"{REGISTRY_HOST}:{port or free_port()}"
     config = {
         "version": 0.1,
@@ -531,9 +563,10 @@ def serve_registry(docker_client: docker.DockerClient, work: Path,
         yield address
     finally:
         stop(server, timeout=10)
-        # Images named after this registry (a free port of this run) were made by the tests;
-        # its storage is of no use any more (a few GB: the run's folder is kept for its logs)
-        leftovers.remove_registry_images(docker_client, address)
+        # Images named after this registry (a port of this run) were made by the tests; its
+        # storage is of no use any more (a few GB: the run's folder is kept for its logs)
+        with ENGINE_DOWN, engine_client(None) as client:
+            leftovers.remove_registry_images(client, address)
         shutil.rmtree(work / "storage", ignore_errors=True)
 
 

@@ -100,11 +100,11 @@ def index_architectures(registry: str, name: str, tag: str,
 
 
 def push_private_base_image(source: str, registry: str, auth: Mapping[str, str],
-                            ref: str = "") -> str:
-    """source pushed to an authenticated registry under a name no local image has (ref, default
-    docker-ros-test/private-base:bookworm there): a job that builds FROM it must log in and
-    pull it."""
-    ref = ref or f"{registry}/docker-ros-test/private-base:bookworm"
+                            repository: str) -> str:
+    """source pushed to an authenticated registry as repository:bookworm (a name of the test
+    module's: the run's modules share the registry), a name no local image has: a job that
+    builds FROM it must log in and pull it."""
+    ref = f"{registry}/{repository}:bookworm"
     client = docker.from_env()
     client.images.get(source).tag(ref)
     for event in client.images.push(ref, auth_config=dict(auth), stream=True, decode=True):

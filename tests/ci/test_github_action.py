@@ -30,7 +30,7 @@ from tests.ci.cihelp import (
     registry_tags,
 )
 from tests.ci.github_harness import Event, run_action
-from tests.conftest import AuthRegistry, module_auth_registry, stable_folder
+from tests.conftest import AuthRegistry, stable_folder
 
 pytestmark = pytest.mark.docker
 
@@ -42,21 +42,18 @@ SLUG = "feature-github-test-strasse"
 LABELS = "com.example.team=drives, navigation\ncom.example.tier=1\n"
 
 
-# (the private base's name holds the registry's port: see conftest.module_auth_registry)
-own_registry = module_auth_registry("docker-ros-test-github-action")
-
-
 @pytest.fixture(scope="module")
-def runs(ros1_base_image: str, own_registry: AuthRegistry, engine26: str) -> dict:
+def runs(ros1_base_image: str, auth_registry: AuthRegistry, engine26: str) -> dict:
     root = stable_folder("github-action")  # (the build cache id: see conftest.stable_folder)
-    base = push_private_base_image(ros1_base_image, own_registry.address, own_registry.auth)
+    base = push_private_base_image(ros1_base_image, auth_registry.address,
+                                  auth_registry.auth, f"{IMAGE}-base")
     repo = example_repository(root, base)
     git(repo, "push", "-q", "origin", f"main:{FEATURE}")
     # docker-ros's README example "Build development and deployment images" as it is, plus
     # where to push (ghcr.io cannot be reached here)
     example = {"base-image": base, "command": EXAMPLE_COMMAND, "target": "dev,run"}
-    inputs = {**example, "image-name": f"{own_registry.address}/{IMAGE}",
-              "registry": own_registry.address, "enable-push-as-latest": "true"}
+    inputs = {**example, "image-name": f"{auth_registry.address}/{IMAGE}",
+              "registry": auth_registry.address, "enable-push-as-latest": "true"}
     docker_config, argv_log, shim = docker_recorder(root)
     env = {k: v for k, v in os.environ.items()
            if k not in ("TARGET", "COMMAND", "IMAGE") and not k.startswith(("GITHUB_", "CI_"))}
@@ -75,10 +72,10 @@ def runs(ros1_base_image: str, own_registry: AuthRegistry, engine26: str) -> dic
                                                  "containerd-image-store": "false"})):
         forget_local(base)  # each run pulls it
         event = Event(origin=root / "origin.git", repository="Org/Example-Repo", ref_name=branch,
-                      actor=own_registry.user, token=own_registry.password)
+                      actor=auth_registry.user, token=auth_registry.password)
         results[key] = run_action(REPO, {**inputs, **extra}, event, root / key, env,
                                   containerd_engine=engine26)
-    return {"registry": own_registry, "root": root, "docker_config": docker_config,
+    return {"registry": auth_registry, "root": root, "docker_config": docker_config,
             "argv_log": argv_log, **results}
 
 

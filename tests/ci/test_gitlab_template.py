@@ -31,7 +31,7 @@ from tests.ci.cihelp import (
     registry_digest,
     registry_tags,
 )
-from tests.conftest import AuthRegistry, module_auth_registry, stable_folder
+from tests.conftest import AuthRegistry, stable_folder
 
 pytestmark = pytest.mark.docker
 
@@ -82,17 +82,14 @@ def dotenv_reports(repo: Path, since: float) -> Dict[str, str]:
     return found
 
 
-# (the private base's name holds the registry's port: see conftest.module_auth_registry)
-own_registry = module_auth_registry("docker-ros-test-gitlab-template")
-
-
 @pytest.fixture(scope="module")
-def pipelines(ros1_base_image: str, own_registry: AuthRegistry,
+def pipelines(ros1_base_image: str, auth_registry: AuthRegistry,
               docker_ros_wheel: Path) -> dict:
     """One pipeline on a feature branch, one on main; jobs log in to a registry that requires
     it, build FROM a private image there, and run docker with a recorded command line."""
     root = stable_folder("gitlab-template")  # (the build cache id: see conftest.stable_folder)
-    base = push_private_base_image(ros1_base_image, own_registry.address, own_registry.auth)
+    base = push_private_base_image(ros1_base_image, auth_registry.address,
+                                  auth_registry.auth, f"{IMAGE}-base")
     repo = example_repository(root, base)
     (repo / ".gitlab-ci").mkdir()
     shutil.copy(REPO / ".gitlab-ci" / "docker-ros.yml", repo / ".gitlab-ci" / "docker-ros.yml")
@@ -102,9 +99,9 @@ def pipelines(ros1_base_image: str, own_registry: AuthRegistry,
     git(repo, "commit", "-qm", "ci")
     variables = {
         "GITLAB_CI": "true",  # gitlab-ci-local says false; GitLab says true
-        "IMAGE_NAME": f"{own_registry.address}/{IMAGE}",
-        "REGISTRY": own_registry.address,
-        "REGISTRY_USER": own_registry.user,
+        "IMAGE_NAME": f"{auth_registry.address}/{IMAGE}",
+        "REGISTRY": auth_registry.address,
+        "REGISTRY_USER": auth_registry.user,
         "DOCKER_ROS_PIP_SPEC": str(docker_ros_wheel),
         "ENABLE_SLIM": "false",
         "ENABLE_INDUSTRIAL_CI": "false",
@@ -118,7 +115,7 @@ def pipelines(ros1_base_image: str, own_registry: AuthRegistry,
     results, reports = {}, {}
     git(repo, "checkout", "-q", "-b", FEATURE)
     # GIT_HTTPS_PASSWORD: GitLab's job token by default, which gitlab-ci-local does not set
-    secrets = {"REGISTRY_PASSWORD": own_registry.password,
+    secrets = {"REGISTRY_PASSWORD": auth_registry.password,
                "GIT_HTTPS_PASSWORD": f"glpat-{uuid.uuid4().hex}"}
     began = time.time()
     results["feature"] = gitlab_ci_local(repo, variables, secrets=secrets, env=env)
@@ -131,7 +128,7 @@ def pipelines(ros1_base_image: str, own_registry: AuthRegistry,
                                              "ENABLE_INDUSTRIAL_CI": "true"},
                                      secrets=secrets, env=env)
     reports["main"] = dotenv_reports(repo, began)
-    return {"registry": own_registry, "repo": repo, "env": env, "variables": variables,
+    return {"registry": auth_registry, "repo": repo, "env": env, "variables": variables,
             "secrets": secrets, "reports": reports,
             "docker_config": docker_config, "argv_log": argv_log, "runner_tmp": runner_tmp,
             **results}

@@ -68,7 +68,7 @@ from tests.ci.multiarch import (
     pulled_architecture,
     repository,
 )
-from tests.conftest import AuthRegistry, module_auth_registry, module_registry, stable_folder
+from tests.conftest import AuthRegistry, stable_folder
 from tests.docker.buildhelp import docker_ros, own_copy, remove_image, run_until, sh
 
 pytestmark = pytest.mark.docker
@@ -77,8 +77,6 @@ __all__ = ["repository"]  # (a module fixture of tests/ci/multiarch.py)
 # The Action's and the GitLab jobs' image names and checkouts are the same in every run (the
 # registries' ports, stable_folder): so is docker-ros's colcon cache id, and the emulated
 # colcon step comes from Engine 20.10's cache (see conftest.stable_folder).
-own_registry = module_registry("docker-ros-test-multiarch")
-own_auth_registry = module_auth_registry("docker-ros-test-multiarch-auth")
 
 
 def image_architectures(registry: str, name: str, tag: str,
@@ -118,7 +116,7 @@ def test_the_dry_run_shows_and_checks_each_platforms_base(repository: Path,
 
 
 def test_gitlab_jobs_per_architecture_then_the_manifest_job(
-    repository: Path, own_registry: str, docker_ros_wheel: Path
+    repository: Path, local_registry: str, docker_ros_wheel: Path
 ) -> None:
     """build-amd64 and build-arm64 push `-<arch>` (ENABLE_SINGLEARCH_PUSH), Push joins. Both
     jobs run on this amd64 machine (gitlab-ci-local ignores runner tags), as when no arm64
@@ -133,7 +131,7 @@ def test_gitlab_jobs_per_architecture_then_the_manifest_job(
     began = time.monotonic()
     result = gitlab_ci_local(repo, {"GITLAB_CI": "true",
                                     "DOCKER_ROS_PIP_SPEC": str(docker_ros_wheel),
-                                    "IMAGE_NAME": f"{own_registry}/{image}"})
+                                    "IMAGE_NAME": f"{local_registry}/{image}"})
     print(f"gitlab-ci-local, PLATFORM=amd64,arm64: {time.monotonic() - began:.0f} s")
     assert result.returncode == 0, result.stdout[-6000:]
     for job in ("build-amd64", "build-arm64", "Push"):
@@ -143,16 +141,16 @@ def test_gitlab_jobs_per_architecture_then_the_manifest_job(
     # run at once on one engine here, as on a shell runner, and once tagged each other's image
     assert "base image (arm64): docker-ros-test/ros1:bookworm-arm64" in result.stdout
     assert "slim: arm64 not slimmed on this amd64 runner" in result.stdout
-    assert f"manifest: {own_registry}/{image}:latest-slim-arm64 is not in the registry" in (
+    assert f"manifest: {local_registry}/{image}:latest-slim-arm64 is not in the registry" in (
         result.stdout)
-    assert registry_tags(own_registry, image) == [
+    assert registry_tags(local_registry, image) == [
         # (TARGET=run: no build state, docker-ros pushed the run image only)
         "latest", "latest-amd64", "latest-arm64",
         "latest-slim", "latest-slim-amd64",
     ]
-    assert manifest_architectures(f"{own_registry}/{image}:latest") == ["amd64", "arm64"]
-    assert manifest_architectures(f"{own_registry}/{image}:latest-slim") == ["amd64"]
-    ref = f"{own_registry}/{image}:latest"
+    assert manifest_architectures(f"{local_registry}/{image}:latest") == ["amd64", "arm64"]
+    assert manifest_architectures(f"{local_registry}/{image}:latest-slim") == ["amd64"]
+    ref = f"{local_registry}/{image}:latest"
     try:
         assert pulled_architecture(ref, "arm64") == "arm64"
         assert sh(ref, "uname -m").stdout.strip() == "aarch64"  # QEMU runs it
@@ -164,7 +162,7 @@ def test_gitlab_jobs_per_architecture_then_the_manifest_job(
 
 def test_action_single_job_multiarch_example(
     repository: Path, ros1_base_image: str, ros1_arm64_base_image: str,
-    own_auth_registry: AuthRegistry
+    auth_registry: AuthRegistry
 ) -> None:
     """docker-ros's README example "Build multi-arch images" through the Action as it is
     (dev and run, both architectures, slim left at its default: on), plus where to push: a
@@ -175,13 +173,13 @@ def test_action_single_job_multiarch_example(
     per name, slims the runner's architecture only, and passes; the password is in no log."""
     image = f"{IMAGE}-action"
     inputs = {"base-image": ros1_base_image, "command": COMMAND, "target": "dev,run",
-              "platform": "amd64,arm64", "image-name": f"{own_auth_registry.address}/{image}",
-              "registry": own_auth_registry.address,
+              "platform": "amd64,arm64", "image-name": f"{auth_registry.address}/{image}",
+              "registry": auth_registry.address,
               # the runner's engine as it is: the emulated steps are in its cache (the
               # default's engine on the containerd store is test_github_action's)
               "containerd-image-store": "false"}
     event = Event(origin=repository.parent / "origin.git", repository="Org/Multiarch",
-                  ref_name="main", actor=own_auth_registry.user, token=own_auth_registry.password)
+                  ref_name="main", actor=auth_registry.user, token=auth_registry.password)
     env = {k: v for k, v in os.environ.items()
            if k not in ("TARGET", "COMMAND", "IMAGE") and not k.startswith(("GITHUB_", "CI_"))}
     began = time.monotonic()
@@ -191,15 +189,15 @@ def test_action_single_job_multiarch_example(
     assert run.returncode == 0, run.log[-6000:]
     # a foreign platform: the action sets QEMU up
     assert "docker/setup-qemu-action@v3" in [step["uses"] for step in run.replaced]
-    assert own_auth_registry.password not in run.log
-    auth = own_auth_registry.auth
-    tags = registry_tags(own_auth_registry.address, image, auth)
+    assert auth_registry.password not in run.log
+    auth = auth_registry.auth
+    tags = registry_tags(auth_registry.address, image, auth)
     assert {"latest", "latest-dev", "latest-slim"} <= set(tags), tags
     for tag in ("latest", "latest-dev"):
-        assert index_architectures(own_auth_registry.address, image, tag, auth) == [
+        assert index_architectures(auth_registry.address, image, tag, auth) == [
             "amd64", "arm64"], tag
     # the slim names hold the runner's architecture only (slimming runs the image)
-    assert image_architectures(own_auth_registry.address, image, "latest-slim", auth) == [
+    assert image_architectures(auth_registry.address, image, "latest-slim", auth) == [
         host_arch()]
 
 

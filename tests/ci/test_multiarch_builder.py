@@ -20,15 +20,13 @@ import subprocess
 import time
 import uuid
 from pathlib import Path
-from typing import Dict, Iterator, Tuple
+from typing import Dict, Tuple
 
-import docker
 import pytest
 
 from tests import engines
 from tests.ci.cihelp import REPO, load, manifest_architectures, registry_tags
 from tests.ci.multiarch import HEARD, IMAGE, host_arch, pulled_architecture, repository
-from tests.conftest import serve_registry, stable_port
 from tests.docker.buildhelp import (
     cached_vertices,
     docker_ros,
@@ -55,20 +53,9 @@ def last_step(vertex: str, target: str) -> bool:
     return bool(match) and match.group(1) == match.group(2)
 
 
-@pytest.fixture(scope="module")
-def builder_registry(docker_client: docker.DockerClient,
-                     tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """A registry of this module on the same port in every run where that port is free: the
-    base image's name holds it, and so do the kept builder's cache keys (BASE_IMAGE is an ARG
-    of the steps)."""
-    with serve_registry(docker_client, tmp_path_factory.mktemp("builder-registry"),
-                        port=stable_port("docker-ros-test-container-builder")) as address:
-        yield address
-
-
 def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_its_cache(
     repository: Path, ros1_base_image: str, ros1_arm64_base_image: str, engine26: str,
-    buildkit_image: str, kept_builder: str, builder_registry: str
+    buildkit_image: str, kept_builder: str, local_registry: str
 ) -> None:
     """What a GitHub workflow with docker/setup-qemu-action and docker/setup-buildx-action
     gets: a docker-container builder (its own BuildKit, QEMU through the kernel's binfmt
@@ -83,9 +70,9 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
     is the registry cache of every stage whether it built the steps or had them cached.)"""
     engines.copy_once(ros1_arm64_base_image, engine26)
     env26 = env_for(engine26)
-    base = f"{builder_registry}/docker-ros-test/multiarch-base:bookworm"
+    base = f"{local_registry}/docker-ros-test/multiarch-base:bookworm"
     # (this module's registry is new in every run: no name of an earlier run is in it)
-    name = f"{builder_registry}/{IMAGE}-builder"
+    name = f"{local_registry}/{IMAGE}-builder"
     settings = {"DOCKER_HOST": engine26, "BASE_IMAGE": base, "IMAGE": f"{name}:latest",
                 "TARGET": "run", "PLATFORM": "amd64,arm64", "CACHE_TO": f"{name}:cache"}
     try:
@@ -107,7 +94,7 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
         assert "CACHE_TO: registry cache of every stage (mode=max)" in result.stdout
         assert manifest_architectures(f"{name}:latest") == ["amd64", "arm64"]
         assert {"latest", "cache-run-amd64", "cache-run-arm64"} <= set(
-            registry_tags(builder_registry, name.split("/", 1)[1]))
+            registry_tags(local_registry, name.split("/", 1)[1]))
         ref = f"{name}:latest"
         assert pulled_architecture(ref, "arm64") == "arm64"
         out = run_until(ref, HEARD, 120)

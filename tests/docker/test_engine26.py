@@ -61,7 +61,8 @@ def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
                    docker_ros_wheel: Path, tmp_path_factory: pytest.TempPathFactory
                    ) -> Iterator[Dict[str, object]]:
     """The example's main-branch pipeline on Engine 26: build, test, slim, push, manifest.
-    Engine 26 keeps no image of it afterwards (the names hold this run's registry port)."""
+    Engine 26 keeps no image of it afterwards (the other modules' images named after the
+    run's registry are theirs)."""
     repo = example_repository(tmp_path_factory.mktemp("engine26"), ros1_base_image)
     (repo / ".gitlab-ci").mkdir()
     shutil.copy(REPO / ".gitlab-ci" / "docker-ros.yml", repo / ".gitlab-ci" / "docker-ros.yml")
@@ -79,7 +80,8 @@ def first_pipeline(engine26: str, ros1_base_image: str, local_registry: str,
     env = {**os.environ, "DOCKER_HOST": engine26}
     listed = subprocess.run(["docker", "images", "--format", "{{.Repository}}:{{.Tag}}"],
                             env=env, capture_output=True, text=True)
-    mine = [ref for ref in listed.stdout.split() if ref.startswith(f"{local_registry}/")]
+    mine = [ref for ref in listed.stdout.split()
+            if ref.startswith(f"{local_registry}/{IMAGE}:")]
     if mine:
         subprocess.run(["docker", "rmi", "-f", *mine], env=env, capture_output=True)
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from tests.ci.cihelp import docker_recorder, push_private_base_image, registry_tags
-from tests.conftest import AuthRegistry, module_auth_registry
+from tests.conftest import AuthRegistry
 from tests.docker.buildhelp import docker_ros, remove_image, write_env
 from tests.rosfixtures import make_package
 
@@ -27,19 +27,16 @@ esac
 """
 
 
-# (the private base's name holds the registry's port: see conftest.module_auth_registry)
-own_registry = module_auth_registry("docker-ros-test-push-login")
-
-
 def test_push_logs_in_pulls_a_private_base_and_leaves_no_login(
-    ros1_base_image: str, own_registry: AuthRegistry, tmp_path: Path
+    ros1_base_image: str, auth_registry: AuthRegistry, tmp_path: Path
 ) -> None:
-    base = push_private_base_image(ros1_base_image, own_registry.address, own_registry.auth)
+    base = push_private_base_image(ros1_base_image, auth_registry.address,
+                                  auth_registry.auth, "docker-ros-test/push-login-base")
     make_package(tmp_path / "project" / "pkg_login", "pkg_login")
     project = tmp_path / "project"
-    ref = f"{own_registry.address}/docker-ros-test/push-login:1"
+    ref = f"{auth_registry.address}/docker-ros-test/push-login:1"
     write_env(project, BASE_IMAGE=base, IMAGE=ref, TARGET="run", COMMAND="pkg_login_node",
-              REGISTRY=own_registry.address, REGISTRY_USER=own_registry.user)
+              REGISTRY=auth_registry.address, REGISTRY_USER=auth_registry.user)
     config, argv_log, shim = docker_recorder(tmp_path)
     # The user's logins live in a credential store (as Docker Desktop's do): it stays theirs,
     # and the registry's password never reaches it.
@@ -50,21 +47,21 @@ def test_push_logs_in_pulls_a_private_base_and_leaves_no_login(
     helper.write_text(CREDENTIAL_HELPER.format(stored=stored))
     helper.chmod(0o755)
     env = {"DOCKER_CONFIG": str(config), "PATH": f"{shim}{os.pathsep}{os.environ['PATH']}",
-           "REGISTRY_PASSWORD": own_registry.password}
+           "REGISTRY_PASSWORD": auth_registry.password}
     try:
         pushed = docker_ros(project, "push", env=env)
     finally:
         remove_image(ref)
         remove_image(base)
     assert pushed.returncode == 0, pushed.stdout[-4000:]
-    assert (f"docker-ros push: logged in to {own_registry.address} as {own_registry.user}"
+    assert (f"docker-ros push: logged in to {auth_registry.address} as {auth_registry.user}"
             in pushed.stdout)
     assert pushed.stdout.count("logged in to") == 1, pushed.stdout[-4000:]
     assert f"pushed {ref}" in pushed.stdout
-    assert "1" in registry_tags(own_registry.address, "docker-ros-test/push-login",
-                                auth=own_registry.auth)
+    assert "1" in registry_tags(auth_registry.address, "docker-ros-test/push-login",
+                                auth=auth_registry.auth)
     assert "login --username docker-ros-ci --password-stdin" in argv_log.read_text()
-    assert own_registry.password not in pushed.stdout + argv_log.read_text()
+    assert auth_registry.password not in pushed.stdout + argv_log.read_text()
     # The user's configuration is as it was: their store, none of this registry's login.
     assert json.loads((config / "config.json").read_text()) == user_config
     assert sorted(os.listdir(config)) == ["cli-plugins", "config.json"]
@@ -72,11 +69,12 @@ def test_push_logs_in_pulls_a_private_base_and_leaves_no_login(
 
 
 def test_push_without_credentials_cannot_pull_the_private_base(
-    ros1_base_image: str, own_registry: AuthRegistry, tmp_path: Path
+    ros1_base_image: str, auth_registry: AuthRegistry, tmp_path: Path
 ) -> None:
     """The control: the same private base without REGISTRY_PASSWORD is refused before the
     build, naming BASE_IMAGE (so the test above needs its login)."""
-    base = push_private_base_image(ros1_base_image, own_registry.address, own_registry.auth)
+    base = push_private_base_image(ros1_base_image, auth_registry.address,
+                                  auth_registry.auth, "docker-ros-test/push-login-base")
     project = tmp_path / "project"
     make_package(project / "pkg_login", "pkg_login")
     write_env(project, BASE_IMAGE=base, IMAGE="docker-ros-test/push-login:1", TARGET="run",
