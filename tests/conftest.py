@@ -471,6 +471,8 @@ def share_registries(config: pytest.Config) -> None:
     config.stash[REGISTRIES_KEY] = stack
     named = work / "registries.json"
     named.touch(mode=0o600)
+    stack.callback(named.unlink)
+    stack.callback(os.environ.pop, REGISTRIES, None)
     named.write_text(json.dumps({"plain": plain, "login": dataclasses.asdict(login)}))
     os.environ[REGISTRIES] = str(named)
 
