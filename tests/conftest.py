@@ -491,7 +491,7 @@ def registries(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Tuple[str, 
 
 @pytest.fixture(scope="session")
 def local_registry(registries: Tuple[str, AuthRegistry]) -> str:
-    """A private `docker-registry` on 127.0.0.1, this run's (registries); yields its address.
+    """The address of a private `docker-registry` on 127.0.0.1, this run's (registries).
     Push under a repository name of the test's module: the run's modules share it."""
     return registries[0]
 
