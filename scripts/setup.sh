@@ -65,6 +65,7 @@ want_debs "htpasswd (registry with authentication in tests)" apache2-utils
 want_debs git git
 want_debs "openssh client + server" openssh-client openssh-server
 want_debs ca-certificates ca-certificates
+want_debs "gcc (a unit test links with the real linker)" gcc
 # gitlab-ci-local (tests of the GitLab template) needs node/npm and rsync.
 want_debs rsync rsync
 if ! command -v npm >/dev/null; then

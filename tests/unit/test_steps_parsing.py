@@ -580,8 +580,7 @@ def test_a_library_the_linker_cannot_find_is_named(tmp_path: Path):
     """GNU ld says `cannot find -lfoo` without `error:`; the one-line error quoted only
     collect2's `error: ld returned 1 exit status`, not which library is missing. Real gcc."""
     gcc = shutil.which("gcc")
-    if not gcc:
-        pytest.skip("no gcc")
+    assert gcc, "no gcc: run `bash scripts/setup.sh` first"
     (tmp_path / "main.c").write_text("int main(void) { return 0; }\n")
     linked = subprocess.run([gcc, "main.c", "-lno_such_lib_here", "-o", "main"], cwd=tmp_path,
                             capture_output=True, text=True)
