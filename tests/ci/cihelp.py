@@ -17,6 +17,7 @@ import docker
 import pytest
 import yaml
 
+from tests.conftest import AuthRegistry
 from tests.docker.buildhelp import EXAMPLE, remove_image, run_until, write_env
 
 REPO = Path(__file__).resolve().parents[2]
@@ -99,15 +100,14 @@ def index_architectures(registry: str, name: str, tag: str,
                   if m.get("platform", {}).get("architecture") != "unknown")
 
 
-def push_private_base_image(source: str, registry: str, auth: Mapping[str, str],
-                            repository: str) -> str:
+def push_private_base_image(source: str, registry: AuthRegistry, repository: str) -> str:
     """source pushed to an authenticated registry as repository:bookworm (a name of the test
     module's: the run's modules share the registry), a name no local image has: a job that
     builds FROM it must log in and pull it."""
-    ref = f"{registry}/{repository}:bookworm"
+    ref = f"{registry.address}/{repository}:bookworm"
     client = docker.from_env()
     client.images.get(source).tag(ref)
-    for event in client.images.push(ref, auth_config=dict(auth), stream=True, decode=True):
+    for event in client.images.push(ref, auth_config=registry.auth, stream=True, decode=True):
         assert "error" not in event, event
     forget_local(ref)
     return ref

@@ -45,8 +45,7 @@ LABELS = "com.example.team=drives, navigation\ncom.example.tier=1\n"
 @pytest.fixture(scope="module")
 def runs(ros1_base_image: str, auth_registry: AuthRegistry, engine26: str) -> dict:
     root = stable_folder("github-action")  # (the build cache id: see conftest.stable_folder)
-    base = push_private_base_image(ros1_base_image, auth_registry.address,
-                                  auth_registry.auth, f"{IMAGE}-base")
+    base = push_private_base_image(ros1_base_image, auth_registry, f"{IMAGE}-base")
     repo = example_repository(root, base)
     git(repo, "push", "-q", "origin", f"main:{FEATURE}")
     # docker-ros's README example "Build development and deployment images" as it is, plus

@@ -88,8 +88,7 @@ def pipelines(ros1_base_image: str, auth_registry: AuthRegistry,
     """One pipeline on a feature branch, one on main; jobs log in to a registry that requires
     it, build FROM a private image there, and run docker with a recorded command line."""
     root = stable_folder("gitlab-template")  # (the build cache id: see conftest.stable_folder)
-    base = push_private_base_image(ros1_base_image, auth_registry.address,
-                                  auth_registry.auth, f"{IMAGE}-base")
+    base = push_private_base_image(ros1_base_image, auth_registry, f"{IMAGE}-base")
     repo = example_repository(root, base)
     (repo / ".gitlab-ci").mkdir()
     shutil.copy(REPO / ".gitlab-ci" / "docker-ros.yml", repo / ".gitlab-ci" / "docker-ros.yml")

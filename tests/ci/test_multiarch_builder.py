@@ -66,12 +66,13 @@ def test_a_docker_container_builder_builds_both_platforms_and_an_empty_one_from_
     A new, empty builder (a fresh CI runner's) then takes every step of both platforms from
     that cache: the tools and imports images it gets have the digests of the first, and
     nothing runs under QEMU. (The first builder is the one kept between runs; its cache serves
-    a later run of the same code: its registry keeps its port, hence the names. What it pushes
-    is the registry cache of every stage whether it built the steps or had them cached.)"""
+    a later run of the same code: the run's registry keeps its port, hence the names. What it
+    pushes is the registry cache of every stage whether it built the steps or had them
+    cached.)"""
     engines.copy_once(ros1_arm64_base_image, engine26)
     env26 = env_for(engine26)
     base = f"{local_registry}/docker-ros-test/multiarch-base:bookworm"
-    # (this module's registry is new in every run: no name of an earlier run is in it)
+    # (the run's registry is new in every run: no name of an earlier run is in it)
     name = f"{local_registry}/{IMAGE}-builder"
     settings = {"DOCKER_HOST": engine26, "BASE_IMAGE": base, "IMAGE": f"{name}:latest",
                 "TARGET": "run", "PLATFORM": "amd64,arm64", "CACHE_TO": f"{name}:cache"}

@@ -16,6 +16,7 @@ from tests.docker.buildhelp import docker_ros, remove_image, write_env
 from tests.rosfixtures import make_package
 
 pytestmark = pytest.mark.docker
+PRIVATE_BASE = "docker-ros-test/push-login-base"  # (in the run's registry with a login)
 # A docker credential helper that knows no login and records any attempt to store one.
 CREDENTIAL_HELPER = """#!/bin/sh
 case "$1" in
@@ -30,8 +31,7 @@ esac
 def test_push_logs_in_pulls_a_private_base_and_leaves_no_login(
     ros1_base_image: str, auth_registry: AuthRegistry, tmp_path: Path
 ) -> None:
-    base = push_private_base_image(ros1_base_image, auth_registry.address,
-                                  auth_registry.auth, "docker-ros-test/push-login-base")
+    base = push_private_base_image(ros1_base_image, auth_registry, PRIVATE_BASE)
     make_package(tmp_path / "project" / "pkg_login", "pkg_login")
     project = tmp_path / "project"
     ref = f"{auth_registry.address}/docker-ros-test/push-login:1"
@@ -73,8 +73,7 @@ def test_push_without_credentials_cannot_pull_the_private_base(
 ) -> None:
     """The control: the same private base without REGISTRY_PASSWORD is refused before the
     build, naming BASE_IMAGE (so the test above needs its login)."""
-    base = push_private_base_image(ros1_base_image, auth_registry.address,
-                                  auth_registry.auth, "docker-ros-test/push-login-base")
+    base = push_private_base_image(ros1_base_image, auth_registry, PRIVATE_BASE)
     project = tmp_path / "project"
     make_package(project / "pkg_login", "pkg_login")
     write_env(project, BASE_IMAGE=base, IMAGE="docker-ros-test/push-login:1", TARGET="run",
