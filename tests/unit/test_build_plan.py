@@ -12,7 +12,7 @@ import pytest
 
 from docker_ros.core import errors
 from docker_ros.core.loading import load_settings
-from docker_ros.core.settings import FIELDS
+from docker_ros.core.settings import FIELDS, Settings
 from docker_ros.host import build, buildcontext, buildlog, buildplan, refs
 from docker_ros.host.config import config_table
 
@@ -295,7 +295,7 @@ def test_base_run_is_base_with_one_env_first():
 
 
 def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path):
-    from docker_ros.host.buildcontext import skeleton_files, source_stages
+    from docker_ros.host.buildcontext import additional_files_pattern, skeleton_files, source_stages
 
     (tmp_path / "pkg" / "src").mkdir(parents=True)
     (tmp_path / "pkg" / "package.xml").write_text("<package/>")
@@ -317,13 +317,26 @@ def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path)
         "docker/additional-files/a.conf", "docker/additional-pip-requirements.txt",
         "pkg/package.xml"]
     assert source_stages(settings)["DOCKER_ROS_SOURCE_START"] == "skeleton"
-    # the dev image's sources lose docker/additional-files in a step of their own, which a
-    # repository without that folder does not run on each source edit
-    assert source_stages(settings)["DOCKER_ROS_DEV_TREE"] == "tree-pruned"
-    other = load_settings(environ={"BASE_IMAGE": "b:1", "COMMAND": "c", "BUILD_CONTEXT":
-                                   str(tmp_path), "ADDITIONAL_FILES_DIR": "docker/none"},
-                          project_dir=tmp_path)
-    assert source_stages(other)["DOCKER_ROS_DEV_TREE"] == "tree-marked"
+    # the dev image's sources lose docker/additional-files: the build context leaves it out
+    # (its files come with the skeleton), so no step removes it on each source edit
+    assert source_stages(settings)["DOCKER_ROS_DEV_TREE"] == "tree-marked"
+    assert additional_files_pattern(settings) == "/docker/additional-files"
+
+    def other(files_dir: str) -> Settings:
+        return load_settings(environ={"BASE_IMAGE": "b:1", "COMMAND": "c", "BUILD_CONTEXT":
+                                      str(tmp_path), "ADDITIONAL_FILES_DIR": files_dir},
+                             project_dir=tmp_path)
+
+    assert source_stages(other("docker/none"))["DOCKER_ROS_DEV_TREE"] == "tree-marked"
+    assert additional_files_pattern(other("docker/none")) is None
+    assert additional_files_pattern(other("./docker/additional-files/")) == (
+        "/docker/additional-files")
+    # the repository itself stays; a path a .dockerignore line would read as a pattern is
+    # removed by a step of its own instead
+    assert additional_files_pattern(other(".")) is None
+    (tmp_path / "maps[1]").mkdir()
+    assert additional_files_pattern(other("maps[1]")) is None
+    assert source_stages(other("maps[1]"))["DOCKER_ROS_DEV_TREE"] == "tree-pruned"
     # what the build context leaves out (credentials in .env files) stays out of it too
     (tmp_path / "docker" / "additional-files" / ".env").write_text("GIT_HTTPS_PASSWORD=x")
     assert "docker/additional-files/.env" not in skeleton_files(settings, tmp_path)
@@ -332,6 +345,7 @@ def test_skeleton_holds_what_the_source_stage_reads_and_no_source_file(tmp_path)
     for name in ("docker/before_dependency_identification.sh", ".dockerignore"):
         (tmp_path / name).write_text("true\n")
         assert skeleton_files(settings, tmp_path) is None
+        assert additional_files_pattern(settings) is None  # (the source stage reads it)
         assert source_stages(settings) == {"DOCKER_ROS_SOURCE_START": "checkout",
                                            "DOCKER_ROS_TREE": "source",
                                            "DOCKER_ROS_DEV_TREE": "tree-pruned"}

@@ -63,8 +63,10 @@ def dockerfile_stages():
 def test_stages_are_the_dockerfiles_step_commands():
     stages = dockerfile_stages()
     for name, stage in container.STAGES.items():
-        if name == "run":  # the default command; the build's RUN only checks what it names
-            assert stages["run"][1] == [("command", "--check")]
+        if name == "run":  # the default command; the build only checks what it names, in
+            # command-check: the run image's dependencies and a view of its install space
+            assert stages["run"] == ("dependencies-run", [])
+            assert stages["command-check"] == ("dependencies-run", [("command", "--check")])
             assert stage.commands == (("command",),)
             continue
         parent, commands = stages[name]
@@ -77,8 +79,8 @@ def test_stages_are_the_dockerfiles_step_commands():
         assert commands == list(stage.commands), name
     # every stage with step commands is known
     # upstream imports the .repos files alone: BuildKit only, inside the state clone starts from
-    with_steps = {n for n, (_, c) in stages.items() if c} - {"upstream"}
-    assert with_steps == set(container.STAGES)
+    with_steps = {n for n, (_, c) in stages.items() if c} - {"upstream", "command-check"}
+    assert with_steps | {"run"} == set(container.STAGES)
 
 
 def test_the_dockerfile_calls_each_step_where_its_declaration_says():
@@ -90,7 +92,8 @@ def test_the_dockerfile_calls_each_step_where_its_declaration_says():
         declared = BY_NAME[step]
         calls = [c for _, commands in stages.values() for c in commands if c[0] == step]
         assert calls, f"the Dockerfile never runs {step}"
-        assert any(c for c in stages[declared.stage][1] if c[0] == step), step
+        home = "command-check" if declared.stage == "run" else declared.stage
+        assert any(c for c in stages[home][1] if c[0] == step), step
         for call in calls:
             options = {w[2:].replace("-", "_") for w in call if w.startswith("--")}
             assert options - {"phase"} <= set(declared.options), (step, call)

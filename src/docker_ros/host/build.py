@@ -20,6 +20,7 @@ from docker_ros.core.settings import Settings
 from docker_ros.host import builder, buildlog, buildmeta, buildstate, engine, faults, unchanged
 from docker_ros.host.buildcontext import (
     _kept,
+    additional_files_pattern,
     ensure_imports_image,
     ensure_tools_image,
     extra_ca_bundle,
@@ -181,7 +182,9 @@ def build_images_locked(
         child_env.update(secret_env(settings))
         bundle = extra_ca_bundle(settings, Path(tmp))
         pin_args, pin_secrets = prepare_pin_secrets(settings, platform, Path(tmp))
-        dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp))
+        left = additional_files_pattern(settings)
+        dockerfile = stage_dockerfile(Path(settings.build_context), Path(tmp),
+                                      [left] if left else [])
         expand_mount_ids(dockerfile, mount_ids(settings, platform))
         base, why = platform_base(settings, platform)
         if why:

@@ -66,16 +66,17 @@ def tools_tree(destination: Path) -> str:
     return digest.hexdigest()[:16]
 
 
-def dockerignore(context: Path) -> str:
+def dockerignore(context: Path, also: Sequence[str] = ()) -> str:
     """The user's .dockerignore plus ours: what may hold credentials stays out of every image
     (`.env` files; git's folders, whose config may carry a CI job token or a checkout's
     authorization header; gitlab-ci-local's variables file), and so do gitlab-ci-local's
     scratch folder (copies of the repository made inside it) and the CI template's test
-    results (left in a checkout a shell runner reuses). A build reads none of them."""
+    results (left in a checkout a shell runner reuses). A build reads none of them. also: more
+    patterns of ours (context_left_out)."""
     user = context / ".dockerignore"
     lines = user.read_text().splitlines() if user.is_file() else []
     ours = ["# added by docker-ros", *[f"{w}{name}" for name in LEFT_OUT for w in ("", "**/")],
-            SCRATCH_FOLDER]
+            SCRATCH_FOLDER, *also]
     return "\n".join([*lines, *ours]) + "\n"
 
 
@@ -85,12 +86,12 @@ def left_out(rel: str) -> bool:
     return any(part in LEFT_OUT for part in parts) or parts[0] == SCRATCH_FOLDER
 
 
-def stage_dockerfile(context: Path, destination: Path) -> Path:
+def stage_dockerfile(context: Path, destination: Path, also_left_out: Sequence[str] = ()) -> Path:
     """Our Dockerfile beside a Dockerfile.dockerignore (BuildKit reads it instead of the
     context's .dockerignore), so the user's repository is never modified."""
     dockerfile = destination / "Dockerfile"
     dockerfile.write_text(DOCKERFILE.read_text())
-    (destination / "Dockerfile.dockerignore").write_text(dockerignore(context))
+    (destination / "Dockerfile.dockerignore").write_text(dockerignore(context, also_left_out))
     return dockerfile
 
 
@@ -221,21 +222,42 @@ def skeleton_files(settings: Settings, repository: Path) -> Optional[List[str]]:
     return sorted(r for r in inputs | set(import_inputs(settings, repository)) if not left_out(r))
 
 
+def additional_files_pattern(settings: Settings) -> Optional[str]:
+    """ADDITIONAL_FILES_DIR as a line of the build's .dockerignore, when the build context can
+    leave it out: the dev image's sources lose that folder (as docker-ros's), and without a
+    whole-context source stage its files reach the image through the imports image
+    (skeleton_files). Then no step removes it on each source edit, and its large files
+    (models, maps) are not sent with the context. None when the source stage reads the whole
+    context, when there is no such folder in the repository (or it is the repository), or
+    when its path has characters a .dockerignore line would read as a pattern."""
+    repository = Path(settings.build_context)
+    folder = repository / settings.additional_files_dir
+    if reads_whole_context(settings, repository) or not (folder.is_dir() or folder.is_symlink()):
+        return None
+    rel = os.path.normpath(settings.additional_files_dir)
+    plain = rel == rel.strip() and not any(c in rel for c in "*?[]\\!#") and "\n" not in rel
+    inside = not os.path.isabs(rel) and rel != "." and not rel.startswith("..")
+    if not (plain and inside) or folder.resolve() == repository.resolve():
+        return None
+    return "/" + rel
+
+
 def source_stages(settings: Settings) -> Dict[str, str]:
     """The build arguments choosing where the source stage starts and what the dev image's
     sources come from: the skeleton (only the files clone and blacklist read, so a source edit
     runs neither, nor resolve) and the checkout with the source stage's ignore markers, unless
     the source stage must read the whole context (reads_whole_context). The dev image's sources
-    lose ADDITIONAL_FILES_DIR in a stage of their own (tree-pruned), which runs on every source
-    edit: only when the repository has that folder, or a hook may make it."""
+    lose ADDITIONAL_FILES_DIR: left out of the build context (additional_files_pattern), else
+    in a stage of their own (tree-pruned), which runs on every source edit."""
     repository = Path(settings.build_context)
     if reads_whole_context(settings, repository):
         return {"DOCKER_ROS_SOURCE_START": "checkout", "DOCKER_ROS_TREE": "source",
                 "DOCKER_ROS_DEV_TREE": "tree-pruned"}
     files = repository / settings.additional_files_dir
     pruned = (files.is_dir() or files.is_symlink()) and files.resolve() != repository.resolve()
+    step = pruned and additional_files_pattern(settings) is None
     return {"DOCKER_ROS_SOURCE_START": "skeleton", "DOCKER_ROS_TREE": "marked",
-            "DOCKER_ROS_DEV_TREE": "tree-pruned" if pruned else "tree-marked"}
+            "DOCKER_ROS_DEV_TREE": "tree-pruned" if step else "tree-marked"}
 
 
 def ensure_imports_image(settings: Settings, platform: str,

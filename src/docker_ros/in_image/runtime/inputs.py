@@ -1,6 +1,8 @@
 """The files the resolve stage reads, copied out of the workspace so that an edit of anything
 else (a .cpp, a launch file) leaves the resolution and the dependency layers cached.
-`python3 -m docker_ros.in_image.runtime.inputs DEST`: run by the image's source stage.
+`python3 -m docker_ros.in_image.runtime.inputs DEST MARKERS`: run by the image's source stage,
+which also copies the ignore markers alone to MARKERS, for the dev image's sources (the marked
+stage: the build context leaves ADDITIONAL_FILES_DIR out of them, the resolve inputs do not).
 Standard library only, Python 3.8+ (runs inside images)."""
 
 import os
@@ -60,12 +62,20 @@ def copy_inputs(ws: Workspace, paths: List[Path], destination: Path) -> None:
         shutil.copy(str(path), str(target))
 
 
+def copy_inputs_and_markers(ws: Workspace, settings: Settings, destination: Path,
+                            markers: Path) -> None:
+    found = resolve_inputs(ws, settings)
+    copy_inputs(ws, found, destination)
+    copy_inputs(ws, [path for path in found if path.name in IGNORE_MARKERS], markers)
+
+
 def main(argv: List[str]) -> int:
     return image_main(argv, module="runtime.inputs", step="resolve",
-                      description="Copy the files resolving reads to DESTINATION (the "
-                      "resolve-inputs stage).", arguments=["DESTINATION"],
-                      action=lambda ws, settings, args: copy_inputs(
-                          ws, resolve_inputs(ws, settings), Path(args[0])))
+                      description="Copy the files resolving reads to DESTINATION and the "
+                      "ignore markers among them to MARKERS (the source stage).",
+                      arguments=["DESTINATION", "MARKERS"],
+                      action=lambda ws, settings, args: copy_inputs_and_markers(
+                          ws, settings, Path(args[0]), Path(args[1])))
 
 
 if __name__ == "__main__":
