@@ -27,6 +27,7 @@ COMPILED = re.compile(re.escape(COMPILE_MARK) + r" (\S+?\.cpp)")
 INVOCATION = re.compile(r"^#1 \[internal\] load (build|local bake) definition")
 VERTEX = re.compile(r"^#(\d+) (\[.*)")
 VERTEX_STATE = re.compile(r"^#(\d+) (CACHED|DONE)")
+STAGE_STEP = re.compile(r"^\[(?:\S+ )?[\w.-]+ \d+/\d+\] ")  # `[run build 1/1] RUN ...`
 STAMPED = re.compile(r"colcon: (\d+) of (\d+) source files changed")
 SUMMARY = re.compile(r"^(\S+)\s+(\S+)\s+\S+\s+(?:\d+ MB|-)\s+([\d.]+) s\s*$")
 
@@ -51,6 +52,7 @@ class Scenario:
     image_seconds: Dict[str, float] = field(default_factory=dict)
     load1: float = 0.0
     steps: int = 0  # Dockerfile instructions BuildKit resolved (`[stage n/m]` vertices)
+    ran: List[Tuple[str, float]] = field(default_factory=list)  # steps run, not cached: seconds
 
 
 
@@ -133,6 +135,28 @@ def steps_resolved(output: str) -> int:
             runs.append([])
         runs[-1].append(line)
     return sum(cached_steps(run)[1] for run in runs)
+
+
+VERTEX_DONE = re.compile(r"^#(\d+) DONE ([\d.]+)s")
+
+
+def steps_run(output: str) -> List[Tuple[str, float]]:
+    """The stage steps BuildKit ran (not cached) in the builds of output, with the seconds its
+    log gives each (`#42 DONE 5.5s`), named `[target stage n/m] INSTRUCTION` (its keyword)."""
+    ran: List[Tuple[str, float]] = []
+    names: Dict[str, str] = {}
+    for line in output.splitlines():
+        if INVOCATION.match(line):
+            names = {}
+        vertex = VERTEX.match(line)
+        if vertex and STAGE_STEP.match(vertex.group(2)):
+            names[vertex.group(1)] = vertex.group(2)
+        done = VERTEX_DONE.match(line)
+        if done and done.group(1) in names:
+            name = names.pop(done.group(1))
+            head, _, rest = name.partition("] ")
+            ran.append((f"{head}] {rest.split()[0]}", float(done.group(2))))
+    return ran
 
 
 FROM_LINE = re.compile(r"^FROM\s", re.MULTILINE | re.IGNORECASE)

@@ -93,7 +93,9 @@ def print_report(rows: Sequence[Scenario], sizes: Dict[str, float], packages: in
         print(f"CI on an empty runner, one-file edit (9b): {ci_edit.seconds:.1f} s, "
               f"{ci_edit.seconds / edit.seconds:.2f}x the local one-file edit (3, "
               f"{edit.seconds:.1f} s); {ci_edit.detail.split(';')[0]}")
-    print(targets_line(rows, edit))
+    print("one-file edit (3), the steps BuildKit ran (not cached): " + (", ".join(
+        f"{name} {seconds:.1f} s" for name, seconds in edit.ran) or "none"))
+    print(targets_line(rows, edit, limit + floor))
     failed = [row for row in rows if row.check == "FAIL"]
     for row in failed:
         print(f"FAIL {row.name}: {row.detail}")
@@ -107,9 +109,10 @@ NO_CHANGE_SECONDS = 1.2
 STARTUP_SECONDS = 0.25
 
 
-def targets_line(rows: Sequence[Scenario], edit: Scenario) -> str:
-    """Each figure against its mark, measured now: the edit (3) against L, the no-change
-    rebuild (2), and the start-up of `docker-ros --help` and `inv --list` (best of 5)."""
+def targets_line(rows: Sequence[Scenario], edit: Scenario, floored: float) -> str:
+    """Each figure against its mark, measured now: the edit (3) against L and against L plus
+    the BuildKit floor F (floored: what no Dockerfile can save), the no-change rebuild (2), and
+    the start-up of `docker-ros --help` and `inv --list` (best of 5)."""
     no_change = next(r for r in rows if r.name.startswith("2 "))
     helps = startup_seconds(sys.executable, "-m", "docker_ros", "--help")
     listing = startup_seconds(sys.executable, "-m", "invoke", "--search-root", str(REPO),
@@ -117,6 +120,8 @@ def targets_line(rows: Sequence[Scenario], edit: Scenario) -> str:
     figures = [
         ("one-file edit", f"{edit.ratio_limit or 0:.2f}x its limit", f"<= {EDIT_LIMIT_RATIO}x",
          (edit.ratio_limit or 0) <= EDIT_LIMIT_RATIO),
+        ("one-file edit", f"{edit.seconds / floored:.2f}x its limit plus the BuildKit floor",
+         f"<= {EDIT_LIMIT_RATIO}x", edit.seconds / floored <= EDIT_LIMIT_RATIO),
         ("no-change rebuild", f"{no_change.seconds:.2f} s", f"<= {NO_CHANGE_SECONDS} s",
          no_change.seconds <= NO_CHANGE_SECONDS),
         ("docker-ros --help", f"{helps:.2f} s", f"<= {STARTUP_SECONDS} s",

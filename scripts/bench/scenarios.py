@@ -34,6 +34,7 @@ from bench.buildlog import (
     run_cli,
     run_output,
     steps_resolved,
+    steps_run,
 )
 from bench.workspace import (
     DEV_IMAGE,
@@ -92,6 +93,7 @@ class Bench:
                        deps_overlap=dependency_overlap(timed))
         row.imports = imports_state(output)
         row.steps = steps_resolved(output)
+        row.ran = steps_run(output)
         self.output = output
         self.say(f"{name}: {seconds:.1f} s, {len(row.compiled)} TUs compiled, "
                  f"dependency layers {row.deps_layers}, sources taken as changed "

@@ -12,7 +12,12 @@ sys.path.insert(0, str(REPO / "scripts"))
 import io  # noqa: E402
 
 import pytest  # noqa: E402
-from bench.buildlog import dependency_layers, stage_count, steps_resolved  # noqa: E402
+from bench.buildlog import (  # noqa: E402
+    dependency_layers,
+    stage_count,
+    steps_resolved,
+    steps_run,
+)
 
 from docker_ros.host import build, unchanged  # noqa: E402
 
@@ -37,6 +42,13 @@ LOG = """\
 def test_each_instruction_vertex_counts_once_per_invocation_and_nothing_else():
     assert steps_resolved(LOG) == 4
     assert steps_resolved("") == 0
+
+
+def test_the_steps_that_ran_are_named_with_their_seconds():
+    assert steps_run(LOG) == [("[run build 1/1] RUN", 7.2)]
+    assert steps_run(LOG.replace("#13 CACHED", "#13 DONE 0.1s")) == [
+        ("[dev upstream 1/2] COPY", 0.1), ("[run build 1/1] RUN", 7.2)]
+    assert steps_run("") == []
 
 
 def test_the_stages_are_the_dockerfile_s_from_lines():
