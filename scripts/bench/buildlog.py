@@ -153,9 +153,9 @@ def steps_run(output: str) -> List[Tuple[str, float]]:
             names[vertex.group(1)] = vertex.group(2)
         done = VERTEX_DONE.match(line)
         if done and done.group(1) in names:
-            name = names.pop(done.group(1))
-            head, _, rest = name.partition("] ")
-            ran.append((f"{head}] {rest.split()[0]}", float(done.group(2))))
+            head, _, rest = names.pop(done.group(1)).partition("] ")
+            if rest.split()[0] != "FROM":  # (an image's metadata, no work)
+                ran.append((f"{head}] {rest.split()[0]}", float(done.group(2))))
     return ran
 
 

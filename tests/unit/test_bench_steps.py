@@ -33,6 +33,8 @@ LOG = """\
 #12 [dev base 2/5] RUN --mount=type=bind,from=tools python3 -m docker_ros.in_image.steps prepare
 #21 [run build 1/1] RUN --mount=type=bind,from=tools python3 -m docker_ros.in_image.steps colcon
 #21 DONE 7.2s
+#22 [run tools 1/1] FROM docker.io/library/docker-ros-tools:1-amd64
+#22 DONE 0.0s
 #33 [run] exporting to image
 #1 [internal] load build definition from Dockerfile
 #12 [base 2/5] RUN true
