@@ -72,7 +72,7 @@ def dockerignore(context: Path, also: Sequence[str] = ()) -> str:
     authorization header; gitlab-ci-local's variables file), and so do gitlab-ci-local's
     scratch folder (copies of the repository made inside it) and the CI template's test
     results (left in a checkout a shell runner reuses). A build reads none of them. also: more
-    patterns of ours (context_left_out)."""
+    patterns of ours (additional_files_pattern)."""
     user = context / ".dockerignore"
     lines = user.read_text().splitlines() if user.is_file() else []
     ours = ["# added by docker-ros", *[f"{w}{name}" for name in LEFT_OUT for w in ("", "**/")],
