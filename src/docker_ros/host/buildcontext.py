@@ -231,15 +231,20 @@ def additional_files_pattern(settings: Settings) -> Optional[str]:
     context, when there is no such folder in the repository (or it is the repository), or
     when its path has characters a .dockerignore line would read as a pattern."""
     repository = Path(settings.build_context)
-    folder = repository / settings.additional_files_dir
-    if reads_whole_context(settings, repository) or not (folder.is_dir() or folder.is_symlink()):
+    if reads_whole_context(settings, repository) or not has_additional_files(settings):
         return None
     rel = os.path.normpath(settings.additional_files_dir)
     plain = rel == rel.strip() and not any(c in rel for c in "*?[]\\!#") and "\n" not in rel
-    inside = not os.path.isabs(rel) and rel != "." and not rel.startswith("..")
-    if not (plain and inside) or folder.resolve() == repository.resolve():
-        return None
-    return "/" + rel
+    inside = not os.path.isabs(rel) and not rel.startswith("..")
+    return "/" + rel if plain and inside else None
+
+
+def has_additional_files(settings: Settings) -> bool:
+    """Whether the repository has an ADDITIONAL_FILES_DIR folder (or link) other than itself,
+    which the dev image's sources lose."""
+    repository = Path(settings.build_context)
+    folder = repository / settings.additional_files_dir
+    return (folder.is_dir() or folder.is_symlink()) and folder.resolve() != repository.resolve()
 
 
 def source_stages(settings: Settings) -> Dict[str, str]:
@@ -253,9 +258,7 @@ def source_stages(settings: Settings) -> Dict[str, str]:
     if reads_whole_context(settings, repository):
         return {"DOCKER_ROS_SOURCE_START": "checkout", "DOCKER_ROS_TREE": "source",
                 "DOCKER_ROS_DEV_TREE": "tree-pruned"}
-    files = repository / settings.additional_files_dir
-    pruned = (files.is_dir() or files.is_symlink()) and files.resolve() != repository.resolve()
-    step = pruned and additional_files_pattern(settings) is None
+    step = has_additional_files(settings) and additional_files_pattern(settings) is None
     return {"DOCKER_ROS_SOURCE_START": "skeleton", "DOCKER_ROS_TREE": "marked",
             "DOCKER_ROS_DEV_TREE": "tree-pruned" if step else "tree-marked"}
 

@@ -20,6 +20,12 @@ from docker_ros.in_image.runtime.workspace import (
 )
 
 
+def is_elf(path: Path) -> bool:
+    """Whether path is an ELF file (an executable, a shared library, an object)."""
+    with path.open("rb") as handle:
+        return handle.read(4) == b"\x7fELF"
+
+
 def walk(
     root: Path, *, prune: Optional[Callable[[Path, List[str]], bool]] = None,
     skip: Callable[[str], bool] = SKIP_DIRS.__contains__,

@@ -14,14 +14,16 @@ from pathlib import Path
 from typing import List
 
 from docker_ros.in_image.runtime.entry import image_main
+from docker_ros.in_image.runtime.files import is_elf
 
-COMPILED = (b"\x7fELF", b"!<arch>\n")  # the magic numbers of ELF files and ar archives
+AR_MAGIC = b"!<arch>\n"  # (static libraries)
 
 
 def compiled(path: Path) -> bool:
+    if is_elf(path):
+        return True
     with path.open("rb") as handle:
-        head = handle.read(8)
-    return any(head.startswith(magic) for magic in COMPILED)
+        return handle.read(len(AR_MAGIC)) == AR_MAGIC
 
 
 def make_view(install: Path, view: Path) -> None:

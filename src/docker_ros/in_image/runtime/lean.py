@@ -24,6 +24,7 @@ from typing import Dict, Iterable, List, Mapping, Sequence, Set, Tuple, Union
 
 from docker_ros.core.settings import Settings
 from docker_ros.in_image.runtime.entry import image_main
+from docker_ros.in_image.runtime.files import is_elf
 from docker_ros.in_image.runtime.lockapt import lock_lean
 from docker_ros.in_image.runtime.lockfile import LOCK_FILE, LockError
 from docker_ros.in_image.runtime.process import probe
@@ -101,11 +102,6 @@ def parse_ldd(text: str) -> Tuple[List[str], List[str]]:
         elif target.startswith("/"):
             paths.append(target.split(" (")[0])
     return paths, missing
-
-
-def is_elf(path: Path) -> bool:
-    with path.open("rb") as handle:
-        return handle.read(4) == b"\x7fELF"
 
 
 def is_python(path: Path) -> bool:
